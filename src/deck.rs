@@ -1,0 +1,1060 @@
+//! The input deck of `DECK.md`: serde types, defaults and validation.
+//!
+//! A deck is read in two passes. [`Deck::parse`] turns TOML into the typed structs below, with
+//! unknown keys, wrong types and unknown enum values reported against the key path and the line
+//! and column TOML gives. [`Deck::validate`] then checks what types cannot say (signs, lengths,
+//! bodies inside the grid, materials that exist, a stable fixed time step) and fills every
+//! default in, so that the deck written to `run.toml` is the one that was run.
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::Path;
+
+/// A deck error: what a user typed wrong, with the file, the key and where TOML found it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeckError {
+    /// The deck file as the user named it.
+    pub file: String,
+    /// Dotted key path, e.g. `materials[0].density`.
+    pub key: String,
+    /// Line and column (1-based) where TOML located the problem, when it did.
+    pub line_col: Option<(usize, usize)>,
+    /// What is wrong, for a person.
+    pub message: String,
+}
+
+impl fmt::Display for DeckError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line_col {
+            Some((l, c)) => write!(
+                f,
+                "{}:{}:{}: {}: {}",
+                self.file, l, c, self.key, self.message
+            ),
+            None => write!(f, "{}: {}: {}", self.file, self.key, self.message),
+        }
+    }
+}
+
+impl std::error::Error for DeckError {}
+
+/// Time-integration scheme: the paper's projection or the weakly compressible baseline.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Scheme {
+    /// Implicit pressure by Chorin's projection (METHOD.md).
+    #[default]
+    Projection,
+    /// Explicit, weakly compressible: p = K (1 - J).
+    Explicit,
+}
+
+/// Particle/grid velocity transfer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Transfer {
+    /// Particle-in-cell: particle velocity is the interpolated grid velocity.
+    Pic,
+    /// PIC/FLIP blend, `flip_ratio` of FLIP. The default: with linear shape functions APIC
+    /// is not yet stable at free-surface corners.
+    #[default]
+    Flip,
+    /// Affine particle-in-cell (Jiang et al. 2015).
+    Apic,
+}
+
+/// Shape functions of the background grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ShapeFunction {
+    /// Multilinear (the paper's).
+    #[default]
+    Linear,
+    /// Generalised interpolation material point (uGIMP), particle domain fixed at its start size.
+    Gimp,
+    /// Quadratic B-spline.
+    Bspline2,
+    /// Cubic B-spline.
+    Bspline3,
+}
+
+/// Kind of a boundary face.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BoundaryKind {
+    /// v . n = v_wall . n
+    Slip,
+    /// v = v_wall
+    NoSlip,
+    /// Nothing imposed.
+    Open,
+    /// Periodic on both faces of the axis.
+    Periodic,
+}
+
+const BOUNDARY_KINDS: &[&str] = &["slip", "no_slip", "open", "periodic"];
+
+impl BoundaryKind {
+    fn from_name(s: &str) -> Option<Self> {
+        Some(match s {
+            "slip" => Self::Slip,
+            "no_slip" => Self::NoSlip,
+            "open" => Self::Open,
+            "periodic" => Self::Periodic,
+            _ => return None,
+        })
+    }
+}
+
+/// One face's condition: a kind, and for a moving wall its velocity.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum BoundarySpec {
+    /// `x_min = "slip"`
+    Kind(BoundaryKind),
+    /// `y_max = { type = "no_slip", velocity = [1.0, 0.0] }`
+    Moving {
+        /// Kind of the wall.
+        #[serde(rename = "type")]
+        kind: BoundaryKind,
+        /// Wall velocity.
+        velocity: Vec<f64>,
+    },
+}
+
+impl BoundarySpec {
+    /// Kind of the face.
+    pub fn kind(&self) -> BoundaryKind {
+        match self {
+            Self::Kind(k) | Self::Moving { kind: k, .. } => *k,
+        }
+    }
+    /// Wall velocity, if the wall moves.
+    pub fn velocity(&self) -> Option<&[f64]> {
+        match self {
+            Self::Kind(_) => None,
+            Self::Moving { velocity, .. } => Some(velocity),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for BoundarySpec {
+    // Hand-written so that both a string and a table are accepted with errors that say which
+    // key is wrong (serde's untagged enums only say "did not match any variant").
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = BoundarySpec;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a boundary kind (\"slip\", \"no_slip\", \"open\", \"periodic\") or a table { type = ..., velocity = [...] }")
+            }
+            fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<BoundarySpec, E> {
+                BoundaryKind::from_name(s)
+                    .map(BoundarySpec::Kind)
+                    .ok_or_else(|| E::unknown_variant(s, BOUNDARY_KINDS))
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<BoundarySpec, A::Error> {
+                use serde::de::Error;
+                let mut kind = None;
+                let mut velocity = None;
+                while let Some(k) = map.next_key::<String>()? {
+                    match k.as_str() {
+                        "type" => {
+                            let s: String = map.next_value()?;
+                            kind =
+                                Some(BoundaryKind::from_name(&s).ok_or_else(|| {
+                                    A::Error::unknown_variant(&s, BOUNDARY_KINDS)
+                                })?);
+                        }
+                        "velocity" => velocity = Some(map.next_value::<Vec<f64>>()?),
+                        other => return Err(A::Error::unknown_field(other, &["type", "velocity"])),
+                    }
+                }
+                let kind = kind.ok_or_else(|| A::Error::missing_field("type"))?;
+                Ok(match velocity {
+                    Some(velocity) => BoundarySpec::Moving { kind, velocity },
+                    None => BoundarySpec::Kind(kind),
+                })
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// `[simulation]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimulationDeck {
+    /// 2 or 3.
+    pub dimension: usize,
+    /// `projection` or `explicit`.
+    #[serde(default)]
+    pub scheme: Scheme,
+    /// Simulated time to reach (s).
+    pub end_time: f64,
+    /// Fixed time step (s); absent: adaptive with `cfl`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dt: Option<f64>,
+    /// Courant number of the adaptive step (default 0.4).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cfl: Option<f64>,
+    /// Cap of the adaptive step (s).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_dt: Option<f64>,
+    /// Body force per unit mass (m/s2); default 9.81 down the last axis.
+    #[serde(default)]
+    pub gravity: Vec<f64>,
+    /// Velocity transfer (default `flip`).
+    #[serde(default)]
+    pub transfer: Transfer,
+    /// Share of FLIP for `transfer = "flip"` (default 0.99).
+    #[serde(default = "default_flip_ratio")]
+    pub flip_ratio: f64,
+    /// Shape functions (default `linear`).
+    #[serde(default)]
+    pub shape_function: ShapeFunction,
+    /// Linear damping of grid velocities (1/s), a settling aid: a = ... - damping * v.
+    #[serde(default)]
+    pub damping: f64,
+}
+
+fn default_flip_ratio() -> f64 {
+    0.99
+}
+
+/// `[grid]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridDeck {
+    /// Lower corner (default the origin).
+    #[serde(default)]
+    pub origin: Vec<f64>,
+    /// Extents, a whole number of cells.
+    pub size: Vec<f64>,
+    /// Cell size h.
+    pub cell_size: f64,
+    /// Face conditions (default `slip` on every face).
+    #[serde(default)]
+    pub boundary: BoundaryDeck,
+}
+
+/// `[grid.boundary]`: one entry per face.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+#[allow(missing_docs)]
+pub struct BoundaryDeck {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub x_min: Option<BoundarySpec>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub x_max: Option<BoundarySpec>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub y_min: Option<BoundarySpec>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub y_max: Option<BoundarySpec>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub z_min: Option<BoundarySpec>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub z_max: Option<BoundarySpec>,
+}
+
+/// Face names in the order axis 0 min, axis 0 max, axis 1 min, ...
+pub const FACE_NAMES: [&str; 6] = ["x_min", "x_max", "y_min", "y_max", "z_min", "z_max"];
+
+impl BoundaryDeck {
+    /// The face entries in [`FACE_NAMES`] order.
+    pub fn faces(&self) -> [&Option<BoundarySpec>; 6] {
+        [
+            &self.x_min,
+            &self.x_max,
+            &self.y_min,
+            &self.y_max,
+            &self.z_min,
+            &self.z_max,
+        ]
+    }
+    fn faces_mut(&mut self) -> [&mut Option<BoundarySpec>; 6] {
+        [
+            &mut self.x_min,
+            &mut self.x_max,
+            &mut self.y_min,
+            &mut self.y_max,
+            &mut self.z_min,
+            &mut self.z_max,
+        ]
+    }
+}
+
+/// Linear solver of the pressure Poisson equation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Solver {
+    /// Preconditioned conjugate gradient.
+    #[default]
+    Pcg,
+    /// Sparse Cholesky.
+    Direct,
+}
+
+/// Preconditioner of the conjugate gradient.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Preconditioner {
+    /// Diagonal scaling.
+    #[default]
+    Jacobi,
+    /// Incomplete Cholesky, no fill.
+    Ic0,
+    /// Geometric multigrid.
+    Multigrid,
+}
+
+/// How free-surface (p = 0) nodes are found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FreeSurface {
+    /// From the cells' particle volume fraction.
+    #[default]
+    VolumeFraction,
+}
+
+/// `[pressure]`, used by the projection scheme.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+#[allow(missing_docs)]
+pub struct PressureDeck {
+    #[serde(default)]
+    pub solver: Solver,
+    #[serde(default)]
+    pub preconditioner: Preconditioner,
+    #[serde(default = "default_tolerance")]
+    pub tolerance: f64,
+    #[serde(default = "default_max_iterations")]
+    pub max_iterations: usize,
+    #[serde(default)]
+    pub free_surface: FreeSurface,
+    #[serde(default = "default_vf_tolerance")]
+    pub volume_fraction_tolerance: f64,
+    #[serde(default)]
+    pub beta: f64,
+}
+
+fn default_tolerance() -> f64 {
+    1e-8
+}
+fn default_max_iterations() -> usize {
+    2000
+}
+fn default_vf_tolerance() -> f64 {
+    0.3
+}
+
+impl Default for PressureDeck {
+    fn default() -> Self {
+        Self {
+            solver: Solver::default(),
+            preconditioner: Preconditioner::default(),
+            tolerance: default_tolerance(),
+            max_iterations: default_max_iterations(),
+            free_surface: FreeSurface::default(),
+            volume_fraction_tolerance: default_vf_tolerance(),
+            beta: 0.0,
+        }
+    }
+}
+
+/// Constitutive model of a material.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Model {
+    /// Newtonian fluid: tau = 2 mu dev D.
+    #[default]
+    Newtonian,
+}
+
+/// `[[materials]]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialDeck {
+    /// Name bodies refer to.
+    pub name: String,
+    /// Constitutive model (default `newtonian`).
+    #[serde(default)]
+    pub model: Model,
+    /// Density (kg/m3).
+    pub density: f64,
+    /// Dynamic viscosity (Pa s), default 0.
+    #[serde(default)]
+    pub viscosity: f64,
+    /// Bulk modulus (Pa) of the equation of state; required by `scheme = "explicit"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bulk_modulus: Option<f64>,
+}
+
+impl MaterialDeck {
+    /// Speed of sound sqrt(K / rho), 0 without a bulk modulus.
+    pub fn sound_speed(&self) -> f64 {
+        self.bulk_modulus
+            .map(|k| (k / self.density).sqrt())
+            .unwrap_or(0.0)
+    }
+}
+
+/// Kind of a body's shape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ShapeKind {
+    /// Axis-aligned box `min`..`max`.
+    Box,
+    /// Sphere (disc in 2D) of `center` and `radius`.
+    Sphere,
+}
+
+/// A body's shape: `{ type = "box", min, max }` or `{ type = "sphere", center, radius }`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+#[allow(missing_docs)]
+pub struct ShapeDeck {
+    #[serde(rename = "type")]
+    pub kind: ShapeKind,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min: Option<Vec<f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max: Option<Vec<f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub center: Option<Vec<f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+}
+
+impl ShapeDeck {
+    /// Bounding box (lower, upper) of a validated shape.
+    pub fn bounds(&self) -> (Vec<f64>, Vec<f64>) {
+        match self.kind {
+            ShapeKind::Box => (
+                self.min.clone().unwrap_or_default(),
+                self.max.clone().unwrap_or_default(),
+            ),
+            ShapeKind::Sphere => {
+                let c = self.center.clone().unwrap_or_default();
+                let r = self.radius.unwrap_or(0.0);
+                (
+                    c.iter().map(|x| x - r).collect(),
+                    c.iter().map(|x| x + r).collect(),
+                )
+            }
+        }
+    }
+    /// Whether the point lies inside the shape.
+    pub fn contains(&self, x: &[f64]) -> bool {
+        match self.kind {
+            ShapeKind::Box => {
+                let (lo, hi) = self.bounds();
+                x.iter()
+                    .zip(lo.iter().zip(&hi))
+                    .all(|(x, (l, h))| x >= l && x <= h)
+            }
+            ShapeKind::Sphere => {
+                let c = self.center.as_deref().unwrap_or_default();
+                let r = self.radius.unwrap_or(0.0);
+                x.iter().zip(c).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() <= r * r
+            }
+        }
+    }
+}
+
+/// Initial stress state of a body.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InitialStress {
+    /// p = rho |g| (H - y) below the body's top H.
+    Hydrostatic,
+}
+
+/// `[[bodies]]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodyDeck {
+    /// Name of a `[[materials]]` entry.
+    pub material: String,
+    /// Region filled with particles.
+    pub shape: ShapeDeck,
+    /// Particles per cell per direction (default 2).
+    #[serde(default = "default_ppc")]
+    pub particles_per_cell: usize,
+    /// Initial velocity (default at rest).
+    #[serde(default)]
+    pub velocity: Vec<f64>,
+    /// Optional initial stress.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stress: Option<InitialStress>,
+}
+
+fn default_ppc() -> usize {
+    2
+}
+
+/// Output file formats of particle frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Format {
+    /// `.vtu` frames and `particles.pvd`.
+    Vtk,
+    /// `.csv` frames.
+    Csv,
+}
+
+/// `[[output.probes]]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProbeDeck {
+    /// Column prefix in probes.csv.
+    pub name: String,
+    /// Where the grid fields are sampled.
+    pub position: Vec<f64>,
+}
+
+/// `[output]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct OutputDeck {
+    /// Output directory (default `out/<deck name>`).
+    #[serde(default)]
+    pub directory: String,
+    /// Time between frames (default end_time / 100).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub interval: Option<f64>,
+    /// Frame formats (default both).
+    #[serde(default = "default_formats")]
+    pub formats: Vec<Format>,
+    /// Points sampled every step into probes.csv.
+    #[serde(default)]
+    pub probes: Vec<ProbeDeck>,
+}
+
+fn default_formats() -> Vec<Format> {
+    vec![Format::Vtk, Format::Csv]
+}
+
+/// `[pmpm]`: written into `run.toml`, accepted (and ignored) on input so that a run.toml runs again.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProgramInfo {
+    /// Version of pmpm that wrote the file.
+    pub version: String,
+}
+
+/// The whole deck.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Deck {
+    /// `[pmpm]`, only in a `run.toml`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pmpm: Option<ProgramInfo>,
+    /// `[simulation]`
+    pub simulation: SimulationDeck,
+    /// `[grid]`
+    pub grid: GridDeck,
+    /// `[pressure]`
+    #[serde(default)]
+    pub pressure: PressureDeck,
+    /// `[[materials]]`
+    pub materials: Vec<MaterialDeck>,
+    /// `[[bodies]]`
+    pub bodies: Vec<BodyDeck>,
+    /// `[output]`
+    #[serde(default)]
+    pub output: OutputDeck,
+}
+
+fn line_col(src: &str, offset: usize) -> (usize, usize) {
+    let offset = offset.min(src.len());
+    let before = &src[..offset];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rsplit('\n').next().map_or(0, |s| s.chars().count()) + 1;
+    (line, col)
+}
+
+/// Names between backticks in a serde message, in order.
+fn backticked(msg: &str) -> Vec<&str> {
+    msg.split('`').skip(1).step_by(2).collect()
+}
+
+/// The valid name nearest to `given`, if it is near enough to be a likely typo.
+pub fn nearest<'a>(given: &str, valid: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    valid
+        .into_iter()
+        .map(|v| (strsim::damerau_levenshtein(given, v), v))
+        .filter(|(d, v)| *d <= 3.max(v.len() / 3) && *d < v.len().max(given.len()))
+        .min_by_key(|(d, _)| *d)
+        .map(|(_, v)| v)
+}
+
+/// Rewrites serde's messages into a user's words: the nearest key or value is suggested.
+fn humanise(msg: &str, key: &mut String) -> String {
+    let names = backticked(msg);
+    if msg.starts_with("unknown field") && !names.is_empty() {
+        let given = names[0];
+        // serde_path_to_error already ends the path with the unknown key; a hand-written
+        // visitor's error does not
+        if key.rsplit('.').next() != Some(given) {
+            if !key.is_empty() {
+                key.push('.');
+            }
+            key.push_str(given);
+        }
+        let valid = &names[1..];
+        let mut out = "unknown key".to_string();
+        if let Some(n) = nearest(given, valid.iter().copied()) {
+            out += &format!("; did you mean `{n}`?");
+        }
+        if !valid.is_empty() {
+            out += &format!(" (valid keys: {})", valid.join(", "));
+        }
+        out
+    } else if msg.starts_with("unknown variant") && !names.is_empty() {
+        let given = names[0];
+        let valid = &names[1..];
+        let mut out = format!("unknown value \"{given}\"");
+        if let Some(n) = nearest(given, valid.iter().copied()) {
+            out += &format!("; did you mean \"{n}\"?");
+        }
+        out += &format!(
+            " (allowed: {})",
+            valid
+                .iter()
+                .map(|v| format!("\"{v}\""))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        out
+    } else if msg.starts_with("missing field") && !names.is_empty() {
+        if !key.is_empty() {
+            key.push('.');
+        }
+        key.push_str(names[0]);
+        "is required but missing".to_string()
+    } else {
+        msg.trim().to_string()
+    }
+}
+
+/// Small builder of validation errors against one file.
+struct Check<'a> {
+    file: &'a str,
+}
+
+impl Check<'_> {
+    fn err(&self, key: impl Into<String>, message: impl Into<String>) -> DeckError {
+        DeckError {
+            file: self.file.to_string(),
+            key: key.into(),
+            line_col: None,
+            message: message.into(),
+        }
+    }
+    fn positive(&self, key: &str, v: f64) -> Result<(), DeckError> {
+        if v.is_finite() && v > 0.0 {
+            Ok(())
+        } else {
+            Err(self.err(key, format!("must be > 0, got {v}")))
+        }
+    }
+    fn non_negative(&self, key: &str, v: f64) -> Result<(), DeckError> {
+        if v.is_finite() && v >= 0.0 {
+            Ok(())
+        } else {
+            Err(self.err(key, format!("must be >= 0, got {v}")))
+        }
+    }
+    fn vector(&self, key: &str, v: &[f64], dim: usize) -> Result<(), DeckError> {
+        if v.len() != dim {
+            return Err(self.err(
+                key,
+                format!(
+                    "must have {dim} components (dimension = {dim}), got {}",
+                    v.len()
+                ),
+            ));
+        }
+        if let Some(x) = v.iter().find(|x| !x.is_finite()) {
+            return Err(self.err(key, format!("components must be finite, got {x}")));
+        }
+        Ok(())
+    }
+}
+
+impl Deck {
+    /// Reads and validates a deck file. `file` is used in messages as the user named it.
+    pub fn load(path: &Path) -> Result<Deck, DeckError> {
+        let file = path.display().to_string();
+        let src = std::fs::read_to_string(path).map_err(|e| DeckError {
+            file: file.clone(),
+            key: "(file)".into(),
+            line_col: None,
+            message: format!("cannot read the deck: {e}"),
+        })?;
+        let mut deck = Deck::parse(&src, &file)?;
+        deck.validate(&file)?;
+        if deck.output.directory.is_empty() {
+            let stem = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "run".into());
+            deck.output.directory = format!("out/{stem}");
+        }
+        Ok(deck)
+    }
+
+    /// Parses TOML text into a deck (types only; see [`Deck::validate`]).
+    pub fn parse(src: &str, file: &str) -> Result<Deck, DeckError> {
+        let de = toml::Deserializer::parse(src).map_err(|e| DeckError {
+            file: file.to_string(),
+            key: "(syntax)".into(),
+            line_col: e.span().map(|s| line_col(src, s.start)),
+            message: e.message().trim().to_string(),
+        })?;
+        serde_path_to_error::deserialize(de).map_err(|e| {
+            let mut key = e.path().to_string();
+            if key == "." {
+                key.clear();
+            }
+            let inner = e.inner();
+            let message = humanise(inner.message(), &mut key);
+            if key.is_empty() {
+                key = "(deck)".into();
+            }
+            DeckError {
+                file: file.to_string(),
+                key,
+                line_col: inner.span().map(|s| line_col(src, s.start)),
+                message,
+            }
+        })
+    }
+
+    /// Checks what the types cannot and fills in every default.
+    pub fn validate(&mut self, file: &str) -> Result<(), DeckError> {
+        let c = Check { file };
+        let s = &mut self.simulation;
+        let dim = s.dimension;
+        if dim != 2 && dim != 3 {
+            return Err(c.err("simulation.dimension", format!("must be 2 or 3, got {dim}")));
+        }
+        c.positive("simulation.end_time", s.end_time)?;
+        if let Some(dt) = s.dt {
+            c.positive("simulation.dt", dt)?;
+            if s.cfl.is_some() {
+                return Err(c.err(
+                    "simulation.cfl",
+                    "give either a fixed dt or an adaptive cfl, not both",
+                ));
+            }
+        } else {
+            let cfl = *s.cfl.get_or_insert(0.4);
+            if !(cfl > 0.0 && cfl <= 1.0) {
+                return Err(c.err("simulation.cfl", format!("must be in (0, 1], got {cfl}")));
+            }
+        }
+        if let Some(m) = s.max_dt {
+            c.positive("simulation.max_dt", m)?;
+        }
+        if s.gravity.is_empty() {
+            s.gravity = vec![0.0; dim];
+            s.gravity[dim - 1] = -9.81;
+        }
+        c.vector("simulation.gravity", &s.gravity, dim)?;
+        if !(0.0..=1.0).contains(&s.flip_ratio) {
+            return Err(c.err(
+                "simulation.flip_ratio",
+                format!("must be in [0, 1], got {}", s.flip_ratio),
+            ));
+        }
+        c.non_negative("simulation.damping", s.damping)?;
+
+        let g = &mut self.grid;
+        if g.origin.is_empty() {
+            g.origin = vec![0.0; dim];
+        }
+        c.vector("grid.origin", &g.origin, dim)?;
+        c.vector("grid.size", &g.size, dim)?;
+        c.positive("grid.cell_size", g.cell_size)?;
+        for (d, &l) in g.size.iter().enumerate() {
+            c.positive(&format!("grid.size[{d}]"), l)?;
+            let n = l / g.cell_size;
+            if (n - n.round()).abs() > 1e-6 * n.max(1.0) || n.round() < 1.0 {
+                return Err(c.err(
+                    "grid.size",
+                    format!(
+                        "must be a whole number of cells: size[{d}] / cell_size = {l} / {} = {n}",
+                        g.cell_size
+                    ),
+                ));
+            }
+        }
+        for (f, spec) in g.boundary.faces_mut().into_iter().enumerate() {
+            let key = format!("grid.boundary.{}", FACE_NAMES[f]);
+            if f >= 2 * dim {
+                if spec.is_some() {
+                    return Err(c.err(key, format!("there is no such face in {dim}D")));
+                }
+                continue;
+            }
+            let spec = spec.get_or_insert(BoundarySpec::Kind(BoundaryKind::Slip));
+            match spec.kind() {
+                BoundaryKind::Periodic => {
+                    return Err(c.err(
+                        key,
+                        "\"periodic\" boundaries are not available yet in this version",
+                    ))
+                }
+                BoundaryKind::Open if spec.velocity().is_some() => {
+                    return Err(c.err(
+                        format!("{key}.velocity"),
+                        "an open face imposes nothing: a velocity needs \"slip\" or \"no_slip\"",
+                    ))
+                }
+                _ => {}
+            }
+            if let Some(v) = spec.velocity() {
+                c.vector(&format!("{key}.velocity"), v, dim)?;
+            }
+        }
+
+        let p = &self.pressure;
+        c.positive("pressure.tolerance", p.tolerance)?;
+        if p.max_iterations == 0 {
+            return Err(c.err("pressure.max_iterations", "must be > 0, got 0"));
+        }
+        if !(p.volume_fraction_tolerance > 0.0 && p.volume_fraction_tolerance < 1.0) {
+            return Err(c.err(
+                "pressure.volume_fraction_tolerance",
+                format!("must be in (0, 1), got {}", p.volume_fraction_tolerance),
+            ));
+        }
+        if !(0.0..=1.0).contains(&p.beta) {
+            return Err(c.err(
+                "pressure.beta",
+                format!("must be in [0, 1], got {}", p.beta),
+            ));
+        }
+
+        if self.materials.is_empty() {
+            return Err(c.err("materials", "at least one [[materials]] entry is required"));
+        }
+        let explicit = self.simulation.scheme == Scheme::Explicit;
+        for (i, m) in self.materials.iter().enumerate() {
+            let k = format!("materials[{i}]");
+            if m.name.trim().is_empty() {
+                return Err(c.err(format!("{k}.name"), "must not be empty"));
+            }
+            if self.materials[..i].iter().any(|o| o.name == m.name) {
+                return Err(c.err(
+                    format!("{k}.name"),
+                    format!("\"{}\" is defined twice", m.name),
+                ));
+            }
+            c.positive(&format!("{k}.density"), m.density)?;
+            c.non_negative(&format!("{k}.viscosity"), m.viscosity)?;
+            match m.bulk_modulus {
+                Some(b) => c.positive(&format!("{k}.bulk_modulus"), b)?,
+                None if explicit => {
+                    return Err(c.err(
+                        format!("{k}.bulk_modulus"),
+                        "is required by scheme = \"explicit\" (equation of state p = K (1 - J))",
+                    ))
+                }
+                None => {}
+            }
+        }
+
+        if self.bodies.is_empty() {
+            return Err(c.err("bodies", "at least one [[bodies]] entry is required"));
+        }
+        let (lo, hi): (Vec<f64>, Vec<f64>) = (
+            self.grid.origin.clone(),
+            self.grid
+                .origin
+                .iter()
+                .zip(&self.grid.size)
+                .map(|(o, s)| o + s)
+                .collect(),
+        );
+        for (i, b) in self.bodies.iter_mut().enumerate() {
+            let k = format!("bodies[{i}]");
+            if !self.materials.iter().any(|m| m.name == b.material) {
+                let mut msg = format!("no material named \"{}\"", b.material);
+                if let Some(n) =
+                    nearest(&b.material, self.materials.iter().map(|m| m.name.as_str()))
+                {
+                    msg += &format!("; did you mean \"{n}\"?");
+                }
+                msg += &format!(
+                    " (defined: {})",
+                    self.materials
+                        .iter()
+                        .map(|m| format!("\"{}\"", m.name))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                );
+                return Err(c.err(format!("{k}.material"), msg));
+            }
+            let sh = &b.shape;
+            match sh.kind {
+                ShapeKind::Box => {
+                    for (name, v) in [("min", &sh.min), ("max", &sh.max)] {
+                        let v = v.as_ref().ok_or_else(|| {
+                            c.err(
+                                format!("{k}.shape.{name}"),
+                                "is required for type = \"box\"",
+                            )
+                        })?;
+                        c.vector(&format!("{k}.shape.{name}"), v, dim)?;
+                    }
+                    let (mn, mx) = sh.bounds();
+                    if let Some(d) = (0..dim).find(|&d| mn[d] >= mx[d]) {
+                        return Err(c.err(
+                            format!("{k}.shape.max"),
+                            format!("must exceed min in every direction: max[{d}] = {} <= min[{d}] = {}", mx[d], mn[d]),
+                        ));
+                    }
+                    if sh.center.is_some() || sh.radius.is_some() {
+                        return Err(c.err(
+                            format!("{k}.shape"),
+                            "a box takes min and max, not center or radius",
+                        ));
+                    }
+                }
+                ShapeKind::Sphere => {
+                    let ctr = sh.center.as_ref().ok_or_else(|| {
+                        c.err(
+                            format!("{k}.shape.center"),
+                            "is required for type = \"sphere\"",
+                        )
+                    })?;
+                    c.vector(&format!("{k}.shape.center"), ctr, dim)?;
+                    let r = sh.radius.ok_or_else(|| {
+                        c.err(
+                            format!("{k}.shape.radius"),
+                            "is required for type = \"sphere\"",
+                        )
+                    })?;
+                    c.positive(&format!("{k}.shape.radius"), r)?;
+                    if sh.min.is_some() || sh.max.is_some() {
+                        return Err(c.err(
+                            format!("{k}.shape"),
+                            "a sphere takes center and radius, not min or max",
+                        ));
+                    }
+                }
+            }
+            let (mn, mx) = sh.bounds();
+            let tol = 1e-9 * self.grid.cell_size;
+            if let Some(d) = (0..dim).find(|&d| mn[d] < lo[d] - tol || mx[d] > hi[d] + tol) {
+                return Err(c.err(
+                    format!("{k}.shape"),
+                    format!(
+                        "extends outside the grid along axis {d}: body spans [{}, {}], grid spans [{}, {}]",
+                        mn[d], mx[d], lo[d], hi[d]
+                    ),
+                ));
+            }
+            if !(1..=8).contains(&b.particles_per_cell) {
+                return Err(c.err(
+                    format!("{k}.particles_per_cell"),
+                    format!("must be between 1 and 8, got {}", b.particles_per_cell),
+                ));
+            }
+            if b.velocity.is_empty() {
+                b.velocity = vec![0.0; dim];
+            }
+            c.vector(&format!("{k}.velocity"), &b.velocity, dim)?;
+        }
+
+        let o = &mut self.output;
+        let interval = *o.interval.get_or_insert(self.simulation.end_time / 100.0);
+        c.positive("output.interval", interval)?;
+        for (i, pr) in o.probes.iter().enumerate() {
+            let k = format!("output.probes[{i}]");
+            if pr.name.is_empty() || pr.name.contains([',', '"', '\n']) {
+                return Err(c.err(
+                    format!("{k}.name"),
+                    "must be non-empty, without commas or quotes (it heads CSV columns)",
+                ));
+            }
+            if o.probes[..i].iter().any(|q| q.name == pr.name) {
+                return Err(c.err(
+                    format!("{k}.name"),
+                    format!("\"{}\" is used twice", pr.name),
+                ));
+            }
+            c.vector(&format!("{k}.position"), &pr.position, dim)?;
+            if let Some(d) = (0..dim).find(|&d| pr.position[d] < lo[d] || pr.position[d] > hi[d]) {
+                return Err(c.err(
+                    format!("{k}.position"),
+                    format!("lies outside the grid along axis {d}"),
+                ));
+            }
+        }
+
+        if let (true, Some(dt)) = (explicit, self.simulation.dt) {
+            let limit = self.explicit_dt_limit();
+            if dt > limit {
+                return Err(c.err(
+                    "simulation.dt",
+                    format!(
+                        "{dt} s is above the explicit stability limit h / c = {limit:.3e} s \
+                         (h = {}, fastest sound speed c = {:.4} m/s); lower dt or use cfl",
+                        self.grid.cell_size,
+                        self.max_sound_speed()
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Largest sound speed sqrt(K / rho) over the materials used by bodies.
+    pub fn max_sound_speed(&self) -> f64 {
+        self.materials
+            .iter()
+            .map(MaterialDeck::sound_speed)
+            .fold(0.0, f64::max)
+    }
+
+    /// Explicit scheme's step limit at rest, h / c (Courant number 1), with the viscous limit.
+    pub fn explicit_dt_limit(&self) -> f64 {
+        let h = self.grid.cell_size;
+        let c = self.max_sound_speed();
+        let mut limit = if c > 0.0 { h / c } else { f64::INFINITY };
+        for m in &self.materials {
+            if m.viscosity > 0.0 {
+                limit = limit.min(viscous_dt_limit(
+                    h,
+                    m.density,
+                    m.viscosity,
+                    self.simulation.dimension,
+                ));
+            }
+        }
+        limit
+    }
+
+    /// The deck as run, every default filled in, with the program's version.
+    pub fn to_run_toml(&self) -> String {
+        let mut deck = self.clone();
+        deck.pmpm = Some(ProgramInfo {
+            version: env!("CARGO_PKG_VERSION").to_string(),
+        });
+        let body =
+            toml::to_string_pretty(&deck).unwrap_or_else(|e| format!("# not written: {e}\n"));
+        format!("# The deck as run by pmpm, every default filled in.\n{body}")
+    }
+}
+
+/// Explicit viscous diffusion limit h^2 rho / (2 D mu) of a forward-Euler viscous update.
+pub fn viscous_dt_limit(h: f64, density: f64, viscosity: f64, dim: usize) -> f64 {
+    h * h * density / (2.0 * dim as f64 * viscosity)
+}

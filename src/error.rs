@@ -1,0 +1,66 @@
+//! The errors a user can cause, each with its exit status.
+
+use crate::deck::DeckError;
+
+/// What can stop pmpm: a bad deck, a file it cannot write, a run that blows up.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The deck is wrong (exit status 2).
+    #[error("{0}")]
+    Deck(#[from] DeckError),
+    /// A deck asks for something this version cannot do yet (exit status 2).
+    #[error("{file}: {key}: {message}")]
+    Unsupported {
+        /// Deck file.
+        file: String,
+        /// Key that asks for it.
+        key: String,
+        /// What is missing.
+        message: String,
+    },
+    /// A command-line argument or output directory is unusable (exit status 2).
+    #[error("{0}")]
+    Usage(String),
+    /// Reading or writing a file failed (exit status 1).
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: String,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The run blew up: NaN, or a particle left the grid (exit status 3).
+    #[error("{0}")]
+    BlowUp(String),
+}
+
+impl Error {
+    /// Process exit status for this error.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            Error::Deck(_) | Error::Unsupported { .. } | Error::Usage(_) => 2,
+            Error::Io { .. } => 1,
+            Error::BlowUp(_) => 3,
+        }
+    }
+
+    /// An I/O error on `path`.
+    pub fn io(path: impl AsRef<std::path::Path>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.as_ref().display().to_string(),
+            source,
+        }
+    }
+}
+
+impl Error {
+    /// Names the deck file in an error raised where it was not known.
+    pub fn with_file(mut self, name: &str) -> Self {
+        match &mut self {
+            Error::Deck(d) if d.file.is_empty() => d.file = name.to_string(),
+            Error::Unsupported { file, .. } if file.is_empty() => *file = name.to_string(),
+            _ => {}
+        }
+        self
+    }
+}

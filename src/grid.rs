@@ -1,0 +1,139 @@
+//! The uniform background grid: node numbering, node positions and node fields.
+//!
+//! Nodes are numbered row-major (axis 0 fastest) over the cells' corners plus [`PAD`] ghost
+//! layers beyond every face, so that every shape function's stencil of a particle inside the
+//! domain lies on the grid. Node fields are stored as separate arrays (struct of arrays).
+
+use crate::shape::PAD;
+use nalgebra::SVector;
+
+/// D-vector of f64.
+pub type Vector<const D: usize> = SVector<f64, D>;
+
+/// Grid geometry: origin, cell size, cell and node counts.
+#[derive(Debug, Clone)]
+pub struct GridGeometry<const D: usize> {
+    /// Lower corner of the domain.
+    pub origin: Vector<D>,
+    /// Cell size h.
+    pub h: f64,
+    /// Cells per direction.
+    pub cells: [usize; D],
+    /// Nodes per direction, ghosts included.
+    pub nodes: [usize; D],
+    /// Flat-index stride of each direction.
+    pub strides: [usize; D],
+}
+
+impl<const D: usize> GridGeometry<D> {
+    /// Geometry of a grid of `cells` cells of size `h` from `origin`.
+    pub fn new(origin: Vector<D>, h: f64, cells: [usize; D]) -> Self {
+        let nodes: [usize; D] = std::array::from_fn(|d| cells[d] + 1 + 2 * PAD);
+        let mut strides = [1usize; D];
+        for d in 1..D {
+            strides[d] = strides[d - 1] * nodes[d - 1];
+        }
+        Self {
+            origin,
+            h,
+            cells,
+            nodes,
+            strides,
+        }
+    }
+
+    /// Number of nodes, ghosts included.
+    pub fn node_count(&self) -> usize {
+        self.nodes.iter().product()
+    }
+
+    /// Flat index of a padded multi-index.
+    #[inline]
+    pub fn flat(&self, idx: &[usize; D]) -> usize {
+        (0..D).map(|d| idx[d] * self.strides[d]).sum()
+    }
+
+    /// Padded multi-index of a flat index.
+    #[inline]
+    pub fn multi(&self, mut flat: usize) -> [usize; D] {
+        std::array::from_fn(|d| {
+            let i = flat % self.nodes[d];
+            flat /= self.nodes[d];
+            i
+        })
+    }
+
+    /// Position of a node from its padded multi-index.
+    #[inline]
+    pub fn node_position(&self, idx: &[usize; D]) -> Vector<D> {
+        Vector::<D>::from_fn(|d, _| self.origin[d] + (idx[d] as f64 - PAD as f64) * self.h)
+    }
+
+    /// Position in cells from the origin.
+    #[inline]
+    pub fn to_cells(&self, x: &Vector<D>) -> Vector<D> {
+        (x - self.origin) / self.h
+    }
+
+    /// Upper corner of the domain.
+    pub fn upper(&self) -> Vector<D> {
+        Vector::<D>::from_fn(|d, _| self.origin[d] + self.cells[d] as f64 * self.h)
+    }
+
+    /// Whether a point lies in the closed domain.
+    #[inline]
+    pub fn contains(&self, x: &Vector<D>) -> bool {
+        let up = self.upper();
+        (0..D).all(|d| x[d] >= self.origin[d] && x[d] <= up[d])
+    }
+}
+
+/// Node fields of the background grid.
+#[derive(Debug, Clone)]
+pub struct Grid<const D: usize> {
+    /// Geometry.
+    pub geo: GridGeometry<D>,
+    /// m_i
+    pub mass: Vec<f64>,
+    /// (m v)_i, then reused for nothing else.
+    pub momentum: Vec<Vector<D>>,
+    /// v_i^n = (m v)_i / m_i
+    pub velocity: Vec<Vector<D>>,
+    /// v_i^{n+1} (v* during the projection's predictor)
+    pub velocity_new: Vec<Vector<D>>,
+    /// f_i: internal and body forces.
+    pub force: Vec<Vector<D>>,
+    /// Mass-weighted particle pressure, sum N m p; divided by m_i after P2G.
+    pub pressure: Vec<f64>,
+}
+
+impl<const D: usize> Grid<D> {
+    /// A zeroed grid.
+    pub fn new(geo: GridGeometry<D>) -> Self {
+        let n = geo.node_count();
+        Self {
+            geo,
+            mass: vec![0.0; n],
+            momentum: vec![Vector::<D>::zeros(); n],
+            velocity: vec![Vector::<D>::zeros(); n],
+            velocity_new: vec![Vector::<D>::zeros(); n],
+            force: vec![Vector::<D>::zeros(); n],
+            pressure: vec![0.0; n],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flat_and_multi_are_inverse() {
+        let g = GridGeometry::<3>::new(Vector::<3>::zeros(), 0.1, [3, 4, 5]);
+        for f in 0..g.node_count() {
+            assert_eq!(g.flat(&g.multi(f)), f);
+        }
+        let x = g.node_position(&[PAD, PAD, PAD]);
+        assert!(x.norm() < 1e-15);
+    }
+}

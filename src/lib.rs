@@ -1,0 +1,37 @@
+//! pmpm: a material point method (MPM) solver for incompressible materials.
+//!
+//! Water, mud, undrained clay and rubber-like solids are simulated with material points that
+//! carry mass, velocity and stress across a fixed background grid. Two schemes share all the
+//! code but the pressure:
+//!
+//! * `explicit`: weakly compressible, p = K (1 - J), the baseline every claim is measured against;
+//! * `projection`: Chorin's projection (Kularathna & Soga 2017), pressure from a Poisson solve.
+//!
+//! One time step ([`scheme::Simulation::step`]):
+//!
+//! ```text
+//! particles -> grid (mass, momentum, forces)     transfer
+//! predictor v* = v + dt f / m                    scheme (Grid::predict)
+//! boundary conditions on v*                      boundary
+//! [projection: free surface, Poisson, corrector] pressure
+//! grid -> particles (PIC/FLIP/APIC), move        transfer
+//! strain rate, stress, F, J                      material
+//! ```
+#![warn(missing_docs)]
+// Loops over the D axes index several arrays at once and read like the equations.
+#![allow(clippy::needless_range_loop)]
+
+pub mod boundary;
+pub mod deck;
+pub mod error;
+pub mod grid;
+pub mod material;
+pub mod output;
+pub mod particles;
+pub mod run;
+pub mod scheme;
+pub mod shape;
+pub mod transfer;
+
+pub use deck::Deck;
+pub use error::Error;

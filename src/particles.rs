@@ -1,0 +1,131 @@
+//! Material points, stored as a struct of arrays, and their creation from the deck's bodies.
+
+use crate::deck::{Deck, InitialStress};
+use crate::grid::{GridGeometry, Vector};
+use nalgebra::SMatrix;
+
+/// D x D matrix of f64.
+pub type Matrix<const D: usize> = SMatrix<f64, D, D>;
+
+/// All particles, one array per field. A particle's index is its stable `id`.
+#[derive(Debug, Clone, Default)]
+pub struct Particles<const D: usize> {
+    /// Position x_p.
+    pub x: Vec<Vector<D>>,
+    /// Velocity v_p.
+    pub v: Vec<Vector<D>>,
+    /// Mass m_p.
+    pub mass: Vec<f64>,
+    /// Initial volume V_p^0.
+    pub volume0: Vec<f64>,
+    /// Volume ratio J = V_p / V_p^0.
+    pub jacobian: Vec<f64>,
+    /// Deformation gradient F_p.
+    pub deformation: Vec<Matrix<D>>,
+    /// Pressure p_p (positive in compression).
+    pub pressure: Vec<f64>,
+    /// Deviatoric Cauchy stress tau_p.
+    pub tau: Vec<Matrix<D>>,
+    /// Velocity gradient L_p of the last grid-to-particle transfer.
+    pub velocity_gradient: Vec<Matrix<D>>,
+    /// APIC affine matrix C_p.
+    pub affine: Vec<Matrix<D>>,
+    /// Index into the deck's materials.
+    pub material: Vec<u16>,
+    /// GIMP half-width of the particle domain, in cells.
+    pub half_width: Vec<f64>,
+}
+
+impl<const D: usize> Particles<D> {
+    /// Number of particles.
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Current volume V_p = J V_p^0.
+    #[inline]
+    pub fn volume(&self, p: usize) -> f64 {
+        self.jacobian[p] * self.volume0[p]
+    }
+
+    /// Fills every body of the deck with particles on a regular lattice of spacing
+    /// h / particles_per_cell, lattice points at the centres of the sub-cells.
+    pub fn from_deck(deck: &Deck, geo: &GridGeometry<D>) -> Self {
+        let mut ps = Particles::default();
+        let g = Vector::<D>::from_column_slice(&deck.simulation.gravity);
+        let gnorm = g.norm();
+        for body in &deck.bodies {
+            let mat = deck
+                .materials
+                .iter()
+                .position(|m| m.name == body.material)
+                .expect("validated: body material exists");
+            let rho = deck.materials[mat].density;
+            let ppc = body.particles_per_cell;
+            let spacing = geo.h / ppc as f64;
+            let vol = spacing.powi(D as i32);
+            let (lo, hi) = body.shape.bounds();
+            // lattice index range covering the body's bounding box
+            let first: [i64; D] =
+                std::array::from_fn(|d| ((lo[d] - geo.origin[d]) / spacing - 0.5).floor() as i64);
+            let last: [i64; D] =
+                std::array::from_fn(|d| ((hi[d] - geo.origin[d]) / spacing - 0.5).ceil() as i64);
+            let start = ps.len();
+            let mut idx = first;
+            'lattice: loop {
+                let x =
+                    Vector::<D>::from_fn(|d, _| geo.origin[d] + (idx[d] as f64 + 0.5) * spacing);
+                if geo.contains(&x) && body.shape.contains(x.as_slice()) {
+                    ps.x.push(x);
+                    ps.v.push(Vector::<D>::from_column_slice(&body.velocity));
+                    ps.mass.push(rho * vol);
+                    ps.volume0.push(vol);
+                    ps.material.push(mat as u16);
+                    ps.half_width.push(0.5 / ppc as f64);
+                }
+                for d in 0..D {
+                    idx[d] += 1;
+                    if idx[d] <= last[d] {
+                        continue 'lattice;
+                    }
+                    idx[d] = first[d];
+                }
+                break;
+            }
+            let n = ps.len();
+            ps.jacobian.resize(n, 1.0);
+            ps.pressure.resize(n, 0.0);
+            if body.stress == Some(InitialStress::Hydrostatic) && gnorm > 0.0 {
+                // p = rho |g| (H - y), H the body's top along -g
+                let down = g / gnorm;
+                let top = ps.x[start..]
+                    .iter()
+                    .map(|x| -x.dot(&down))
+                    .fold(f64::NEG_INFINITY, f64::max)
+                    + 0.5 * spacing;
+                for p in start..n {
+                    ps.pressure[p] = rho * gnorm * (top + ps.x[p].dot(&down));
+                    // With an equation of state p = K (1 - J) the particle is compressed: it fills
+                    // its lattice volume now, so its reference volume and mass are larger.
+                    if let Some(k) = deck.materials[mat].bulk_modulus {
+                        let j = 1.0 - ps.pressure[p] / k;
+                        ps.jacobian[p] = j;
+                        ps.volume0[p] = vol / j;
+                        ps.mass[p] = rho * vol / j;
+                    }
+                }
+            }
+        }
+        let n = ps.len();
+        ps.deformation = vec![Matrix::<D>::identity(); n];
+        ps.tau = vec![Matrix::<D>::zeros(); n];
+        ps.velocity_gradient = vec![Matrix::<D>::zeros(); n];
+        ps.affine = vec![Matrix::<D>::zeros(); n];
+        ps
+    }
+}

@@ -1,0 +1,239 @@
+//! The run driver: time-step control, frames and probes, and what happens when a run fails.
+
+use crate::deck::{Deck, Scheme};
+use crate::error::Error;
+use crate::output::OutputWriter;
+use crate::scheme::Simulation;
+use std::path::Path;
+use std::time::Instant;
+
+/// How a run is asked for from the command line.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// No progress lines.
+    pub quiet: bool,
+    /// Write into a directory that holds an earlier run.
+    pub force: bool,
+}
+
+/// What a finished run reports.
+#[derive(Debug, Clone)]
+pub struct RunSummary {
+    /// Steps taken.
+    pub steps: u64,
+    /// Frames written.
+    pub frames: usize,
+    /// Particles.
+    pub particles: usize,
+    /// Wall-clock seconds.
+    pub wall_seconds: f64,
+    /// Simulated time reached.
+    pub time: f64,
+}
+
+/// Runs a validated deck into `dir`, generic over the dimension.
+pub fn run(deck: &Deck, file: &str, dir: &Path, opts: &RunOptions) -> Result<RunSummary, Error> {
+    if dir.join("series.csv").exists() && !opts.force {
+        return Err(Error::Usage(format!(
+            "{}: the output directory holds an earlier run (series.csv); pass --force to overwrite it or --output to write elsewhere",
+            dir.display()
+        )));
+    }
+    if deck.simulation.scheme == Scheme::Projection {
+        return Err(Error::Unsupported {
+            file: file.to_string(),
+            key: "simulation.scheme".into(),
+            message: "\"projection\" is not available yet in this version; use \"explicit\"".into(),
+        });
+    }
+    match deck.simulation.dimension {
+        2 => run_dim::<2>(deck, file, dir, opts),
+        3 => run_dim::<3>(deck, file, dir, opts),
+        d => unreachable!("validated: dimension is 2 or 3, got {d}"),
+    }
+}
+
+fn run_dim<const D: usize>(
+    deck: &Deck,
+    file: &str,
+    dir: &Path,
+    opts: &RunOptions,
+) -> Result<RunSummary, Error> {
+    let start = Instant::now();
+    let mut sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
+    let mut out = OutputWriter::new(dir, &sim)?;
+    let end = deck.simulation.end_time;
+    let interval = deck.output.interval.expect("validated: interval filled in");
+    // times are compared with a tolerance far below any step, so that frame k lands at k interval
+    let eps = 1e-9 * interval.min(end);
+    let mut last_dt = 0.0;
+    if !opts.quiet {
+        eprintln!(
+            "pmpm: {}D {:?} run of {}: {} particles, {} grid nodes, to t = {end} s",
+            D,
+            deck.simulation.scheme,
+            file,
+            sim.particles.len(),
+            sim.grid.geo.node_count()
+        );
+    }
+    out.frame(&sim, 0.0, 0.0)?;
+    let mut next_frame = interval;
+    let result = loop {
+        if sim.time >= end - eps {
+            break Ok(());
+        }
+        let mut dt = match (deck.simulation.dt, deck.simulation.cfl) {
+            (Some(dt), _) => dt,
+            (None, Some(cfl)) => {
+                // adaptive steps land exactly on frame times
+                let dt = sim.stable_dt(cfl);
+                dt.min(next_frame - sim.time)
+            }
+            (None, None) => unreachable!("validated: dt or cfl"),
+        };
+        dt = dt.min(end - sim.time);
+        if !(dt > 0.0 && dt.is_finite()) {
+            // at rest with nothing to bound the step: step to the next frame
+            dt = (next_frame.min(end) - sim.time).max(eps);
+        }
+        let t0 = sim.time;
+        let stepped = sim.step(dt);
+        if let Err(e) = out.probe_row(t0, &sim) {
+            break Err(e);
+        }
+        if let Err(e) = stepped {
+            break Err(e.with_file(file));
+        }
+        last_dt = dt;
+        if sim.time >= next_frame - eps || sim.time >= end - eps {
+            if let Err(e) = out.frame(&sim, dt, start.elapsed().as_secs_f64()) {
+                break Err(e);
+            }
+            while next_frame <= sim.time + eps {
+                next_frame += interval;
+            }
+            if !opts.quiet {
+                eprintln!(
+                    "frame {:>5}  t = {:.5} s  step {:>8}  dt = {:.3e} s  max |v| = {:.4} m/s  wall {:.1} s",
+                    out.frames - 1,
+                    sim.time,
+                    sim.steps,
+                    dt,
+                    sim.max_speed(),
+                    start.elapsed().as_secs_f64()
+                );
+            }
+        }
+    };
+    if result.is_ok() {
+        // the final state's probe row
+        sim.refresh_grid();
+        out.probe_row(sim.time, &sim)?;
+    }
+    let flushed = out.finish();
+    result?;
+    flushed?;
+    let summary = RunSummary {
+        steps: sim.steps,
+        frames: out.frames,
+        particles: sim.particles.len(),
+        wall_seconds: start.elapsed().as_secs_f64(),
+        time: sim.time,
+    };
+    if !opts.quiet {
+        eprintln!(
+            "pmpm: done: {} steps, {} frames, {:.2} s wall, last dt = {last_dt:.3e} s, output in {}",
+            summary.steps,
+            summary.frames,
+            summary.wall_seconds,
+            dir.display()
+        );
+    }
+    Ok(summary)
+}
+
+/// Loads a deck file, with defaults filled in.
+pub fn load(path: &Path) -> Result<Deck, Error> {
+    Ok(Deck::load(path)?)
+}
+
+/// The summary `pmpm check` prints: what the deck sets up and what a run will cost.
+pub fn check_summary(deck: &Deck, file: &str) -> Result<String, Error> {
+    match deck.simulation.dimension {
+        2 => summary_dim::<2>(deck, file),
+        3 => summary_dim::<3>(deck, file),
+        d => unreachable!("validated: dimension is 2 or 3, got {d}"),
+    }
+}
+
+fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error> {
+    let sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
+    let s = &deck.simulation;
+    let geo = &sim.grid.geo;
+    let mut out = format!("{file}: deck is valid\n");
+    out += &format!(
+        "  dimension        {D}\n  scheme           {:?}\n",
+        s.scheme
+    );
+    out += &format!(
+        "  grid             {} cells of h = {} m, {} nodes (with ghosts)\n",
+        geo.cells
+            .iter()
+            .map(|c| c.to_string())
+            .collect::<Vec<_>>()
+            .join(" x "),
+        geo.h,
+        geo.node_count()
+    );
+    for (b, body) in deck.bodies.iter().enumerate() {
+        let n = sim
+            .particles
+            .x
+            .iter()
+            .filter(|x| body.shape.contains(x.as_slice()))
+            .count();
+        out += &format!(
+            "  bodies[{b}]        {} particles of \"{}\"\n",
+            n, body.material
+        );
+    }
+    out += &format!("  particles        {}\n", sim.particles.len());
+    out += &format!(
+        "  transfer         {:?}, shape functions {:?}\n",
+        s.transfer, s.shape_function
+    );
+    let dt = match (s.dt, s.cfl) {
+        (Some(dt), _) => format!("fixed dt = {dt:e} s"),
+        (None, Some(cfl)) => {
+            let dt0 = sim.stable_dt(cfl);
+            if dt0.is_finite() {
+                format!("adaptive, cfl = {cfl}; at t = 0 dt = {dt0:.3e} s")
+            } else {
+                format!("adaptive, cfl = {cfl}; at rest at t = 0 (set by the flow)")
+            }
+        }
+        (None, None) => unreachable!("validated: dt or cfl"),
+    };
+    out += &format!("  time step        {dt}\n");
+    if s.scheme == Scheme::Explicit {
+        let limit = deck.explicit_dt_limit();
+        out += &format!(
+            "  explicit limit   h / c = {limit:.3e} s: about {:.0} steps or more to t = {}\n",
+            s.end_time / (limit * s.cfl.unwrap_or(1.0)),
+            s.end_time
+        );
+    }
+    out += &format!(
+        "  output           {} every {} s into {}\n",
+        deck.output
+            .formats
+            .iter()
+            .map(|f| format!("{f:?}").to_lowercase())
+            .collect::<Vec<_>>()
+            .join(", "),
+        deck.output.interval.unwrap_or(0.0),
+        deck.output.directory
+    );
+    Ok(out)
+}

@@ -1,0 +1,350 @@
+//! The simulation state and its time step, read top to bottom in [`Simulation::step`].
+//!
+//! The two schemes share everything but the pressure: `explicit` takes it from the equation of
+//! state p = K (1 - J) inside the particle stress, `projection` (METHOD.md) from a Poisson solve
+//! between the predictor and the corrector.
+
+use crate::boundary::Boundary;
+use crate::deck::{Deck, Scheme};
+use crate::error::Error;
+use crate::grid::{Grid, GridGeometry, Vector};
+use crate::material::{self, MaterialParams};
+use crate::particles::Particles;
+use crate::shape::Stencil;
+use crate::transfer::{self, P2gScratch, TransferSettings};
+use rayon::prelude::*;
+
+/// Particles that [`Simulation::check_particles`] caught leaving the grid or going non-finite.
+#[derive(Debug, Clone)]
+pub struct Escape<const D: usize> {
+    /// Particle id.
+    pub particle: usize,
+    /// Its position.
+    pub x: Vector<D>,
+    /// Its velocity.
+    pub v: Vector<D>,
+}
+
+/// The whole state of a run: particles, grid, settings, time.
+pub struct Simulation<const D: usize> {
+    /// The validated deck.
+    pub deck: Deck,
+    /// Material points.
+    pub particles: Particles<D>,
+    /// Background grid and its node fields.
+    pub grid: Grid<D>,
+    /// Per-material parameters.
+    pub materials: Vec<MaterialParams>,
+    /// Transfer settings.
+    pub settings: TransferSettings<D>,
+    /// Wall conditions.
+    pub boundary: Boundary<D>,
+    /// Time-integration scheme.
+    pub scheme: Scheme,
+    /// Simulated time (s).
+    pub time: f64,
+    /// Steps taken.
+    pub steps: u64,
+    /// Pressure iterations of the last step (0 for the explicit scheme).
+    pub pressure_iterations: usize,
+    /// Probe positions.
+    pub probes: Vec<Vector<D>>,
+    /// Probe samples of the last step's P2G (state at the step's start): per probe, pressure
+    /// then D velocity components.
+    pub probe_values: Vec<f64>,
+    scratch: P2gScratch<D>,
+    /// Per-particle velocity that moves it this step (interpolated v^{n+1}).
+    advect: Vec<Vector<D>>,
+}
+
+impl<const D: usize> Simulation<D> {
+    /// Sets up particles and grid from a validated deck.
+    pub fn new(deck: &Deck) -> Result<Self, Error> {
+        let g = &deck.grid;
+        let h = g.cell_size;
+        let cells: [usize; D] = std::array::from_fn(|d| (g.size[d] / h).round() as usize);
+        let geo = GridGeometry::new(Vector::<D>::from_column_slice(&g.origin), h, cells);
+        let particles = Particles::from_deck(deck, &geo);
+        if let Some(b) = (0..deck.bodies.len()).find(|&b| {
+            !particles
+                .material
+                .iter()
+                .zip(&particles.x)
+                .any(|(_, x)| deck.bodies[b].shape.contains(x.as_slice()))
+        }) {
+            return Err(crate::deck::DeckError {
+                file: String::new(),
+                key: format!("bodies[{b}].shape"),
+                line_col: None,
+                message: format!(
+                    "holds no particle: it is smaller than the particle spacing h / particles_per_cell = {}",
+                    h / deck.bodies[b].particles_per_cell as f64
+                ),
+            }
+            .into());
+        }
+        let n_particles = particles.len();
+        let materials = MaterialParams::from_deck(deck);
+        let min_mass = particles.mass.iter().copied().fold(f64::INFINITY, f64::min);
+        let settings = TransferSettings {
+            shape: deck.simulation.shape_function,
+            transfer: deck.simulation.transfer,
+            flip_ratio: deck.simulation.flip_ratio,
+            gravity: Vector::<D>::from_column_slice(&deck.simulation.gravity),
+            pressure_in_stress: deck.simulation.scheme == Scheme::Explicit,
+            // below a millionth of a particle's smallest weight a node is empty
+            mass_epsilon: 1e-12 * min_mass,
+        };
+        let boundary = Boundary::new(deck, &geo);
+        let scratch = P2gScratch::new(rayon::current_num_threads(), geo.node_count());
+        let probes: Vec<Vector<D>> = deck
+            .output
+            .probes
+            .iter()
+            .map(|p| Vector::<D>::from_column_slice(&p.position))
+            .collect();
+        Ok(Self {
+            deck: deck.clone(),
+            particles,
+            grid: Grid::new(geo),
+            materials,
+            settings,
+            boundary,
+            scheme: deck.simulation.scheme,
+            time: 0.0,
+            steps: 0,
+            pressure_iterations: 0,
+            probe_values: vec![0.0; probes.len() * (D + 1)],
+            probes,
+            scratch,
+            advect: vec![Vector::<D>::zeros(); n_particles],
+        })
+    }
+
+    /// One time step of size `dt`, as METHOD.md sets it out.
+    pub fn step(&mut self, dt: f64) -> Result<(), Error> {
+        // 1. particles -> grid: mass, momentum, internal and body forces
+        transfer::particles_to_grid(
+            &self.particles,
+            &mut self.grid,
+            &mut self.scratch,
+            &self.settings,
+        );
+        self.sample_probes();
+        // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure)
+        self.grid
+            .predict(dt, self.deck.simulation.damping, self.settings.mass_epsilon);
+        // 3. boundary conditions on v*
+        self.boundary.apply(&mut self.grid.velocity_new);
+        match self.scheme {
+            Scheme::Explicit => {
+                // pressure came from the equation of state in the particle stress
+                self.pressure_iterations = 0;
+            }
+            Scheme::Projection => {
+                return Err(Error::Unsupported {
+                    file: String::new(),
+                    key: "simulation.scheme".into(),
+                    message:
+                        "\"projection\" is not available yet in this version; use \"explicit\""
+                            .into(),
+                })
+            }
+        }
+        // 4. grid -> particles (PIC / FLIP / APIC); node velocities remapped from the particles
+        //    for the strain rate (MUSL); move
+        transfer::grid_to_particles(
+            &mut self.particles,
+            &self.grid,
+            &self.settings,
+            &mut self.advect,
+        );
+        transfer::remap_velocity(
+            &self.particles,
+            &mut self.grid,
+            &mut self.scratch,
+            &self.settings,
+        );
+        self.boundary.apply(&mut self.grid.velocity_new);
+        transfer::gradient_and_move(
+            &mut self.particles,
+            &self.grid,
+            &self.settings,
+            &self.advect,
+            dt,
+        );
+        self.boundary
+            .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
+        // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme)
+        material::update(
+            &mut self.particles,
+            &self.materials,
+            dt,
+            self.scheme == Scheme::Explicit,
+        );
+        self.time += dt;
+        self.steps += 1;
+        self.check_particles()
+    }
+
+    /// Refreshes the grid from the particles without stepping, to sample probes at the end.
+    pub fn refresh_grid(&mut self) {
+        transfer::particles_to_grid(
+            &self.particles,
+            &mut self.grid,
+            &mut self.scratch,
+            &self.settings,
+        );
+        self.sample_probes();
+    }
+
+    /// Grid fields at the probes: pressure and velocity interpolated from the nodes that have
+    /// mass, normalised by their weight (so a probe on a wall or at the surface reads the fluid).
+    fn sample_probes(&mut self) {
+        let geo = &self.grid.geo;
+        for (k, x) in self.probes.iter().enumerate() {
+            let st = Stencil::<D>::new(self.settings.shape, &geo.to_cells(x), geo.h, 0.25);
+            let (mut wsum, mut p, mut v) = (0.0, 0.0, Vector::<D>::zeros());
+            st.for_each(|nw| {
+                let i = geo.flat(&nw.node);
+                if self.grid.mass[i] > self.settings.mass_epsilon {
+                    wsum += nw.n;
+                    p += nw.n * self.grid.pressure[i];
+                    v += self.grid.velocity[i] * nw.n;
+                }
+            });
+            let out = &mut self.probe_values[k * (D + 1)..(k + 1) * (D + 1)];
+            if wsum > 0.0 {
+                out[0] = p / wsum;
+                for d in 0..D {
+                    out[1 + d] = v[d] / wsum;
+                }
+            } else {
+                out.fill(0.0);
+            }
+        }
+    }
+
+    /// Largest stable step now: cfl h / max(|v| + c) (explicit) or cfl h / max |v| (projection),
+    /// bounded by the viscous limit and `max_dt`.
+    pub fn stable_dt(&self, cfl: f64) -> f64 {
+        let explicit = self.scheme == Scheme::Explicit;
+        let mats = &self.materials;
+        let ps = &self.particles;
+        let speed =
+            ps.v.par_iter()
+                .zip(ps.material.par_iter())
+                .map(|(v, &m)| {
+                    let c = if explicit {
+                        mats[m as usize].sound_speed()
+                    } else {
+                        0.0
+                    };
+                    v.norm() + c
+                })
+                .reduce(|| 0.0, f64::max);
+        let h = self.grid.geo.h;
+        let mut dt = if speed > 0.0 {
+            cfl * h / speed
+        } else {
+            f64::INFINITY
+        };
+        for m in mats.iter().filter(|m| m.viscosity > 0.0) {
+            dt = dt.min(crate::deck::viscous_dt_limit(h, m.density, m.viscosity, D));
+        }
+        if let Some(max) = self.deck.simulation.max_dt {
+            dt = dt.min(max);
+        }
+        dt
+    }
+
+    /// Stops the run if a particle left the grid or has a non-finite position or velocity.
+    pub fn check_particles(&self) -> Result<(), Error> {
+        let geo = &self.grid.geo;
+        let bad = self
+            .particles
+            .x
+            .par_iter()
+            .zip(self.particles.v.par_iter())
+            .position_first(|(x, v)| {
+                !(geo.contains(x) && x.iter().chain(v.iter()).all(|c| c.is_finite()))
+            });
+        let Some(p) = bad else { return Ok(()) };
+        let x = self.particles.x[p];
+        let v = self.particles.v[p];
+        let fmt = |a: &Vector<D>| {
+            let parts: Vec<String> = a.iter().map(|c| format!("{c:.6}")).collect();
+            format!("({})", parts.join(", "))
+        };
+        let what = if x.iter().chain(v.iter()).all(|c| c.is_finite()) {
+            format!(
+                "particle {p} left the grid [{}, {}] at x = {}, v = {} m/s",
+                fmt(&geo.origin),
+                fmt(&geo.upper()),
+                fmt(&x),
+                fmt(&v)
+            )
+        } else {
+            format!(
+                "particle {p} has a non-finite state (x = {}, v = {})",
+                fmt(&x),
+                fmt(&v)
+            )
+        };
+        let mut cause = String::from(
+            "likely causes: a time step above the stability limit, an \"open\" face material can \
+             flow through, or a body pushed out by its initial velocity",
+        );
+        if let (Scheme::Explicit, Some(dt)) = (self.scheme, self.deck.simulation.dt) {
+            cause = format!(
+                "{cause}; the fixed dt = {dt:.3e} s against the limit now h / max(|v| + c) = {:.3e} s",
+                self.stable_dt(1.0)
+            );
+        }
+        Err(Error::BlowUp(format!(
+            "run stopped at step {}, t = {:.6} s: {what}. {cause}",
+            self.steps, self.time
+        )))
+    }
+
+    /// Total kinetic energy sum m v^2 / 2, summed in a fixed order.
+    pub fn kinetic_energy(&self) -> f64 {
+        self.particles
+            .v
+            .iter()
+            .zip(&self.particles.mass)
+            .map(|(v, m)| 0.5 * m * v.norm_squared())
+            .sum()
+    }
+
+    /// Largest particle speed.
+    pub fn max_speed(&self) -> f64 {
+        self.particles
+            .v
+            .par_iter()
+            .map(|v| v.norm())
+            .reduce(|| 0.0, f64::max)
+    }
+}
+
+impl<const D: usize> Grid<D> {
+    /// Predictor on the nodes: v* = (v^n + dt f / m) / (1 + dt damping), zero on empty nodes.
+    /// The damping is implicit, so it is stable for any coefficient.
+    pub fn predict(&mut self, dt: f64, damping: f64, mass_epsilon: f64) {
+        let scale = 1.0 / (1.0 + dt * damping);
+        (
+            self.velocity_new.par_iter_mut(),
+            self.velocity.par_iter(),
+            self.force.par_iter(),
+            self.mass.par_iter(),
+        )
+            .into_par_iter()
+            .for_each(|(vn, v, f, &m)| {
+                *vn = if m > mass_epsilon {
+                    (v + f * (dt / m)) * scale
+                } else {
+                    Vector::<D>::zeros()
+                };
+            });
+    }
+}

@@ -1,0 +1,297 @@
+//! Shape functions N_i(x) of the background grid and their gradients (METHOD.md, "Discretisation").
+//!
+//! Every kind here is a tensor product of a 1D kernel, so a particle's stencil is K nodes per
+//! direction (K = 2 linear, 3 GIMP and quadratic B-spline, 4 cubic B-spline) and the weights of
+//! its K^D nodes are products of 1D weights. The grid carries two ghost layers of nodes beyond
+//! each face ([`PAD`]), so the wider kernels keep their partition of unity up to the walls.
+
+use crate::deck::ShapeFunction;
+use nalgebra::SVector;
+
+/// Ghost node layers beyond each face of the grid.
+pub const PAD: usize = 2;
+/// Largest stencil width per direction.
+pub const MAX_K: usize = 4;
+
+/// One direction of a particle's stencil.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Kernel1 {
+    /// Index (in padded node numbering) of the first node.
+    pub base: usize,
+    /// Weights of the K nodes.
+    pub w: [f64; MAX_K],
+    /// Derivatives dN/dx_p of the K nodes (1/m).
+    pub dw: [f64; MAX_K],
+    /// APIC coefficients w (x_i - x_p) / D_p (1/m); D_p = sum w (x_i - x_p)^2.
+    pub aw: [f64; MAX_K],
+}
+
+impl ShapeFunction {
+    /// Nodes per direction in a stencil.
+    pub fn width(self) -> usize {
+        match self {
+            ShapeFunction::Linear => 2,
+            ShapeFunction::Gimp | ShapeFunction::Bspline2 => 3,
+            ShapeFunction::Bspline3 => 4,
+        }
+    }
+
+    /// 1D kernel of a particle at `xi` (in cells from the grid origin), cell size `h`, GIMP
+    /// half-width `lp` (in cells; ignored by the other kinds).
+    pub fn kernel_1d(self, xi: f64, h: f64, lp: f64) -> Kernel1 {
+        let mut k = Kernel1::default();
+        let first: f64 = match self {
+            ShapeFunction::Linear => xi.floor(),
+            ShapeFunction::Gimp => (xi - 1.0 - lp).floor() + 1.0,
+            ShapeFunction::Bspline2 => (xi - 0.5).floor(),
+            ShapeFunction::Bspline3 => xi.floor() - 1.0,
+        };
+        // first >= -PAD for any xi >= 0 (validated positions), so the cast is exact.
+        k.base = (first + PAD as f64).max(0.0) as usize;
+        let first = k.base as f64 - PAD as f64;
+        let mut second_moment = 0.0;
+        for o in 0..self.width() {
+            // r = x_p - x_i in cells
+            let r = xi - (first + o as f64);
+            let (w, dwdr) = if self == ShapeFunction::Linear {
+                // the one kernel with a kink at the nodes: take the derivative of the cell the
+                // particle is in, so that the gradients sum to zero on a node too
+                if o == 0 {
+                    (1.0 - r, -1.0)
+                } else {
+                    (1.0 + r, 1.0)
+                }
+            } else {
+                self.kernel(r, lp)
+            };
+            k.w[o] = w;
+            k.dw[o] = dwdr / h;
+            second_moment += w * r * r;
+        }
+        for o in 0..self.width() {
+            let r = xi - (first + o as f64);
+            // For multilinear kernels w (x_i - x_p) / D equals dN/dx exactly; it is also the
+            // limit where D vanishes (particle on a node), so fall back to it there.
+            k.aw[o] = if second_moment > 1e-10 {
+                -k.w[o] * r / (second_moment * h)
+            } else {
+                k.dw[o]
+            };
+        }
+        k
+    }
+
+    /// 1D kernel value and derivative d/dr at distance r = x_p - x_i (in cells).
+    fn kernel(self, r: f64, lp: f64) -> (f64, f64) {
+        let a = r.abs();
+        let s = r.signum();
+        match self {
+            ShapeFunction::Linear => {
+                if a < 1.0 {
+                    (1.0 - a, -s)
+                } else {
+                    (0.0, 0.0)
+                }
+            }
+            ShapeFunction::Gimp => {
+                if a < lp {
+                    (1.0 - (r * r + lp * lp) / (2.0 * lp), -r / lp)
+                } else if a < 1.0 - lp {
+                    (1.0 - a, -s)
+                } else if a < 1.0 + lp {
+                    let t = 1.0 + lp - a;
+                    (t * t / (4.0 * lp), -s * t / (2.0 * lp))
+                } else {
+                    (0.0, 0.0)
+                }
+            }
+            ShapeFunction::Bspline2 => {
+                if a < 0.5 {
+                    (0.75 - a * a, -2.0 * r)
+                } else if a < 1.5 {
+                    let t = 1.5 - a;
+                    (0.5 * t * t, -s * t)
+                } else {
+                    (0.0, 0.0)
+                }
+            }
+            ShapeFunction::Bspline3 => {
+                if a < 1.0 {
+                    (0.5 * a * a * a - a * a + 2.0 / 3.0, 1.5 * r * a - 2.0 * r)
+                } else if a < 2.0 {
+                    let t = 2.0 - a;
+                    (t * t * t / 6.0, -0.5 * s * t * t)
+                } else {
+                    (0.0, 0.0)
+                }
+            }
+        }
+    }
+}
+
+/// A particle's full stencil: K^D nodes, built from D 1D kernels.
+#[derive(Debug, Clone, Copy)]
+pub struct Stencil<const D: usize> {
+    /// Per-direction kernels.
+    pub k: [Kernel1; D],
+    /// Nodes per direction.
+    pub width: usize,
+}
+
+/// One node of a stencil as seen by a particle.
+#[derive(Debug, Clone, Copy)]
+pub struct NodeWeight<const D: usize> {
+    /// Padded multi-index of the node.
+    pub node: [usize; D],
+    /// N_ip
+    pub n: f64,
+    /// G_ip = grad N_i(x_p)
+    pub grad: SVector<f64, D>,
+    /// APIC coefficient vector: C_p = sum_i v_i (x) a_ip.
+    pub apic: SVector<f64, D>,
+}
+
+impl<const D: usize> Stencil<D> {
+    /// Stencil of a particle at `x_cells` (position in cells from the grid origin).
+    pub fn new(kind: ShapeFunction, x_cells: &SVector<f64, D>, h: f64, lp: f64) -> Self {
+        Self {
+            k: std::array::from_fn(|d| kind.kernel_1d(x_cells[d], h, lp)),
+            width: kind.width(),
+        }
+    }
+
+    /// Calls `f` for each of the K^D nodes of the stencil, in a fixed order.
+    #[inline]
+    pub fn for_each(&self, mut f: impl FnMut(NodeWeight<D>)) {
+        let kw = self.width;
+        let total = kw.pow(D as u32);
+        let mut o = [0usize; D];
+        for _ in 0..total {
+            let mut n = 1.0;
+            let mut node = [0usize; D];
+            for d in 0..D {
+                n *= self.k[d].w[o[d]];
+                node[d] = self.k[d].base + o[d];
+            }
+            let mut grad = SVector::<f64, D>::zeros();
+            let mut apic = SVector::<f64, D>::zeros();
+            for d in 0..D {
+                let mut g = self.k[d].dw[o[d]];
+                let mut a = self.k[d].aw[o[d]];
+                for e in 0..D {
+                    if e != d {
+                        g *= self.k[e].w[o[e]];
+                        a *= self.k[e].w[o[e]];
+                    }
+                }
+                grad[d] = g;
+                apic[d] = a;
+            }
+            f(NodeWeight {
+                node,
+                n,
+                grad,
+                apic,
+            });
+            // odometer
+            for d in 0..D {
+                o[d] += 1;
+                if o[d] < kw {
+                    break;
+                }
+                o[d] = 0;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const KINDS: [ShapeFunction; 4] = [
+        ShapeFunction::Linear,
+        ShapeFunction::Gimp,
+        ShapeFunction::Bspline2,
+        ShapeFunction::Bspline3,
+    ];
+
+    /// Partition of unity and zero gradient sum at many points in [0, n] cells, incl. the faces.
+    fn check_partition<const D: usize>(kind: ShapeFunction) {
+        let h = 0.1;
+        let n = 5.0;
+        let steps = 23;
+        let total = (steps + 1usize).pow(D as u32);
+        for idx in 0..total {
+            let mut x = SVector::<f64, D>::zeros();
+            let mut r = idx;
+            for d in 0..D {
+                x[d] = n * (r % (steps + 1)) as f64 / steps as f64;
+                r /= steps + 1;
+            }
+            let s = Stencil::<D>::new(kind, &x, h, 0.25);
+            let mut sum = 0.0;
+            let mut gsum = SVector::<f64, D>::zeros();
+            let mut first_moment = SVector::<f64, D>::zeros();
+            s.for_each(|nw| {
+                sum += nw.n;
+                gsum += nw.grad;
+                for d in 0..D {
+                    first_moment[d] += nw.n * (nw.node[d] as f64 - PAD as f64 - x[d]);
+                }
+                assert!(nw.n >= -1e-15, "{kind:?} negative weight at {x:?}");
+            });
+            assert!((sum - 1.0).abs() < 1e-13, "{kind:?} sum {sum} at {x:?}");
+            assert!(
+                gsum.norm() * h < 1e-12,
+                "{kind:?} grad sum {gsum:?} at {x:?}"
+            );
+            assert!(
+                first_moment.norm() < 1e-12,
+                "{kind:?} linear completeness at {x:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn partition_of_unity_2d_and_3d() {
+        for kind in KINDS {
+            check_partition::<2>(kind);
+            check_partition::<3>(kind);
+        }
+    }
+
+    /// Gradients agree with central finite differences of the weights.
+    #[test]
+    fn gradients_match_finite_differences() {
+        let h = 0.2;
+        for kind in KINDS {
+            for i in 0..200 {
+                let xi = 0.013 + 3.0 * i as f64 / 200.0;
+                let eps = 1e-6;
+                let k = kind.kernel_1d(xi, h, 0.25);
+                let kp = kind.kernel_1d(xi + eps, h, 0.25);
+                let km = kind.kernel_1d(xi - eps, h, 0.25);
+                if kp.base != k.base || km.base != k.base {
+                    continue;
+                }
+                for o in 0..kind.width() {
+                    let fd = (kp.w[o] - km.w[o]) / (2.0 * eps * h);
+                    assert!(
+                        (fd - k.dw[o]).abs() < 1e-5,
+                        "{kind:?} xi {xi} node {o}: fd {fd} vs {}",
+                        k.dw[o]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn linear_apic_coefficient_is_the_gradient() {
+        let k = ShapeFunction::Linear.kernel_1d(2.3, 0.5, 0.0);
+        for o in 0..2 {
+            assert!((k.aw[o] - k.dw[o]).abs() < 1e-12);
+        }
+    }
+}

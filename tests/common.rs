@@ -1,0 +1,68 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// A fresh, empty scratch directory under the target directory.
+pub fn scratch_dir(name: &str) -> PathBuf {
+    static N: AtomicUsize = AtomicUsize::new(0);
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!(
+        "{name}-{}-{}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::SeqCst)
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Runs the pmpm binary with arguments.
+pub fn pmpm(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pmpm"))
+        .args(args)
+        .output()
+        .expect("the pmpm binary runs")
+}
+
+/// A small valid 2D deck (explicit scheme) that runs in well under a second.
+pub const SMALL_2D: &str = r#"
+[simulation]
+dimension = 2
+scheme = "explicit"
+end_time = 0.05
+cfl = 0.4
+gravity = [0.0, -9.81]
+transfer = "apic"
+
+[grid]
+origin = [0.0, 0.0]
+size = [0.4, 0.2]
+cell_size = 0.02
+
+[grid.boundary]
+x_min = "slip"
+x_max = "slip"
+y_min = "no_slip"
+y_max = "open"
+
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+bulk_modulus = 4.0e4
+
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [0.1, 0.1] }
+particles_per_cell = 2
+
+[output]
+interval = 0.01
+formats = ["vtk", "csv"]
+
+[[output.probes]]
+name = "base"
+position = [0.01, 0.01]
+"#;
