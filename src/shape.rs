@@ -13,6 +13,18 @@ pub const PAD: usize = 2;
 /// Largest stencil width per direction.
 pub const MAX_K: usize = 4;
 
+/// floor() without the libm call (x86-64 has no rounding instruction before SSE4.1), exact for
+/// |x| < 2^52; the stencils call it D times per particle per transfer.
+#[inline]
+fn floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x {
+        t - 1.0
+    } else {
+        t
+    }
+}
+
 /// One direction of a particle's stencil.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Kernel1 {
@@ -38,50 +50,71 @@ impl ShapeFunction {
 
     /// 1D kernel of a particle at `xi` (in cells from the grid origin), cell size `h`, GIMP
     /// half-width `lp` (in cells; ignored by the other kinds).
+    #[inline]
     pub fn kernel_1d(self, xi: f64, h: f64, lp: f64) -> Kernel1 {
         let mut k = Kernel1::default();
         let first: f64 = match self {
-            ShapeFunction::Linear => xi.floor(),
-            ShapeFunction::Gimp => (xi - 1.0 - lp).floor() + 1.0,
-            ShapeFunction::Bspline2 => (xi - 0.5).floor(),
-            ShapeFunction::Bspline3 => xi.floor() - 1.0,
+            ShapeFunction::Linear => floor(xi),
+            ShapeFunction::Gimp => floor(xi - 1.0 - lp) + 1.0,
+            ShapeFunction::Bspline2 => floor(xi - 0.5),
+            ShapeFunction::Bspline3 => floor(xi) - 1.0,
         };
         // first >= -PAD for any xi >= 0 (validated positions), so the cast is exact.
         k.base = (first + PAD as f64).max(0.0) as usize;
         let first = k.base as f64 - PAD as f64;
-        let mut second_moment = 0.0;
-        for o in 0..self.width() {
-            // r = x_p - x_i in cells
-            let r = xi - (first + o as f64);
-            let (w, dwdr) = if self == ShapeFunction::Linear {
-                // the one kernel with a kink at the nodes: take the derivative of the cell the
-                // particle is in, so that the gradients sum to zero on a node too
-                if o == 0 {
-                    (1.0 - r, -1.0)
-                } else {
-                    (1.0 + r, 1.0)
+        let inv_h = 1.0 / h;
+        match self {
+            ShapeFunction::Linear => {
+                // The one kernel with a kink at the nodes: take the derivative of the cell the
+                // particle is in, so that the gradients sum to zero on a node too. For
+                // multilinear kernels w (x_i - x_p) / D is exactly dN/dx.
+                let f = xi - first;
+                k.w[0] = 1.0 - f;
+                k.w[1] = f;
+                k.dw[0] = -inv_h;
+                k.dw[1] = inv_h;
+                k.aw = k.dw;
+            }
+            ShapeFunction::Bspline2 => {
+                let f = xi - first; // in [0.5, 1.5)
+                let (a, b) = (1.5 - f, f - 0.5);
+                k.w[0] = 0.5 * a * a;
+                k.w[1] = 0.75 - (f - 1.0) * (f - 1.0);
+                k.w[2] = 0.5 * b * b;
+                k.dw[0] = -a * inv_h;
+                k.dw[1] = -2.0 * (f - 1.0) * inv_h;
+                k.dw[2] = b * inv_h;
+                // D = h^2 / 4 for the quadratic B-spline
+                for o in 0..3 {
+                    k.aw[o] = -4.0 * k.w[o] * (f - o as f64) * inv_h;
                 }
-            } else {
-                self.kernel(r, lp)
-            };
-            k.w[o] = w;
-            k.dw[o] = dwdr / h;
-            second_moment += w * r * r;
-        }
-        for o in 0..self.width() {
-            let r = xi - (first + o as f64);
-            // For multilinear kernels w (x_i - x_p) / D equals dN/dx exactly; it is also the
-            // limit where D vanishes (particle on a node), so fall back to it there.
-            k.aw[o] = if second_moment > 1e-10 {
-                -k.w[o] * r / (second_moment * h)
-            } else {
-                k.dw[o]
-            };
+            }
+            ShapeFunction::Gimp | ShapeFunction::Bspline3 => {
+                let mut second_moment = 0.0;
+                for o in 0..self.width() {
+                    // r = x_p - x_i in cells
+                    let r = xi - (first + o as f64);
+                    let (w, dwdr) = self.kernel(r, lp);
+                    k.w[o] = w;
+                    k.dw[o] = dwdr * inv_h;
+                    second_moment += w * r * r;
+                }
+                for o in 0..self.width() {
+                    let r = xi - (first + o as f64);
+                    // where D vanishes (cannot happen for these kernels) fall back to dN/dx
+                    k.aw[o] = if second_moment > 1e-10 {
+                        -k.w[o] * r * inv_h / second_moment
+                    } else {
+                        k.dw[o]
+                    };
+                }
+            }
         }
         k
     }
 
     /// 1D kernel value and derivative d/dr at distance r = x_p - x_i (in cells).
+    #[inline]
     fn kernel(self, r: f64, lp: f64) -> (f64, f64) {
         let a = r.abs();
         let s = r.signum();
@@ -153,6 +186,7 @@ pub struct NodeWeight<const D: usize> {
 
 impl<const D: usize> Stencil<D> {
     /// Stencil of a particle at `x_cells` (position in cells from the grid origin).
+    #[inline]
     pub fn new(kind: ShapeFunction, x_cells: &SVector<f64, D>, h: f64, lp: f64) -> Self {
         Self {
             k: std::array::from_fn(|d| kind.kernel_1d(x_cells[d], h, lp)),

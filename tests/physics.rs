@@ -1,0 +1,170 @@
+//! Physics checks of the explicit scheme against exact solutions.
+
+use pmpm::scheme::Simulation;
+use pmpm::Deck;
+
+/// Runs `f` on a worker of a pool of `threads` threads: a step's short parallel loops then start
+/// without waking threads from outside the pool (as `pmpm run` does).
+fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a thread pool")
+        .install(f)
+}
+
+fn deck(text: &str) -> Deck {
+    let mut d = Deck::parse(text, "test.toml").expect("test deck parses");
+    d.validate("test.toml").expect("test deck is valid");
+    d
+}
+
+/// A block in free fall, far from every wall, follows y0 - g t^2 / 2. The update
+/// x += dt v^{n+1} is symplectic Euler, whose error in position is g t dt / 2 (5e-7 m here at
+/// dt = 1e-6 s); the bound of 1e-6 relative to the exact position leaves room for it and checks
+/// that the transfers add no spurious force (stress stays zero in a uniform velocity field).
+#[test]
+fn free_fall_follows_the_parabola() {
+    for transfer in ["pic", "flip", "apic"] {
+        let d = deck(&format!(
+            r#"
+[simulation]
+dimension = 2
+scheme = "explicit"
+end_time = 0.1
+dt = 1.0e-6
+gravity = [0.0, -9.81]
+transfer = "{transfer}"
+[grid]
+size = [1.0, 1.0]
+cell_size = 0.05
+[grid.boundary]
+x_min = "open"
+x_max = "open"
+y_min = "open"
+y_max = "open"
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+bulk_modulus = 1.0e5
+[[bodies]]
+material = "water"
+shape = {{ type = "box", min = [0.4, 0.7], max = [0.6, 0.8] }}
+"#
+        ));
+        in_pool(1, || free_fall(&d, transfer));
+    }
+}
+
+fn free_fall(d: &Deck, transfer: &str) {
+    {
+        let mut sim = Simulation::<2>::new(d).unwrap();
+        let y0: Vec<f64> = sim.particles.x.iter().map(|x| x[1]).collect();
+        let x0: Vec<f64> = sim.particles.x.iter().map(|x| x[0]).collect();
+        let dt = 1.0e-6;
+        for _ in 0..100_000 {
+            sim.step(dt).unwrap();
+        }
+        let t = sim.time;
+        assert!((t - 0.1).abs() < 1e-9, "t = {t}");
+        let mut worst = 0.0f64;
+        for p in 0..sim.particles.len() {
+            let exact = y0[p] - 0.5 * 9.81 * t * t;
+            let rel = (sim.particles.x[p][1] - exact).abs() / exact.abs();
+            worst = worst.max(rel);
+            assert!(
+                (sim.particles.x[p][0] - x0[p]).abs() < 1e-12,
+                "no sideways drift"
+            );
+        }
+        println!("free fall ({transfer}): worst relative error in y after 0.1 s: {worst:.3e}");
+        assert!(worst < 1e-6, "{transfer}: {worst:e}");
+    }
+}
+
+/// Hydrostatic column, weakly compressible: water 1000 kg/m3, H = 0.4 m, c = 20 m/s
+/// (K = 4e5 Pa), h = 0.01 m, PIC with a damping of 5 1/s to settle the acoustic ringing.
+/// After 2 s the mean pressure of the particles in the bottom cell layer is within 3% of
+/// rho g (H - y) at their mean depth. The ringing of the base pressure is printed.
+#[test]
+fn hydrostatic_column_settles_to_rho_g_h() {
+    let d = deck(
+        r#"
+[simulation]
+dimension = 2
+scheme = "explicit"
+end_time = 2.0
+cfl = 0.4
+gravity = [0.0, -9.81]
+transfer = "pic"
+damping = 5.0
+[grid]
+size = [0.2, 0.5]
+cell_size = 0.01
+[grid.boundary]
+y_max = "open"
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+bulk_modulus = 4.0e5
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [0.2, 0.4] }
+[[output.probes]]
+name = "base"
+position = [0.1, 0.0]
+"#,
+    );
+    in_pool(2, || hydrostatic(&d));
+}
+
+fn hydrostatic(d: &Deck) {
+    let mut sim = Simulation::<2>::new(d).unwrap();
+    let (rho, g, h_col, h) = (1000.0, 9.81, 0.4, 0.01);
+    let rgh = rho * g * h_col;
+    let mut history = Vec::new();
+    while sim.time < 2.0 - 1e-12 {
+        let dt = sim.stable_dt(0.4).min(2.0 - sim.time);
+        let t0 = sim.time;
+        sim.step(dt).unwrap();
+        history.push((t0, sim.probe_values[0]));
+    }
+    let range = |a: f64, b: f64| {
+        let v: Vec<f64> = history
+            .iter()
+            .filter(|(t, _)| *t >= a && *t < b)
+            .map(|(_, p)| p / rgh)
+            .collect();
+        (
+            v.iter().copied().fold(f64::INFINITY, f64::min),
+            v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        )
+    };
+    for (a, b) in [(0.0, 0.1), (0.1, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0)] {
+        let (lo, hi) = range(a, b);
+        println!("base pressure / (rho g H), t in [{a}, {b}): {lo:.3} .. {hi:.3}");
+    }
+    let ps = &sim.particles;
+    let bottom: Vec<usize> = (0..ps.len()).filter(|&p| ps.x[p][1] < h).collect();
+    assert!(!bottom.is_empty());
+    let p_mean = bottom.iter().map(|&p| ps.pressure[p]).sum::<f64>() / bottom.len() as f64;
+    let y_mean = bottom.iter().map(|&p| ps.x[p][1]).sum::<f64>() / bottom.len() as f64;
+    let exact = rho * g * (h_col - y_mean);
+    let err = (p_mean - exact) / exact;
+    let vmax = ps.v.iter().map(|v| v.norm()).fold(0.0, f64::max);
+    println!(
+        "bottom layer: mean p = {p_mean:.1} Pa, rho g (H - y) = {exact:.1} Pa, error {:.2}%, max speed {vmax:.2e} m/s, {} steps",
+        100.0 * err,
+        sim.steps
+    );
+    assert!(
+        err.abs() < 0.03,
+        "bottom-layer pressure off by {:.2}%",
+        100.0 * err
+    );
+    // settled: the last half second of the base probe stays within 3% of rho g H
+    let (lo, hi) = range(1.5, 2.0);
+    assert!(hi - lo < 0.03, "still ringing: {lo} .. {hi}");
+}

@@ -1,0 +1,246 @@
+//! Whole runs through the binary: every output file of DECK.md, 2D and 3D, repeatability,
+//! the blow-up guard and the protection of an earlier run.
+
+mod common;
+use common::{pmpm, scratch_dir, SMALL_2D};
+use std::path::Path;
+
+fn run_ok(deck: &Path, out: &Path, extra: &[&str]) {
+    let mut args = vec![
+        "run",
+        deck.to_str().unwrap(),
+        "--output",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    let o = pmpm(&args);
+    assert!(
+        o.status.success(),
+        "run failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn check_outputs(out: &Path, dim: usize, end_time: f64, probes: bool) {
+    for f in ["run.toml", "series.csv", "particles.pvd"] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    assert_eq!(out.join("probes.csv").is_file(), probes);
+    let f0 = std::fs::read_to_string(out.join("frames/particles_000000.csv")).unwrap();
+    let head = if dim == 2 {
+        "id,x,y,vx,vy,pressure,mass,volume,material"
+    } else {
+        "id,x,y,z,vx,vy,vz,pressure,mass,volume,material"
+    };
+    assert_eq!(f0.lines().next().unwrap(), head);
+    assert!(out.join("frames/particles_000000.vtu").is_file());
+    let series = std::fs::read_to_string(out.join("series.csv")).unwrap();
+    let mut lines = series.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "frame,time,step,dt,kinetic_energy,max_speed,pressure_iterations,wall_seconds"
+    );
+    let rows: Vec<Vec<String>> = lines
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect();
+    let last = rows.last().unwrap();
+    let t_last: f64 = last[1].parse().unwrap();
+    assert!(
+        (t_last - end_time).abs() < 1e-9,
+        "ran to {t_last}, not {end_time}"
+    );
+    // every frame in series.csv has its files and is listed in the .pvd
+    let pvd = std::fs::read_to_string(out.join("particles.pvd")).unwrap();
+    for r in &rows {
+        let n: usize = r[0].parse().unwrap();
+        let name = format!("frames/particles_{n:06}");
+        assert!(out.join(format!("{name}.csv")).is_file(), "{name}.csv");
+        assert!(out.join(format!("{name}.vtu")).is_file(), "{name}.vtu");
+        assert!(pvd.contains(&format!("{name}.vtu")));
+    }
+    if probes {
+        let p = std::fs::read_to_string(out.join("probes.csv")).unwrap();
+        let head = if dim == 2 {
+            "time,base_pressure,base_vx,base_vy"
+        } else {
+            "time,base_pressure,base_vx,base_vy,base_vz"
+        };
+        assert_eq!(p.lines().next().unwrap(), head);
+        let steps: usize = last[2].parse().unwrap();
+        // a row at the start of every step and one for the final state
+        assert_eq!(p.lines().count(), 1 + steps + 1);
+    }
+    // run.toml is a deck that validates again, with the defaults filled in
+    let run = out.join("run.toml");
+    let d = pmpm::Deck::load(&run).expect("run.toml is a valid deck");
+    assert!(d.output.interval.is_some() && d.pmpm.is_some());
+}
+
+#[test]
+fn a_2d_deck_writes_every_output_file() {
+    let dir = scratch_dir("run-2d");
+    let deck = dir.join("small.toml");
+    std::fs::write(&deck, SMALL_2D).unwrap();
+    run_ok(&deck, &dir.join("out"), &[]);
+    check_outputs(&dir.join("out"), 2, 0.05, true);
+}
+
+#[test]
+fn a_3d_deck_writes_every_output_file() {
+    let dir = scratch_dir("run-3d");
+    let deck = dir.join("small3d.toml");
+    let text = r#"
+[simulation]
+dimension = 3
+scheme = "explicit"
+end_time = 0.03
+cfl = 0.4
+gravity = [0.0, 0.0, -9.81]
+[grid]
+size = [0.2, 0.1, 0.2]
+cell_size = 0.02
+[grid.boundary]
+z_max = "open"
+[[materials]]
+name = "water"
+density = 1000.0
+bulk_modulus = 4.0e4
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0, 0.0], max = [0.06, 0.1, 0.1] }
+[[bodies]]
+material = "water"
+shape = { type = "sphere", center = [0.15, 0.05, 0.12], radius = 0.03 }
+velocity = [0.0, 0.0, -0.5]
+[output]
+interval = 0.01
+[[output.probes]]
+name = "base"
+position = [0.01, 0.05, 0.0]
+"#;
+    std::fs::write(&deck, text).unwrap();
+    run_ok(&deck, &dir.join("out"), &[]);
+    check_outputs(&dir.join("out"), 3, 0.03, true);
+}
+
+#[test]
+fn the_shipped_examples_are_valid() {
+    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+    let mut n = 0;
+    for e in std::fs::read_dir(examples).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "toml") {
+            let o = pmpm(&["check", p.to_str().unwrap()]);
+            assert!(
+                o.status.success(),
+                "{}: {}",
+                p.display(),
+                String::from_utf8_lossy(&o.stderr)
+            );
+            let first = std::fs::read_to_string(&p).unwrap();
+            assert!(
+                first.starts_with('#'),
+                "{}: starts with a comment on what it shows",
+                p.display()
+            );
+            n += 1;
+        }
+    }
+    assert!(n >= 3);
+}
+
+#[test]
+fn runs_are_bitwise_repeatable_on_a_thread_count() {
+    let dir = scratch_dir("repeat");
+    let deck = dir.join("small.toml");
+    std::fs::write(&deck, SMALL_2D).unwrap();
+    for threads in ["1", "2"] {
+        let a = dir.join(format!("a{threads}"));
+        let b = dir.join(format!("b{threads}"));
+        run_ok(&deck, &a, &["--threads", threads]);
+        run_ok(&deck, &b, &["--threads", threads]);
+        for f in [
+            "frames/particles_000005.vtu",
+            "frames/particles_000005.csv",
+            "probes.csv",
+        ] {
+            let fa = std::fs::read(a.join(f)).unwrap();
+            let fb = std::fs::read(b.join(f)).unwrap();
+            assert!(
+                fa == fb,
+                "{f} differs between two runs on {threads} threads"
+            );
+        }
+    }
+}
+
+#[test]
+fn an_earlier_run_is_not_overwritten_without_force() {
+    let dir = scratch_dir("force");
+    let deck = dir.join("small.toml");
+    std::fs::write(&deck, SMALL_2D).unwrap();
+    let out = dir.join("out");
+    run_ok(&deck, &out, &[]);
+    let before = std::fs::read(out.join("series.csv")).unwrap();
+    let o = pmpm(&[
+        "run",
+        deck.to_str().unwrap(),
+        "--output",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--force"));
+    assert_eq!(std::fs::read(out.join("series.csv")).unwrap(), before);
+    run_ok(&deck, &out, &["--force"]);
+}
+
+#[test]
+fn a_particle_leaving_through_an_open_face_stops_the_run_with_status_3() {
+    let dir = scratch_dir("blowup");
+    let deck = dir.join("leak.toml");
+    // a block thrown at the open right face at 5 m/s reaches it within 0.05 s
+    let text = SMALL_2D
+        .replace("x_max = \"slip\"", "x_max = \"open\"")
+        .replace(
+            "particles_per_cell = 2",
+            "particles_per_cell = 2\nvelocity = [5.0, 0.0]",
+        )
+        .replace("end_time = 0.05", "end_time = 0.2");
+    std::fs::write(&deck, text).unwrap();
+    let out = dir.join("out");
+    let o = pmpm(&[
+        "run",
+        deck.to_str().unwrap(),
+        "--output",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "{stderr}");
+    assert!(
+        stderr.contains("left the grid") && stderr.contains("at step"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"));
+    // frames written before the blow-up are kept, and series.csv lists them
+    assert!(out.join("frames/particles_000000.csv").is_file());
+    let series = std::fs::read_to_string(out.join("series.csv")).unwrap();
+    assert!(series.lines().count() >= 2);
+}
+
+#[test]
+fn projection_is_refused_clearly_until_it_exists() {
+    let dir = scratch_dir("projection");
+    let deck = dir.join("proj.toml");
+    std::fs::write(&deck, SMALL_2D.replace("\"explicit\"", "\"projection\"")).unwrap();
+    let o = pmpm(&[
+        "run",
+        deck.to_str().unwrap(),
+        "--output",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("simulation.scheme"), "{stderr}");
+}
