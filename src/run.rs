@@ -128,7 +128,7 @@ fn run_dim<const D: usize>(
     };
     if result.is_ok() {
         // the final state's probe row
-        sim.refresh_grid();
+        sim.particles_to_grid();
         out.probe_row(sim.time, &sim)?;
     }
     let flushed = out.finish();

@@ -123,14 +123,8 @@ impl<const D: usize> Simulation<D> {
 
     /// One time step of size `dt`, as METHOD.md sets it out.
     pub fn step(&mut self, dt: f64) -> Result<(), Error> {
-        // 1. particles -> grid: mass, momentum, internal and body forces
-        transfer::particles_to_grid(
-            &self.particles,
-            &mut self.grid,
-            &mut self.scratch,
-            &self.settings,
-        );
-        self.sample_probes();
+        // 1. particles -> grid: mass, momentum, internal and body forces (and probe samples)
+        self.particles_to_grid();
         // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure)
         self.grid
             .predict(dt, self.deck.simulation.damping, self.settings.mass_epsilon);
@@ -187,8 +181,9 @@ impl<const D: usize> Simulation<D> {
         self.check_particles()
     }
 
-    /// Refreshes the grid from the particles without stepping, to sample probes at the end.
-    pub fn refresh_grid(&mut self) {
+    /// P2G of the current particles, and the probes sampled from it (also used without a step,
+    /// for the final state's probe row).
+    pub fn particles_to_grid(&mut self) {
         transfer::particles_to_grid(
             &self.particles,
             &mut self.grid,

@@ -59,6 +59,41 @@ impl<const D: usize> P2gScratch<D> {
     }
 }
 
+impl<const D: usize> P2gScratch<D> {
+    /// Runs `scatter` on every thread's buffer with that thread's contiguous range of particles.
+    fn scatter<F>(&mut self, particles: usize, scatter: F)
+    where
+        F: Fn(&mut Accumulator<D>, std::ops::Range<usize>) + Sync,
+    {
+        let per = particles.div_ceil(self.buffers.len()).max(1);
+        self.buffers
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(t, acc)| {
+                scatter(
+                    acc,
+                    (t * per).min(particles)..((t + 1) * per).min(particles),
+                )
+            });
+    }
+}
+
+/// A particle's momentum contribution per unit mass to node i: v_p, plus C_p (x_i - x_p) for APIC.
+#[inline]
+fn node_velocity<const D: usize>(
+    apic: bool,
+    vp: &Vector<D>,
+    c: &Matrix<D>,
+    xi: Vector<D>,
+    xp: &Vector<D>,
+) -> Vector<D> {
+    if apic {
+        vp + c * (xi - xp)
+    } else {
+        *vp
+    }
+}
+
 /// P2G: node mass, momentum (with APIC's affine term), internal + body force and
 /// mass-weighted pressure; then node velocity v_i^n = (m v)_i / m_i and pressure p_i.
 pub fn particles_to_grid<const D: usize>(
@@ -68,46 +103,35 @@ pub fn particles_to_grid<const D: usize>(
     s: &TransferSettings<D>,
 ) {
     let geo = &grid.geo;
-    let n = ps.len();
-    let chunks = scratch.buffers.len();
-    let per = n.div_ceil(chunks).max(1);
     let apic = s.transfer == Transfer::Apic;
-    scratch
-        .buffers
-        .par_iter_mut()
-        .enumerate()
-        .for_each(|(t, acc)| {
-            acc.mass.fill(0.0);
-            acc.momentum.fill(Vector::<D>::zeros());
-            acc.force.fill(Vector::<D>::zeros());
-            acc.pressure.fill(0.0);
-            let range = (t * per).min(n)..((t + 1) * per).min(n);
-            for p in range {
-                let m = ps.mass[p];
-                let vol = ps.volume(p);
-                let mut stress = ps.tau[p];
-                if s.pressure_in_stress {
-                    for d in 0..D {
-                        stress[(d, d)] -= ps.pressure[p];
-                    }
+    scratch.scatter(ps.len(), |acc, range| {
+        acc.mass.fill(0.0);
+        acc.momentum.fill(Vector::<D>::zeros());
+        acc.force.fill(Vector::<D>::zeros());
+        acc.pressure.fill(0.0);
+        for p in range {
+            let m = ps.mass[p];
+            let vol = ps.volume(p);
+            let mut stress = ps.tau[p];
+            if s.pressure_in_stress {
+                for d in 0..D {
+                    stress[(d, d)] -= ps.pressure[p];
                 }
-                let xp = ps.x[p];
-                let st = Stencil::<D>::new(s.shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
-                let vp = ps.v[p];
-                let c = ps.affine[p];
-                st.for_each(|nw| {
-                    let i = geo.flat(&nw.node);
-                    let mut mom = vp;
-                    if apic {
-                        mom += c * (geo.node_position(&nw.node) - xp);
-                    }
-                    acc.mass[i] += nw.n * m;
-                    acc.momentum[i] += mom * (nw.n * m);
-                    acc.force[i] += s.gravity * (nw.n * m) - stress * nw.grad * vol;
-                    acc.pressure[i] += nw.n * m * ps.pressure[p];
-                });
             }
-        });
+            let xp = ps.x[p];
+            let st = Stencil::<D>::new(s.shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
+            let vp = ps.v[p];
+            let c = ps.affine[p];
+            st.for_each(|nw| {
+                let i = geo.flat(&nw.node);
+                let mom = node_velocity(apic, &vp, &c, geo.node_position(&nw.node), &xp);
+                acc.mass[i] += nw.n * m;
+                acc.momentum[i] += mom * (nw.n * m);
+                acc.force[i] += s.gravity * (nw.n * m) - stress * nw.grad * vol;
+                acc.pressure[i] += nw.n * m * ps.pressure[p];
+            });
+        }
+    });
     let bufs = &scratch.buffers;
     let eps = s.mass_epsilon;
     (
@@ -153,30 +177,20 @@ pub fn remap_velocity<const D: usize>(
     s: &TransferSettings<D>,
 ) {
     let geo = &grid.geo;
-    let n = ps.len();
-    let chunks = scratch.buffers.len();
-    let per = n.div_ceil(chunks).max(1);
     let apic = s.transfer == Transfer::Apic;
-    scratch
-        .buffers
-        .par_iter_mut()
-        .enumerate()
-        .for_each(|(t, acc)| {
-            acc.momentum.fill(Vector::<D>::zeros());
-            for p in (t * per).min(n)..((t + 1) * per).min(n) {
-                let m = ps.mass[p];
-                let xp = ps.x[p];
-                let st = Stencil::<D>::new(s.shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
-                let (vp, c) = (ps.v[p], ps.affine[p]);
-                st.for_each(|nw| {
-                    let mut mom = vp;
-                    if apic {
-                        mom += c * (geo.node_position(&nw.node) - xp);
-                    }
-                    acc.momentum[geo.flat(&nw.node)] += mom * (nw.n * m);
-                });
-            }
-        });
+    scratch.scatter(ps.len(), |acc, range| {
+        acc.momentum.fill(Vector::<D>::zeros());
+        for p in range {
+            let m = ps.mass[p];
+            let xp = ps.x[p];
+            let st = Stencil::<D>::new(s.shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
+            let (vp, c) = (ps.v[p], ps.affine[p]);
+            st.for_each(|nw| {
+                let mom = node_velocity(apic, &vp, &c, geo.node_position(&nw.node), &xp);
+                acc.momentum[geo.flat(&nw.node)] += mom * (nw.n * m);
+            });
+        }
+    });
     let bufs = &scratch.buffers;
     let eps = s.mass_epsilon;
     grid.velocity_new
