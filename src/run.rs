@@ -77,6 +77,9 @@ fn run_dim<const D: usize>(
             sim.grid.geo.node_count()
         );
     }
+    for w in warnings(deck) {
+        eprintln!("warning: {file}: {w}");
+    }
     out.frame(&sim, 0.0, 0.0)?;
     let mut next_frame = interval;
     let result = loop {
@@ -158,6 +161,25 @@ pub fn load(path: &Path) -> Result<Deck, Error> {
     Ok(Deck::load(path)?)
 }
 
+/// Warnings about a valid deck that is likely to go wrong.
+pub fn warnings(deck: &Deck) -> Vec<String> {
+    use crate::deck::{ShapeFunction, Transfer};
+    let s = &deck.simulation;
+    let mut w = Vec::new();
+    if s.transfer == Transfer::Apic
+        && matches!(
+            s.shape_function,
+            ShapeFunction::Linear | ShapeFunction::Gimp
+        )
+    {
+        w.push(format!(
+            "simulation.transfer: \"apic\" with shape_function = \"{}\" grows an unstable mode at free surfaces in this version (seen in the dam break); use \"bspline2\" or transfer = \"flip\"",
+            format!("{:?}", s.shape_function).to_lowercase()
+        ));
+    }
+    w
+}
+
 /// The summary `pmpm check` prints: what the deck sets up and what a run will cost.
 pub fn check_summary(deck: &Deck, file: &str) -> Result<String, Error> {
     match deck.simulation.dimension {
@@ -172,6 +194,9 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     let s = &deck.simulation;
     let geo = &sim.grid.geo;
     let mut out = format!("{file}: deck is valid\n");
+    for w in warnings(deck) {
+        out += &format!("warning: {w}\n");
+    }
     out += &format!(
         "  dimension        {D}\n  scheme           {:?}\n",
         s.scheme
