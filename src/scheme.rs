@@ -67,10 +67,9 @@ impl<const D: usize> Simulation<D> {
         let particles = Particles::from_deck(deck, &geo);
         if let Some(b) = (0..deck.bodies.len()).find(|&b| {
             !particles
-                .material
+                .x
                 .iter()
-                .zip(&particles.x)
-                .any(|(_, x)| deck.bodies[b].shape.contains(x.as_slice()))
+                .any(|x| deck.bodies[b].shape.contains(x.as_slice()))
         }) {
             return Err(crate::deck::DeckError {
                 file: String::new(),
