@@ -25,6 +25,36 @@ fn floor(x: f64) -> f64 {
     }
 }
 
+/// uGIMP kernel value and derivative d/dr at r = x_p - x_i (in cells), half-width `lp`.
+#[inline]
+fn gimp(r: f64, lp: f64) -> (f64, f64) {
+    let (a, s) = (r.abs(), r.signum());
+    if a < lp {
+        (1.0 - (r * r + lp * lp) / (2.0 * lp), -r / lp)
+    } else if a < 1.0 - lp {
+        (1.0 - a, -s)
+    } else if a < 1.0 + lp {
+        let t = 1.0 + lp - a;
+        (t * t / (4.0 * lp), -s * t / (2.0 * lp))
+    } else {
+        (0.0, 0.0)
+    }
+}
+
+/// Cubic B-spline value and derivative d/dr at r = x_p - x_i (in cells).
+#[inline]
+fn cubic_bspline(r: f64) -> (f64, f64) {
+    let (a, s) = (r.abs(), r.signum());
+    if a < 1.0 {
+        (0.5 * a * a * a - a * a + 2.0 / 3.0, 1.5 * r * a - 2.0 * r)
+    } else if a < 2.0 {
+        let t = 2.0 - a;
+        (t * t * t / 6.0, -0.5 * s * t * t)
+    } else {
+        (0.0, 0.0)
+    }
+}
+
 /// One direction of a particle's stencil.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Kernel1 {
@@ -94,7 +124,11 @@ impl ShapeFunction {
                 for o in 0..self.width() {
                     // r = x_p - x_i in cells
                     let r = xi - (first + o as f64);
-                    let (w, dwdr) = self.kernel(r, lp);
+                    let (w, dwdr) = if self == ShapeFunction::Gimp {
+                        gimp(r, lp)
+                    } else {
+                        cubic_bspline(r)
+                    };
                     k.w[o] = w;
                     k.dw[o] = dwdr * inv_h;
                     second_moment += w * r * r;
@@ -111,54 +145,6 @@ impl ShapeFunction {
             }
         }
         k
-    }
-
-    /// 1D kernel value and derivative d/dr at distance r = x_p - x_i (in cells).
-    #[inline]
-    fn kernel(self, r: f64, lp: f64) -> (f64, f64) {
-        let a = r.abs();
-        let s = r.signum();
-        match self {
-            ShapeFunction::Linear => {
-                if a < 1.0 {
-                    (1.0 - a, -s)
-                } else {
-                    (0.0, 0.0)
-                }
-            }
-            ShapeFunction::Gimp => {
-                if a < lp {
-                    (1.0 - (r * r + lp * lp) / (2.0 * lp), -r / lp)
-                } else if a < 1.0 - lp {
-                    (1.0 - a, -s)
-                } else if a < 1.0 + lp {
-                    let t = 1.0 + lp - a;
-                    (t * t / (4.0 * lp), -s * t / (2.0 * lp))
-                } else {
-                    (0.0, 0.0)
-                }
-            }
-            ShapeFunction::Bspline2 => {
-                if a < 0.5 {
-                    (0.75 - a * a, -2.0 * r)
-                } else if a < 1.5 {
-                    let t = 1.5 - a;
-                    (0.5 * t * t, -s * t)
-                } else {
-                    (0.0, 0.0)
-                }
-            }
-            ShapeFunction::Bspline3 => {
-                if a < 1.0 {
-                    (0.5 * a * a * a - a * a + 2.0 / 3.0, 1.5 * r * a - 2.0 * r)
-                } else if a < 2.0 {
-                    let t = 2.0 - a;
-                    (t * t * t / 6.0, -0.5 * s * t * t)
-                } else {
-                    (0.0, 0.0)
-                }
-            }
-        }
     }
 }
 
