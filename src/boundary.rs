@@ -72,6 +72,11 @@ impl<const D: usize> Boundary<D> {
         });
     }
 
+    /// Whether face `f` (x_min, x_max, y_min, ...) is open.
+    pub fn is_open(&self, f: usize) -> bool {
+        self.faces[f].0 == BoundaryKind::Open
+    }
+
     /// Imposes the face conditions on node velocities.
     pub fn apply(&self, v: &mut [Vector<D>]) {
         for &(i, f) in &self.nodes {

@@ -337,7 +337,7 @@ pub struct PressureDeck {
     pub free_surface: FreeSurface,
     #[serde(default = "default_vf_tolerance")]
     pub volume_fraction_tolerance: f64,
-    #[serde(default)]
+    #[serde(default = "default_beta")]
     pub beta: f64,
 }
 
@@ -346,6 +346,12 @@ fn default_tolerance() -> f64 {
 }
 fn default_max_iterations() -> usize {
     2000
+}
+/// Incremental projection by default: Chorin's split (beta = 0) imposes dp/dn = 0 on walls,
+/// which is wrong under gravity, and a column at rest then creeps into its floor (see the
+/// README's notes on the method).
+fn default_beta() -> f64 {
+    1.0
 }
 fn default_vf_tolerance() -> f64 {
     0.3
@@ -360,7 +366,7 @@ impl Default for PressureDeck {
             max_iterations: default_max_iterations(),
             free_surface: FreeSurface::default(),
             volume_fraction_tolerance: default_vf_tolerance(),
-            beta: 0.0,
+            beta: default_beta(),
         }
     }
 }

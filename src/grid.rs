@@ -80,11 +80,76 @@ impl<const D: usize> GridGeometry<D> {
         Vector::<D>::from_fn(|d, _| self.origin[d] + self.cells[d] as f64 * self.h)
     }
 
+    /// Flat (padded) index of the cell holding `x`, clamped to the padded grid; a cell is
+    /// numbered like its lower-corner node.
+    #[inline]
+    pub fn cell_of(&self, x: &Vector<D>) -> usize {
+        let xc = self.to_cells(x);
+        let idx: [usize; D] = std::array::from_fn(|d| {
+            let c = xc[d].floor() + PAD as f64;
+            (c.max(0.0) as usize).min(self.nodes[d] - 2)
+        });
+        self.flat(&idx)
+    }
+
     /// Whether a point lies in the closed domain.
     #[inline]
     pub fn contains(&self, x: &Vector<D>) -> bool {
         let up = self.upper();
         (0..D).all(|d| x[d] >= self.origin[d] && x[d] <= up[d])
+    }
+}
+
+/// Particles sorted by the cell they are in (a counting sort, redone every step with reused
+/// buffers), so that a node can gather from the particles of the cells around it: the
+/// projection's assembly and corrector are gathers, deterministic for any thread count.
+///
+/// Cells are numbered like their lower-corner node, so the arrays have one slot per node.
+#[derive(Debug, Clone, Default)]
+pub struct CellBins {
+    /// Cell (flat, padded) of each particle.
+    pub cell_of: Vec<u32>,
+    /// Particles of cell c are `order[start[c]..start[c + 1]]`.
+    pub start: Vec<u32>,
+    /// Particle ids sorted by cell, in increasing id within a cell.
+    pub order: Vec<u32>,
+}
+
+impl CellBins {
+    /// Sorts the particles at `x` into the cells of `geo`.
+    pub fn sort<const D: usize>(&mut self, geo: &GridGeometry<D>, x: &[Vector<D>]) {
+        use rayon::prelude::*;
+        let n_cells = geo.node_count();
+        self.cell_of.resize(x.len(), 0);
+        self.cell_of
+            .par_iter_mut()
+            .zip(x.par_iter())
+            .for_each(|(c, x)| *c = geo.cell_of(x) as u32);
+        self.start.clear();
+        self.start.resize(n_cells + 1, 0);
+        for &c in &self.cell_of {
+            self.start[c as usize + 1] += 1;
+        }
+        for c in 0..n_cells {
+            self.start[c + 1] += self.start[c];
+        }
+        self.order.resize(x.len(), 0);
+        // fill with a running cursor per cell, kept in `start` shifted by one and restored
+        for (p, &c) in self.cell_of.iter().enumerate() {
+            let slot = &mut self.start[c as usize];
+            self.order[*slot as usize] = p as u32;
+            *slot += 1;
+        }
+        for c in (1..=n_cells).rev() {
+            self.start[c] = self.start[c - 1];
+        }
+        self.start[0] = 0;
+    }
+
+    /// The particles of flat cell `c`.
+    #[inline]
+    pub fn particles(&self, c: usize) -> &[u32] {
+        &self.order[self.start[c] as usize..self.start[c + 1] as usize]
     }
 }
 

@@ -28,6 +28,7 @@ pub mod grid;
 pub mod material;
 pub mod output;
 pub mod particles;
+pub mod pressure;
 pub mod run;
 pub mod scheme;
 pub mod shape;

@@ -1,6 +1,6 @@
 //! The run driver: time-step control, frames and probes, and what happens when a run fails.
 
-use crate::deck::{Deck, Scheme};
+use crate::deck::{Deck, Preconditioner, Scheme, Solver};
 use crate::error::Error;
 use crate::output::OutputWriter;
 use crate::scheme::Simulation;
@@ -39,11 +39,17 @@ pub fn run(deck: &Deck, file: &str, dir: &Path, opts: &RunOptions) -> Result<Run
             dir.display()
         )));
     }
-    if deck.simulation.scheme == Scheme::Projection {
+    if deck.simulation.scheme == Scheme::Projection
+        && deck.pressure.solver == Solver::Pcg
+        && deck.pressure.preconditioner != Preconditioner::Jacobi
+    {
         return Err(Error::Unsupported {
             file: file.to_string(),
-            key: "simulation.scheme".into(),
-            message: "\"projection\" is not available yet in this version; use \"explicit\"".into(),
+            key: "pressure.preconditioner".into(),
+            message: format!(
+                "\"{}\" is not available yet in this version; use \"jacobi\" (or solver = \"direct\")",
+                format!("{:?}", deck.pressure.preconditioner).to_lowercase()
+            ),
         });
     }
     match deck.simulation.dimension {
@@ -167,13 +173,14 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     let s = &deck.simulation;
     let mut w = Vec::new();
     if s.transfer == Transfer::Apic
+        && s.scheme == crate::deck::Scheme::Explicit
         && matches!(
             s.shape_function,
             ShapeFunction::Linear | ShapeFunction::Gimp
         )
     {
         w.push(format!(
-            "simulation.transfer: \"apic\" with shape_function = \"{}\" grows an unstable mode at free surfaces in this version (seen in the dam break); use \"bspline2\" or transfer = \"flip\"",
+            "simulation.transfer: \"apic\" with shape_function = \"{}\" grows an unstable mode at free surfaces with the explicit scheme (seen in the dam break); use \"bspline2\" or transfer = \"flip\"",
             format!("{:?}", s.shape_function).to_lowercase()
         ));
     }

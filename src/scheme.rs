@@ -10,6 +10,7 @@ use crate::error::Error;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::material::{self, MaterialParams};
 use crate::particles::Particles;
+use crate::pressure::Projection;
 use crate::shape::Stencil;
 use crate::transfer::{self, P2gScratch, TransferSettings};
 use rayon::prelude::*;
@@ -52,6 +53,8 @@ pub struct Simulation<const D: usize> {
     /// Probe samples of the last step's P2G (state at the step's start): per probe, pressure
     /// then D velocity components.
     pub probe_values: Vec<f64>,
+    /// The pressure projection (scheme = "projection").
+    pub projection: Option<Projection<D>>,
     scratch: P2gScratch<D>,
     /// Per-particle velocity that moves it this step (interpolated v^{n+1}).
     advect: Vec<Vector<D>>,
@@ -90,7 +93,11 @@ impl<const D: usize> Simulation<D> {
             transfer: deck.simulation.transfer,
             flip_ratio: deck.simulation.flip_ratio,
             gravity: Vector::<D>::from_column_slice(&deck.simulation.gravity),
-            pressure_in_stress: deck.simulation.scheme == Scheme::Explicit,
+            pressure_weight: match deck.simulation.scheme {
+                Scheme::Explicit => 1.0,
+                // the projection applies its pressure on the grid
+                Scheme::Projection => 0.0,
+            },
             // below a millionth of a particle's smallest weight a node is empty
             mass_epsilon: 1e-12 * min_mass,
         };
@@ -102,7 +109,10 @@ impl<const D: usize> Simulation<D> {
             .iter()
             .map(|p| Vector::<D>::from_column_slice(&p.position))
             .collect();
+        let projection = (deck.simulation.scheme == Scheme::Projection)
+            .then(|| Projection::new(deck, &particles, &boundary));
         Ok(Self {
+            projection,
             deck: deck.clone(),
             particles,
             grid: Grid::new(geo),
@@ -135,13 +145,28 @@ impl<const D: usize> Simulation<D> {
                 self.pressure_iterations = 0;
             }
             Scheme::Projection => {
-                return Err(Error::Unsupported {
-                    file: String::new(),
-                    key: "simulation.scheme".into(),
-                    message:
-                        "\"projection\" is not available yet in this version; use \"explicit\""
-                            .into(),
-                })
+                // free surface, Poisson equation, corrector, pressure to particles
+                let projection = self.projection.as_mut().expect("set up for this scheme");
+                let stats = projection
+                    .project(
+                        &mut self.particles,
+                        &mut self.grid,
+                        &self.boundary,
+                        self.settings.mass_epsilon,
+                        dt,
+                    )
+                    .map_err(|e| {
+                        Error::BlowUp(format!(
+                            "run stopped at step {}, t = {:.6} s: {e}. Likely causes: a time \
+                             step too large for the flow (lower simulation.cfl or simulation.dt), \
+                             or pressure.max_iterations too small for this grid",
+                            self.steps + 1,
+                            self.time
+                        ))
+                    })?;
+                self.pressure_iterations = stats.iterations;
+                // the corrector changed the wall nodes' normal velocity: re-impose it
+                self.boundary.apply(&mut self.grid.velocity_new);
             }
         }
         // 4. grid -> particles (PIC / FLIP / APIC); node velocities remapped from the particles

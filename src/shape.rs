@@ -180,6 +180,38 @@ impl<const D: usize> Stencil<D> {
         }
     }
 
+    /// N_ip and G_ip of the node at offset `o` (per direction, 0..K) from the stencil's base.
+    #[inline]
+    pub fn at(&self, o: &[usize; D]) -> (f64, SVector<f64, D>) {
+        let mut n = 1.0;
+        let mut grad = SVector::<f64, D>::zeros();
+        for d in 0..D {
+            n *= self.k[d].w[o[d]];
+            let mut g = self.k[d].dw[o[d]];
+            for e in 0..D {
+                if e != d {
+                    g *= self.k[e].w[o[e]];
+                }
+            }
+            grad[d] = g;
+        }
+        (n, grad)
+    }
+
+    /// Offset of padded node `node` from the stencil's base, if the stencil holds it.
+    #[inline]
+    pub fn offset_of(&self, node: &[usize; D]) -> Option<[usize; D]> {
+        let mut o = [0usize; D];
+        for d in 0..D {
+            let r = node[d].wrapping_sub(self.k[d].base);
+            if r >= self.width {
+                return None;
+            }
+            o[d] = r;
+        }
+        Some(o)
+    }
+
     /// Calls `f` for each of the K^D nodes of the stencil, in a fixed order.
     #[inline]
     pub fn for_each(&self, mut f: impl FnMut(NodeWeight<D>)) {

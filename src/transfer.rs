@@ -22,9 +22,10 @@ pub struct TransferSettings<const D: usize> {
     pub flip_ratio: f64,
     /// Body force per unit mass.
     pub gravity: Vector<D>,
-    /// Whether particle pressure enters the internal force (explicit scheme) or not (projection:
-    /// pressure comes from the Poisson solve).
-    pub pressure_in_stress: bool,
+    /// Share of the particle pressure in the internal force: 1 for the explicit scheme (the
+    /// equation of state), beta for the projection (0: Chorin's split, the pressure comes from
+    /// the Poisson solve alone; 1: incremental projection).
+    pub pressure_weight: f64,
     /// Nodes lighter than this are treated as empty.
     pub mass_epsilon: f64,
 }
@@ -113,9 +114,9 @@ pub fn particles_to_grid<const D: usize>(
             let m = ps.mass[p];
             let vol = ps.volume(p);
             let mut stress = ps.tau[p];
-            if s.pressure_in_stress {
+            if s.pressure_weight != 0.0 {
                 for d in 0..D {
-                    stress[(d, d)] -= ps.pressure[p];
+                    stress[(d, d)] -= s.pressure_weight * ps.pressure[p];
                 }
             }
             let xp = ps.x[p];
@@ -301,7 +302,7 @@ mod tests {
             transfer,
             flip_ratio: 0.95,
             gravity: Vector::<D>::zeros(),
-            pressure_in_stress: true,
+            pressure_weight: 1.0,
             mass_epsilon: 1e-300,
         }
     }

@@ -230,10 +230,12 @@ fn a_particle_leaving_through_an_open_face_stops_the_run_with_status_3() {
 }
 
 #[test]
-fn projection_is_refused_clearly_until_it_exists() {
-    let dir = scratch_dir("projection");
-    let deck = dir.join("proj.toml");
-    std::fs::write(&deck, SMALL_2D.replace("\"explicit\"", "\"projection\"")).unwrap();
+fn unbuilt_preconditioner_is_refused_clearly() {
+    let dir = scratch_dir("ic0");
+    let deck = dir.join("ic0.toml");
+    let text = SMALL_2D.replace("\"explicit\"", "\"projection\"")
+        + "\n[pressure]\npreconditioner = \"ic0\"\n";
+    std::fs::write(&deck, text).unwrap();
     let o = pmpm(&[
         "run",
         deck.to_str().unwrap(),
@@ -242,5 +244,9 @@ fn projection_is_refused_clearly_until_it_exists() {
     ]);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{stderr}");
-    assert!(stderr.contains("simulation.scheme"), "{stderr}");
+    assert!(
+        stderr.contains("pressure.preconditioner: \"ic0\" is not available yet"),
+        "{stderr}"
+    );
+    assert!(!dir.join("out").exists());
 }

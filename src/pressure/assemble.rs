@@ -1,0 +1,160 @@
+//! Assembly of the pressure Poisson equation (METHOD.md step 4) with particle quadrature:
+//!
+//! ```text
+//! sum_j L_ij p_j = -(1/dt) sum_p V_p N_ip (div v*)_p,   L_ij = sum_p (V_p / rho_p) G_ip . G_jp
+//! ```
+//!
+//! for the interior nodes i; free-surface nodes hold p = 0 and are dropped from the rows and
+//! the columns, so the matrix stays symmetric. Each row is gathered from the particles of the
+//! cells around its node (a node-parallel loop that writes only its own row): no per-thread
+//! copies of the matrix, and the same bits for any thread count.
+
+use super::free_surface::NodeKind;
+use super::solve::EllMatrix;
+use crate::deck::ShapeFunction;
+use crate::grid::{CellBins, GridGeometry, Vector};
+use crate::shape::Stencil;
+use rayon::prelude::*;
+
+/// Largest row: (2K - 1)^D slots, K = 4 (cubic B-spline), D = 3.
+const MAX_SLOTS: usize = 343;
+
+/// Slots per row for a shape function: the (2K - 1)^D nodes a node can share a particle with.
+pub fn row_width<const D: usize>(shape: ShapeFunction) -> usize {
+    (2 * shape.width() - 1).pow(D as u32)
+}
+
+/// Range of cells (per direction, padded indices, inclusive) whose particles can have node
+/// `i` in their stencil: a particle in cell c touches nodes c - 1 ..= c + 2 at most (c ..= c + 1
+/// for linear shape functions).
+#[inline]
+pub fn cell_range(shape: ShapeFunction, i: usize, nodes: usize) -> (usize, usize) {
+    let (below, above) = if shape == ShapeFunction::Linear {
+        (1, 0)
+    } else {
+        (2, 1)
+    };
+    (i.saturating_sub(below), (i + above).min(nodes - 2))
+}
+
+/// Calls `f(p)` for every particle in the cells that can reach node `node`.
+#[inline]
+pub fn for_particles_near<const D: usize>(
+    geo: &GridGeometry<D>,
+    bins: &CellBins,
+    shape: ShapeFunction,
+    node: &[usize; D],
+    mut f: impl FnMut(usize),
+) {
+    let ranges: [(usize, usize); D] =
+        std::array::from_fn(|d| cell_range(shape, node[d], geo.nodes[d]));
+    let mut c = ranges.map(|r| r.0);
+    loop {
+        for &p in bins.particles(geo.flat(&c)) {
+            f(p as usize);
+        }
+        let mut d = 0;
+        loop {
+            if d == D {
+                return;
+            }
+            c[d] += 1;
+            if c[d] <= ranges[d].1 {
+                break;
+            }
+            c[d] = ranges[d].0;
+            d += 1;
+        }
+    }
+}
+
+/// What the assembly reads of the particles.
+pub struct ParticleQuadrature<'a, const D: usize> {
+    /// Positions.
+    pub x: &'a [Vector<D>],
+    /// GIMP half-widths (in cells).
+    pub half_width: &'a [f64],
+    /// Quadrature volumes V_p.
+    pub volume: &'a [f64],
+    /// V_p / rho_p.
+    pub volume_over_density: &'a [f64],
+    /// (div v*)_p.
+    pub divergence: &'a [f64],
+}
+
+/// Assembles the rows of the interior nodes (`node_of_row`) into `a` and the right-hand side
+/// into `rhs`. `row_of[i]` is node i's row, or `u32::MAX` if it is not an unknown; the
+/// free-surface nodes hold the values `dirichlet[i]` (moved to the right-hand side).
+#[allow(clippy::too_many_arguments)]
+pub fn assemble<const D: usize>(
+    geo: &GridGeometry<D>,
+    shape: ShapeFunction,
+    bins: &CellBins,
+    q: &ParticleQuadrature<D>,
+    kinds: &[NodeKind],
+    row_of: &[u32],
+    node_of_row: &[u32],
+    dirichlet: &[f64],
+    dt: f64,
+    a: &mut EllMatrix,
+    rhs: &mut Vec<f64>,
+) {
+    let w = shape.width();
+    let span = 2 * w - 1;
+    let slots = row_width::<D>(shape);
+    a.reshape(node_of_row.len(), slots);
+    rhs.resize(node_of_row.len(), 0.0);
+    a.cols
+        .par_chunks_mut(slots)
+        .zip(a.vals.par_chunks_mut(slots))
+        .zip(rhs.par_iter_mut())
+        .zip(node_of_row.par_iter())
+        .for_each(|(((cols, vals), b), &i)| {
+            let row = row_of[i as usize];
+            let node = geo.multi(i as usize);
+            let mut acc = [0.0f64; MAX_SLOTS];
+            let mut source = 0.0;
+            for_particles_near(geo, bins, shape, &node, |p| {
+                let st = Stencil::<D>::new(shape, &geo.to_cells(&q.x[p]), geo.h, q.half_width[p]);
+                let Some(o) = st.offset_of(&node) else { return };
+                let (n_i, g_i) = st.at(&o);
+                source += q.volume[p] * n_i * q.divergence[p];
+                let c = q.volume_over_density[p];
+                st.for_each(|nw| {
+                    // slot of node j relative to node i: (j - i + w - 1) per direction
+                    let mut s = 0;
+                    for d in (0..D).rev() {
+                        s = s * span + (nw.node[d] + w - 1 - node[d]);
+                    }
+                    acc[s] += c * g_i.dot(&nw.grad);
+                });
+            });
+            let mut known = 0.0;
+            for (s, (col, val)) in cols.iter_mut().zip(vals.iter_mut()).enumerate() {
+                // node j from the slot
+                let mut rem = s;
+                let mut j = [0usize; D];
+                let mut valid = true;
+                for d in 0..D {
+                    let off = rem % span;
+                    rem /= span;
+                    let jd = (node[d] + off).wrapping_sub(w - 1);
+                    valid &= jd < geo.nodes[d];
+                    j[d] = jd;
+                }
+                let jf = if valid { geo.flat(&j) } else { 0 };
+                if valid && kinds[jf] == NodeKind::Interior && acc[s] != 0.0 {
+                    *col = row_of[jf];
+                    *val = acc[s];
+                } else {
+                    if valid && kinds[jf] == NodeKind::FreeSurface {
+                        known += acc[s] * dirichlet[jf];
+                    }
+                    // free-surface (p = 0) and empty columns drop out
+                    *col = row;
+                    *val = 0.0;
+                }
+            }
+            *b = -source / dt - known;
+        });
+}

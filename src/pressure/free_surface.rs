@@ -1,0 +1,204 @@
+//! Free-surface detection (METHOD.md step 3): which nodes carry p = 0.
+//!
+//! A cell counts as filled when the volume of the particles in it exceeds
+//! `volume_fraction_tolerance` of the cell's volume. A node with mass is an unknown of the
+//! Poisson equation when every cell around it is filled, and a free-surface node (p = 0)
+//! otherwise. Cells beyond a closed wall count as filled (the wall is not a free surface),
+//! cells beyond an open face as empty (the pressure there is the ambient one).
+
+use crate::grid::{CellBins, GridGeometry};
+use crate::shape::PAD;
+use rayon::prelude::*;
+
+/// The role of a node in the pressure solve.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum NodeKind {
+    /// No mass: not part of the fluid.
+    #[default]
+    Empty,
+    /// On the free surface: p = 0 (a Dirichlet node).
+    FreeSurface,
+    /// Inside the fluid: an unknown of the Poisson equation.
+    Interior,
+}
+
+/// Particle volume fraction of every cell: sum of the particles' volumes / h^D.
+pub fn volume_fractions<const D: usize>(
+    geo: &GridGeometry<D>,
+    bins: &CellBins,
+    volume: &[f64],
+    out: &mut Vec<f64>,
+) {
+    let inv = 1.0 / geo.h.powi(D as i32);
+    out.resize(geo.node_count(), 0.0);
+    out.par_iter_mut().enumerate().for_each(|(c, f)| {
+        *f = bins
+            .particles(c)
+            .iter()
+            .map(|&p| volume[p as usize])
+            .sum::<f64>()
+            * inv;
+    });
+}
+
+/// Classifies every node from its mass and the volume fractions of the 2^D cells around it.
+/// `open[f]` tells whether face f (x_min, x_max, y_min, ...) is open.
+pub fn classify<const D: usize>(
+    geo: &GridGeometry<D>,
+    mass: &[f64],
+    mass_epsilon: f64,
+    fraction: &[f64],
+    tolerance: f64,
+    open: &[bool],
+    kinds: &mut Vec<NodeKind>,
+) {
+    kinds.resize(geo.node_count(), NodeKind::Empty);
+    kinds.par_iter_mut().enumerate().for_each(|(i, kind)| {
+        if mass[i] <= mass_epsilon {
+            *kind = NodeKind::Empty;
+            return;
+        }
+        let node = geo.multi(i);
+        let mut filled = true;
+        for corner in 0..(1usize << D) {
+            let mut inside = true;
+            let mut closed = true;
+            let mut cell = [0usize; D];
+            for d in 0..D {
+                // cell index node - 1 + e, with e the corner's bit d
+                let c = (node[d] + ((corner >> d) & 1)) as isize - 1;
+                if c < PAD as isize {
+                    inside = false;
+                    closed &= !open[2 * d];
+                } else if c >= (PAD + geo.cells[d]) as isize {
+                    inside = false;
+                    closed &= !open[2 * d + 1];
+                }
+                cell[d] = c.max(0) as usize;
+            }
+            let full = if inside {
+                fraction[geo.flat(&cell)] > tolerance
+            } else {
+                closed
+            };
+            if !full {
+                filled = false;
+                break;
+            }
+        }
+        *kind = if filled {
+            NodeKind::Interior
+        } else {
+            NodeKind::FreeSurface
+        };
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Vector;
+
+    /// A 6 x 6 cell box, particles (2 x 2 per cell) filling `filled(cell)` cells.
+    fn setup(filled: impl Fn(usize, usize) -> bool, open: [bool; 4]) -> Vec<NodeKind> {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [6, 6]);
+        let mut x = Vec::new();
+        for cy in 0..6 {
+            for cx in 0..6 {
+                if filled(cx, cy) {
+                    for (a, b) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
+                        x.push(Vector::<2>::new(cx as f64 + a, cy as f64 + b));
+                    }
+                }
+            }
+        }
+        let volume = vec![0.25; x.len()];
+        let mut bins = CellBins::default();
+        bins.sort(&geo, &x);
+        let mut vf = Vec::new();
+        volume_fractions(&geo, &bins, &volume, &mut vf);
+        // linear-shape mass: every corner node of a filled cell
+        let mut mass = vec![0.0; geo.node_count()];
+        for p in &x {
+            let c = geo.multi(geo.cell_of(p));
+            for (a, b) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                mass[geo.flat(&[c[0] + a, c[1] + b])] += 1.0;
+            }
+        }
+        let mut kinds = Vec::new();
+        classify(&geo, &mass, 1e-9, &vf, 0.3, &open, &mut kinds);
+        kinds
+    }
+
+    fn kind_at(kinds: &[NodeKind], i: usize, j: usize) -> NodeKind {
+        // 6 cells + 1 + 2 * PAD nodes per direction
+        kinds[(j + PAD) * 11 + i + PAD]
+    }
+
+    #[test]
+    fn column_against_walls_has_its_top_row_free() {
+        // a column 3 cells wide, 4 high, in the box's lower-left corner
+        let k = setup(|cx, cy| cx < 3 && cy < 4, [false; 4]);
+        for j in 0..=4 {
+            for i in 0..=3 {
+                let want = if j == 4 || i == 3 {
+                    NodeKind::FreeSurface
+                } else {
+                    NodeKind::Interior
+                };
+                assert_eq!(kind_at(&k, i, j), want, "node ({i}, {j})");
+            }
+        }
+        assert_eq!(kind_at(&k, 4, 0), NodeKind::Empty);
+        assert_eq!(kind_at(&k, 0, 5), NodeKind::Empty);
+    }
+
+    #[test]
+    fn filled_closed_box_has_no_free_surface_but_an_open_face_does() {
+        let k = setup(|_, _| true, [false; 4]);
+        assert!(k.iter().all(|&n| n != NodeKind::FreeSurface));
+        let k = setup(|_, _| true, [false, false, false, true]);
+        for i in 0..=6 {
+            assert_eq!(kind_at(&k, i, 6), NodeKind::FreeSurface);
+            assert_eq!(kind_at(&k, i, 5), NodeKind::Interior);
+        }
+    }
+
+    #[test]
+    fn a_drop_and_a_cavity_are_free_surfaces() {
+        // a filled box with one empty cell (a bubble) at (2, 2) and a lone filled cell (a
+        // drop) cannot exist together; test the bubble in a full box
+        let k = setup(|cx, cy| !(cx == 2 && cy == 2), [false; 4]);
+        for (i, j) in [(2, 2), (3, 2), (2, 3), (3, 3)] {
+            assert_eq!(kind_at(&k, i, j), NodeKind::FreeSurface);
+        }
+        assert_eq!(kind_at(&k, 1, 1), NodeKind::Interior);
+        assert_eq!(kind_at(&k, 4, 4), NodeKind::Interior);
+        // a splash: one filled cell in mid-air above a filled floor layer
+        let k = setup(|cx, cy| cy == 0 || (cx == 3 && cy == 4), [false; 4]);
+        for (i, j) in [(3, 4), (4, 4), (3, 5), (4, 5)] {
+            assert_eq!(kind_at(&k, i, j), NodeKind::FreeSurface);
+        }
+        assert_eq!(kind_at(&k, 2, 0), NodeKind::Interior);
+        assert_eq!(kind_at(&k, 2, 1), NodeKind::FreeSurface);
+    }
+
+    #[test]
+    fn sparse_cells_below_the_tolerance_are_not_filled() {
+        // one particle in a cell: volume fraction 0.25 < 0.3
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [2, 2]);
+        let x = vec![Vector::<2>::new(0.5, 0.5)];
+        let mut bins = CellBins::default();
+        bins.sort(&geo, &x);
+        let mut vf = Vec::new();
+        volume_fractions(&geo, &bins, &[0.25], &mut vf);
+        assert!((vf[geo.cell_of(&x[0])] - 0.25).abs() < 1e-15);
+        let mass = vec![1.0; geo.node_count()];
+        let mut kinds = Vec::new();
+        classify(&geo, &mass, 1e-9, &vf, 0.3, &[false; 4], &mut kinds);
+        assert_eq!(kinds[geo.flat(&[PAD, PAD])], NodeKind::FreeSurface);
+        classify(&geo, &mass, 1e-9, &vf, 0.2, &[false; 4], &mut kinds);
+        // the corner node at the walls sees only the one (now filled) cell and the walls
+        assert_eq!(kinds[geo.flat(&[PAD, PAD])], NodeKind::Interior);
+    }
+}

@@ -1,0 +1,462 @@
+//! Linear solvers of the pressure Poisson equation (METHOD.md step 4), behind one interface.
+//!
+//! The matrix is stored row by row with a fixed number of slots per row (ELLPACK): a grid node
+//! couples with at most (2K - 1)^D nodes for shape functions K nodes wide, so every row has the
+//! same capacity, rows are assembled in parallel each into its own slice, and the buffers are
+//! reused from step to step (no allocation once the largest system has been seen).
+//!
+//! The conjugate gradient is written here rather than taken from a crate: it runs on this
+//! storage, is parallel with rayon, sums its dot products in fixed chunks (so a run repeats
+//! bitwise, whatever the thread count), handles the singular pure-Neumann system of a closed,
+//! filled container, and takes any [`Preconditioner`]. The direct solver is faer's sparse
+//! Cholesky.
+
+use faer::linalg::solvers::Solve;
+use faer::sparse::{SparseColMat, Triplet};
+use rayon::prelude::*;
+
+/// Rows per chunk of the parallel loops and of the fixed-order dot products.
+const CHUNK: usize = 2048;
+
+/// A symmetric sparse matrix with `width` slots per row; an unused slot has column = its row
+/// and value 0.
+#[derive(Debug, Clone, Default)]
+pub struct EllMatrix {
+    /// Number of rows (and columns).
+    pub n: usize,
+    /// Slots per row.
+    pub width: usize,
+    /// Column of each slot, row-major: slot k of row r is at r * width + k.
+    pub cols: Vec<u32>,
+    /// Value of each slot.
+    pub vals: Vec<f64>,
+}
+
+impl EllMatrix {
+    /// Resizes to `n` rows of `width` slots (contents unspecified; the assembly fills every
+    /// slot). Keeps the capacity.
+    pub fn reshape(&mut self, n: usize, width: usize) {
+        self.n = n;
+        self.width = width;
+        self.cols.resize(n * width, 0);
+        self.vals.resize(n * width, 0.0);
+    }
+
+    /// y = A x.
+    pub fn matvec(&self, x: &[f64], y: &mut [f64]) {
+        let w = self.width;
+        y.par_chunks_mut(CHUNK).enumerate().for_each(|(c, ys)| {
+            for (k, y) in ys.iter_mut().enumerate() {
+                let r = c * CHUNK + k;
+                let cols = &self.cols[r * w..(r + 1) * w];
+                let vals = &self.vals[r * w..(r + 1) * w];
+                *y = cols
+                    .iter()
+                    .zip(vals)
+                    .map(|(&j, &a)| a * x[j as usize])
+                    .sum();
+            }
+        });
+    }
+
+    /// The diagonal entries (summed over the row's slots that hold column r).
+    pub fn diagonal(&self, d: &mut Vec<f64>) {
+        let w = self.width;
+        d.resize(self.n, 0.0);
+        d.par_iter_mut().enumerate().for_each(|(r, d)| {
+            *d = (0..w)
+                .filter(|&k| self.cols[r * w + k] as usize == r)
+                .map(|k| self.vals[r * w + k])
+                .sum();
+        });
+    }
+}
+
+/// Sum of a[i] * b[i], in fixed chunks summed in order: the same bits for any thread count.
+fn dot(a: &[f64], b: &[f64], partials: &mut Vec<f64>) -> f64 {
+    a.par_chunks(CHUNK)
+        .zip(b.par_chunks(CHUNK))
+        .map(|(a, b)| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>())
+        .collect_into_vec(partials);
+    partials.iter().sum()
+}
+
+/// Removes the mean of `x` (the null space of a pure-Neumann Laplacian is the constant).
+fn remove_mean(x: &mut [f64], partials: &mut Vec<f64>) {
+    if x.is_empty() {
+        return;
+    }
+    x.par_chunks(CHUNK)
+        .map(|c| c.iter().sum::<f64>())
+        .collect_into_vec(partials);
+    let mean = partials.iter().sum::<f64>() / x.len() as f64;
+    x.par_iter_mut().for_each(|v| *v -= mean);
+}
+
+/// A preconditioner M^-1 of the conjugate gradient.
+pub trait Preconditioner: Send + Sync {
+    /// Prepares for a new matrix.
+    fn setup(&mut self, a: &EllMatrix);
+    /// z = M^-1 r.
+    fn apply(&self, r: &[f64], z: &mut [f64]);
+}
+
+/// Diagonal (Jacobi) preconditioner.
+#[derive(Debug, Default)]
+pub struct Jacobi {
+    inverse_diagonal: Vec<f64>,
+}
+
+impl Preconditioner for Jacobi {
+    fn setup(&mut self, a: &EllMatrix) {
+        a.diagonal(&mut self.inverse_diagonal);
+        self.inverse_diagonal
+            .par_iter_mut()
+            .for_each(|d| *d = if *d > 0.0 { 1.0 / *d } else { 1.0 });
+    }
+
+    fn apply(&self, r: &[f64], z: &mut [f64]) {
+        z.par_iter_mut()
+            .zip(r.par_iter())
+            .zip(self.inverse_diagonal.par_iter())
+            .for_each(|((z, r), d)| *z = r * d);
+    }
+}
+
+/// Outcome of a solve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolveStats {
+    /// Iterations (0 for the direct solver).
+    pub iterations: usize,
+    /// Final relative residual |b - A x| / |b|.
+    pub relative_residual: f64,
+}
+
+/// Why a solve failed.
+#[derive(Debug, Clone, thiserror::Error, PartialEq)]
+pub enum SolveError {
+    /// The iteration limit was reached.
+    #[error("the pressure solve did not converge: relative residual {residual:.3e} after {iterations} iterations (pressure.tolerance = {tolerance:.1e}, pressure.max_iterations = {iterations})")]
+    NotConverged {
+        /// Iterations done.
+        iterations: usize,
+        /// Relative residual reached.
+        residual: f64,
+        /// Relative residual asked for.
+        tolerance: f64,
+    },
+    /// The matrix is not positive definite, or the right-hand side is not finite.
+    #[error("the pressure solve broke down: {0}")]
+    Breakdown(String),
+}
+
+/// Preconditioned conjugate gradient with its work vectors (kept between solves).
+pub struct Pcg {
+    preconditioner: Box<dyn Preconditioner>,
+    r: Vec<f64>,
+    z: Vec<f64>,
+    p: Vec<f64>,
+    q: Vec<f64>,
+    partials: Vec<f64>,
+}
+
+impl Pcg {
+    /// A conjugate gradient with the given preconditioner.
+    pub fn new(preconditioner: Box<dyn Preconditioner>) -> Self {
+        Self {
+            preconditioner,
+            r: Vec::new(),
+            z: Vec::new(),
+            p: Vec::new(),
+            q: Vec::new(),
+            partials: Vec::new(),
+        }
+    }
+
+    fn solve(
+        &mut self,
+        a: &EllMatrix,
+        b: &[f64],
+        x: &mut [f64],
+        tol: f64,
+        max_iterations: usize,
+        singular: bool,
+    ) -> Result<SolveStats, SolveError> {
+        let n = a.n;
+        for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
+            v.resize(n, 0.0);
+        }
+        self.preconditioner.setup(a);
+        let Self {
+            preconditioner,
+            r,
+            z,
+            p,
+            q,
+            partials,
+        } = self;
+        let b_norm = dot(b, b, partials).sqrt();
+        if !b_norm.is_finite() {
+            return Err(SolveError::Breakdown(
+                "the right-hand side is not finite".into(),
+            ));
+        }
+        if b_norm == 0.0 {
+            x.fill(0.0);
+            return Ok(SolveStats {
+                iterations: 0,
+                relative_residual: 0.0,
+            });
+        }
+        // r = b - A x (x holds the initial guess)
+        a.matvec(x, r);
+        r.par_iter_mut()
+            .zip(b.par_iter())
+            .for_each(|(r, b)| *r = b - *r);
+        if singular {
+            remove_mean(r, partials);
+        }
+        preconditioner.apply(r, z);
+        if singular {
+            remove_mean(z, partials);
+        }
+        p.copy_from_slice(z);
+        let mut rz = dot(r, z, partials);
+        let mut res = dot(r, r, partials).sqrt() / b_norm;
+        let mut it = 0;
+        while res > tol {
+            if it == max_iterations {
+                return Err(SolveError::NotConverged {
+                    iterations: it,
+                    residual: res,
+                    tolerance: tol,
+                });
+            }
+            a.matvec(p, q);
+            let pq = dot(p, q, partials);
+            if pq <= 0.0 || !pq.is_finite() {
+                return Err(SolveError::Breakdown(format!(
+                    "p.Ap = {pq:.3e} at iteration {it}: the matrix is not positive definite"
+                )));
+            }
+            let alpha = rz / pq;
+            x.par_iter_mut()
+                .zip(r.par_iter_mut())
+                .zip(p.par_iter().zip(q.par_iter()))
+                .for_each(|((x, r), (p, q))| {
+                    *x += alpha * p;
+                    *r -= alpha * q;
+                });
+            if singular {
+                remove_mean(r, partials);
+            }
+            preconditioner.apply(r, z);
+            if singular {
+                remove_mean(z, partials);
+            }
+            let rz_new = dot(r, z, partials);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            p.par_iter_mut()
+                .zip(z.par_iter())
+                .for_each(|(p, z)| *p = z + beta * *p);
+            res = dot(r, r, partials).sqrt() / b_norm;
+            it += 1;
+        }
+        if singular {
+            remove_mean(x, partials);
+        }
+        Ok(SolveStats {
+            iterations: it,
+            relative_residual: res,
+        })
+    }
+}
+
+/// Sparse Cholesky (faer), the factorisation redone for every matrix.
+#[derive(Default)]
+pub struct Direct {
+    triplets: Vec<Triplet<usize, usize, f64>>,
+    partials: Vec<f64>,
+}
+
+impl Direct {
+    fn solve(
+        &mut self,
+        a: &EllMatrix,
+        b: &[f64],
+        x: &mut [f64],
+        singular: bool,
+    ) -> Result<SolveStats, SolveError> {
+        let n = a.n;
+        if n == 0 {
+            return Ok(SolveStats {
+                iterations: 0,
+                relative_residual: 0.0,
+            });
+        }
+        // A singular (pure Neumann) system: pin the last unknown to 0 (drop its row and
+        // column), solve, then remove the mean as the conjugate gradient does.
+        let m = if singular { n - 1 } else { n };
+        self.triplets.clear();
+        for r in 0..m {
+            for k in 0..a.width {
+                let c = a.cols[r * a.width + k] as usize;
+                let v = a.vals[r * a.width + k];
+                // lower triangle only: the factorisation reads that side
+                if c <= r && v != 0.0 {
+                    self.triplets.push(Triplet::new(r, c, v));
+                }
+            }
+        }
+        let mat = SparseColMat::<usize, f64>::try_new_from_triplets(m, m, &self.triplets)
+            .map_err(|e| SolveError::Breakdown(format!("assembling the sparse matrix: {e:?}")))?;
+        let llt = mat
+            .sp_cholesky(faer::Side::Lower)
+            .map_err(|e| SolveError::Breakdown(format!("Cholesky factorisation: {e:?}")))?;
+        x[..m].copy_from_slice(&b[..m]);
+        if singular {
+            // consistent right-hand side: the constant is in A's null space
+            let mean = b.iter().sum::<f64>() / n as f64;
+            x[..m].iter_mut().for_each(|v| *v -= mean);
+            x[m] = 0.0;
+        }
+        llt.solve_in_place(faer::MatMut::from_column_major_slice_mut(&mut x[..m], m, 1));
+        if singular {
+            remove_mean(x, &mut self.partials);
+        }
+        // report the true residual of the full system
+        let mut r = vec![0.0; n];
+        a.matvec(x, &mut r);
+        let (mut num, mut den) = (0.0, 0.0);
+        let mean_b = if singular {
+            b.iter().sum::<f64>() / n as f64
+        } else {
+            0.0
+        };
+        for (ri, bi) in r.iter().zip(b) {
+            num += (bi - mean_b - ri).powi(2);
+            den += bi * bi;
+        }
+        let res = if den > 0.0 { (num / den).sqrt() } else { 0.0 };
+        if !res.is_finite() {
+            return Err(SolveError::Breakdown(
+                "the direct solve gave a non-finite pressure".into(),
+            ));
+        }
+        Ok(SolveStats {
+            iterations: 0,
+            relative_residual: res,
+        })
+    }
+}
+
+/// The pressure solver chosen in the deck.
+pub enum LinearSolver {
+    /// Preconditioned conjugate gradient.
+    Pcg(Pcg),
+    /// Sparse Cholesky.
+    Direct(Direct),
+}
+
+impl LinearSolver {
+    /// Solves A x = b (x holds the initial guess for the iterative solver) to the relative
+    /// residual `tol`. With `singular`, A is taken to have the constant vector as its null
+    /// space: b is made consistent by removing its mean and the solution has zero mean.
+    pub fn solve(
+        &mut self,
+        a: &EllMatrix,
+        b: &[f64],
+        x: &mut [f64],
+        tol: f64,
+        max_iterations: usize,
+        singular: bool,
+    ) -> Result<SolveStats, SolveError> {
+        match self {
+            LinearSolver::Pcg(s) => s.solve(a, b, x, tol, max_iterations, singular),
+            LinearSolver::Direct(s) => s.solve(a, b, x, singular),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 1D Laplacian with `n` unknowns; Dirichlet at both ends unless `neumann`.
+    fn laplacian(n: usize, neumann: bool) -> EllMatrix {
+        let mut a = EllMatrix::default();
+        a.reshape(n, 3);
+        for r in 0..n {
+            let mut diag = 2.0;
+            if neumann && (r == 0 || r == n - 1) {
+                diag = 1.0;
+            }
+            let slots = [(r.wrapping_sub(1), -1.0), (r, diag), (r + 1, -1.0)];
+            for (k, (c, v)) in slots.into_iter().enumerate() {
+                let ok = c < n;
+                a.cols[r * 3 + k] = if ok { c as u32 } else { r as u32 };
+                a.vals[r * 3 + k] = if ok { v } else { 0.0 };
+            }
+        }
+        a
+    }
+
+    fn residual(a: &EllMatrix, b: &[f64], x: &[f64]) -> f64 {
+        let mut ax = vec![0.0; a.n];
+        a.matvec(x, &mut ax);
+        let num: f64 = ax.iter().zip(b).map(|(p, q)| (p - q).powi(2)).sum();
+        let den: f64 = b.iter().map(|q| q * q).sum();
+        (num / den).sqrt()
+    }
+
+    #[test]
+    fn pcg_and_direct_agree_on_a_dirichlet_laplacian() {
+        let n = 200;
+        let a = laplacian(n, false);
+        let b: Vec<f64> = (0..n).map(|i| ((i * 7) % 13) as f64 - 6.0).collect();
+        let mut x1 = vec![0.0; n];
+        let mut pcg = LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())));
+        let s = pcg.solve(&a, &b, &mut x1, 1e-12, 1000, false).unwrap();
+        assert!(s.iterations > 0 && s.relative_residual <= 1e-12);
+        assert!(residual(&a, &b, &x1) <= 1e-11);
+        let mut x2 = vec![0.0; n];
+        let mut direct = LinearSolver::Direct(Direct::default());
+        direct.solve(&a, &b, &mut x2, 1e-12, 0, false).unwrap();
+        assert!(residual(&a, &b, &x2) <= 1e-12);
+        let scale = x2.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (p, q) in x1.iter().zip(&x2) {
+            assert!((p - q).abs() <= 1e-9 * scale, "{p} {q}");
+        }
+    }
+
+    #[test]
+    fn singular_neumann_system_is_solved_up_to_the_constant() {
+        let n = 100;
+        let a = laplacian(n, true);
+        // an inconsistent right-hand side: its mean is removed
+        let b: Vec<f64> = (0..n).map(|i| (i as f64 * 0.1).sin() + 0.3).collect();
+        let mean_b = b.iter().sum::<f64>() / n as f64;
+        let consistent: Vec<f64> = b.iter().map(|v| v - mean_b).collect();
+        for mut solver in [
+            LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default()))),
+            LinearSolver::Direct(Direct::default()),
+        ] {
+            let mut x = vec![1.0; n];
+            solver.solve(&a, &b, &mut x, 1e-12, 1000, true).unwrap();
+            assert!(residual(&a, &consistent, &x) <= 1e-10);
+            let mean = x.iter().sum::<f64>() / n as f64;
+            assert!(mean.abs() <= 1e-12 * x.iter().fold(0.0f64, |m, v| m.max(v.abs())));
+        }
+    }
+
+    #[test]
+    fn iteration_limit_is_an_error() {
+        let a = laplacian(500, false);
+        let b = vec![1.0; 500];
+        let mut x = vec![0.0; 500];
+        let mut pcg = LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())));
+        let e = pcg.solve(&a, &b, &mut x, 1e-12, 10, false).unwrap_err();
+        assert!(matches!(e, SolveError::NotConverged { iterations: 10, .. }));
+    }
+}
