@@ -245,7 +245,7 @@ impl<const D: usize> Simulation<D> {
     }
 
     /// Largest stable step now: cfl h / max(|v| + c) (explicit) or cfl h / max |v| (projection),
-    /// bounded by the viscous limit and `max_dt`.
+    /// bounded by cfl sqrt(h / |g|), the viscous limit and `max_dt`.
     pub fn stable_dt(&self, cfl: f64) -> f64 {
         let explicit = self.scheme == Scheme::Explicit;
         let mats = &self.materials;
@@ -268,6 +268,12 @@ impl<const D: usize> Simulation<D> {
         } else {
             f64::INFINITY
         };
+        // body-force limit: a particle starting from rest moves at most cfl h in a step
+        // (|g| dt^2 <= cfl^2 h); it sets the first steps of a flow starting at rest
+        let g = self.settings.gravity.norm();
+        if g > 0.0 {
+            dt = dt.min(cfl * (h / g).sqrt());
+        }
         for m in mats.iter().filter(|m| m.viscosity > 0.0) {
             dt = dt.min(crate::deck::viscous_dt_limit(h, m.density, m.viscosity, D));
         }

@@ -66,3 +66,20 @@ formats = ["vtk", "csv"]
 name = "base"
 position = [0.01, 0.01]
 "#;
+
+/// Runs `f` on a worker of a pool of `threads` threads: a step's short parallel loops then start
+/// without waking threads from outside the pool (as `pmpm run` does).
+pub fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a thread pool")
+        .install(f)
+}
+
+/// A deck parsed and validated from text.
+pub fn deck(text: &str) -> pmpm::Deck {
+    let mut d = pmpm::Deck::parse(text, "test.toml").expect("test deck parses");
+    d.validate("test.toml").expect("test deck is valid");
+    d
+}

@@ -1,23 +1,10 @@
 //! Physics checks of the explicit scheme against exact solutions.
 
+mod common;
+
+use common::{deck, in_pool};
 use pmpm::scheme::Simulation;
 use pmpm::Deck;
-
-/// Runs `f` on a worker of a pool of `threads` threads: a step's short parallel loops then start
-/// without waking threads from outside the pool (as `pmpm run` does).
-fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .expect("a thread pool")
-        .install(f)
-}
-
-fn deck(text: &str) -> Deck {
-    let mut d = Deck::parse(text, "test.toml").expect("test deck parses");
-    d.validate("test.toml").expect("test deck is valid");
-    d
-}
 
 /// A block in free fall, far from every wall, follows y0 - g t^2 / 2. The update
 /// x += dt v^{n+1} is symplectic Euler, whose error in position is g t dt / 2 (5e-7 m here at

@@ -1,0 +1,639 @@
+//! The projection scheme against exact solutions (columns at rest) and the Martin & Moyce
+//! (1952) dam break, with the bounds of the projection issue. Figures are printed (run with
+//! `--nocapture` to see them).
+
+mod common;
+
+use common::{deck, in_pool};
+use pmpm::scheme::Simulation;
+use pmpm::Deck;
+
+const RHO: f64 = 1000.0;
+const G: f64 = 9.81;
+
+/// A column (or two layers) at rest: `size` is the column, the grid is 0.1 m taller and its
+/// top is open; `bodies` are TOML `[[bodies]]` blocks; `extra` is appended.
+fn column_deck(dim: usize, h: f64, size: &[f64], bodies: &str, extra: &str) -> Deck {
+    let v = |xs: &[f64]| {
+        let parts: Vec<String> = xs.iter().map(|x| format!("{x:?}")).collect();
+        format!("[{}]", parts.join(", "))
+    };
+    let mut grid = size.to_vec();
+    grid[dim - 1] += 0.1;
+    let mut gravity = vec![0.0; dim];
+    gravity[dim - 1] = -G;
+    let mut probe = size.iter().map(|s| s / 2.0).collect::<Vec<_>>();
+    probe[dim - 1] = 0.0;
+    let top = if dim == 2 { "y_max" } else { "z_max" };
+    deck(&format!(
+        r#"
+[simulation]
+dimension = {dim}
+scheme = "projection"
+end_time = 2.0
+dt = 5.0e-3
+gravity = {g}
+shape_function = "linear"
+[grid]
+size = {grid}
+cell_size = {h}
+[grid.boundary]
+{top} = "open"
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+[[materials]]
+name = "oil"
+density = 800.0
+viscosity = 1.0e-3
+{bodies}
+[[output.probes]]
+name = "base"
+position = {probe}
+{extra}
+"#,
+        g = v(&gravity),
+        grid = v(&grid),
+        probe = v(&probe),
+    ))
+}
+
+fn water_body(size: &[f64]) -> String {
+    let zero = vec!["0.0"; size.len()].join(", ");
+    let max: Vec<String> = size.iter().map(|x| format!("{x:?}")).collect();
+    format!(
+        "[[bodies]]\nmaterial = \"water\"\nshape = {{ type = \"box\", min = [{zero}], max = [{}] }}\n",
+        max.join(", ")
+    )
+}
+
+/// What a run of a column at rest measured.
+#[derive(Debug)]
+struct Rest {
+    /// RMS and max of p_p - p_exact(y_p) over the particles, / rho g H.
+    rms: f64,
+    max: f64,
+    /// Base probe: max - min over t in [0.05, 2] s, / rho g H.
+    probe_variation: f64,
+    max_speed: f64,
+    /// Largest particle displacement / h.
+    max_move: f64,
+}
+
+/// Runs a deck at its fixed dt to its end time and compares the particle pressure with
+/// `exact(y)` (up to a constant when `up_to_constant`).
+fn run_at_rest<const D: usize>(
+    d: &Deck,
+    scale: f64,
+    exact: impl Fn(f64) -> f64,
+    up_to_constant: bool,
+) -> (Rest, Simulation<D>) {
+    let mut sim = Simulation::<D>::new(d).unwrap();
+    let x0 = sim.particles.x.clone();
+    let dt = d.simulation.dt.unwrap();
+    let n = (d.simulation.end_time / dt).round() as usize;
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for _ in 0..n {
+        let t0 = sim.time;
+        sim.step(dt).unwrap();
+        // the probe samples the state at the start of the step
+        if t0 >= 0.05 - 1e-12 {
+            lo = lo.min(sim.probe_values[0]);
+            hi = hi.max(sim.probe_values[0]);
+        }
+    }
+    let ps = &sim.particles;
+    let err: Vec<f64> = (0..ps.len())
+        .map(|p| ps.pressure[p] - exact(ps.x[p][D - 1]))
+        .collect();
+    let shift = if up_to_constant {
+        err.iter().sum::<f64>() / err.len() as f64
+    } else {
+        0.0
+    };
+    let rms = (err.iter().map(|e| (e - shift).powi(2)).sum::<f64>() / err.len() as f64).sqrt();
+    let max = err.iter().map(|e| (e - shift).abs()).fold(0.0, f64::max);
+    let h = sim.grid.geo.h;
+    let max_move =
+        ps.x.iter()
+            .zip(&x0)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max)
+            / h;
+    let rest = Rest {
+        rms: rms / scale,
+        max: max / scale,
+        probe_variation: (hi - lo) / scale,
+        max_speed: sim.max_speed(),
+        max_move,
+    };
+    (rest, sim)
+}
+
+fn check_rest(name: &str, r: &Rest) {
+    println!("{name}: {r:?}");
+    assert!(
+        r.rms <= 0.01,
+        "{name}: RMS error {:.3}% of rho g H",
+        100.0 * r.rms
+    );
+    assert!(
+        r.max <= 0.03,
+        "{name}: max error {:.3}% of rho g H",
+        100.0 * r.max
+    );
+    assert!(
+        r.probe_variation <= 0.01,
+        "{name}: base probe varies by {:.3}% of rho g H",
+        100.0 * r.probe_variation
+    );
+    assert!(
+        r.max_speed <= 1e-3,
+        "{name}: max speed {:.3e} m/s",
+        r.max_speed
+    );
+    assert!(
+        r.max_move <= 0.1,
+        "{name}: a particle moved {:.3} h",
+        r.max_move
+    );
+}
+
+/// Hydrostatic column, 2D: 0.2 m x 0.4 m, h = 0.01 m, 2 x 2 particles per cell, linear shape
+/// functions, dt = 5e-3 s (about 700 times the explicit limit for real water at this h), 2 s.
+#[test]
+fn hydrostatic_column_2d_is_exact_from_the_first_step() {
+    let size = [0.2, 0.4];
+    let d = column_deck(2, 0.01, &size, &water_body(&size), "");
+    let (r, _) = in_pool(2, || {
+        run_at_rest::<2>(&d, RHO * G * 0.4, |y| RHO * G * (0.4 - y), false)
+    });
+    check_rest("hydrostatic 2D", &r);
+}
+
+/// The same column in 3D: 0.2 x 0.2 x 0.4 m, h = 0.02 m.
+#[test]
+fn hydrostatic_column_3d_is_exact_from_the_first_step() {
+    let size = [0.2, 0.2, 0.4];
+    let d = column_deck(3, 0.02, &size, &water_body(&size), "");
+    let (r, _) = in_pool(2, || {
+        run_at_rest::<3>(&d, RHO * G * 0.4, |z| RHO * G * (0.4 - z), false)
+    });
+    check_rest("hydrostatic 3D", &r);
+}
+
+/// Chorin's split as the paper writes it (beta = 0): the Poisson equation's wall condition
+/// dp/dn = 0 is wrong under gravity, so the bottom cell layer keeps a velocity into the floor
+/// of about g dt / 4 after the first step. This records that failure, which is why the default
+/// is the incremental form; if it ever passes, the default should be revisited.
+#[test]
+fn chorin_split_without_increment_lets_the_column_creep() {
+    let size = [0.2, 0.4];
+    let mut d = column_deck(
+        2,
+        0.01,
+        &size,
+        &water_body(&size),
+        "[pressure]\nbeta = 0.0\n",
+    );
+    d.simulation.end_time = 5.0e-3;
+    let (r, _) = in_pool(2, || {
+        run_at_rest::<2>(&d, RHO * G * 0.4, |y| RHO * G * (0.4 - y), false)
+    });
+    println!("beta = 0, one step: {r:?}");
+    // one step: v = g dt / 4 at the first node row above the floor, interpolated
+    assert!(r.max_speed > 0.5 * G * 5.0e-3 / 4.0, "{r:?}");
+}
+
+/// Oil (800 kg/m3) over water (1000 kg/m3), 0.2 m each: the pressure is piecewise linear with
+/// the two slopes; RMS error within 2% of the base pressure.
+#[test]
+fn two_layers_have_two_slopes() {
+    let bodies = "[[bodies]]\nmaterial = \"water\"\nshape = { type = \"box\", min = [0.0, 0.0], max = [0.2, 0.2] }\n\
+                  [[bodies]]\nmaterial = \"oil\"\nshape = { type = \"box\", min = [0.0, 0.2], max = [0.2, 0.4] }\n";
+    let d = column_deck(2, 0.01, &[0.2, 0.4], bodies, "");
+    let base = 800.0 * G * 0.2 + RHO * G * 0.2;
+    let exact = |y: f64| {
+        if y >= 0.2 {
+            800.0 * G * (0.4 - y)
+        } else {
+            800.0 * G * 0.2 + RHO * G * (0.2 - y)
+        }
+    };
+    let (r, sim) = in_pool(2, || run_at_rest::<2>(&d, base, exact, false));
+    println!("two layers (errors / base pressure): {r:?}");
+    assert!(
+        r.rms <= 0.02,
+        "RMS error {:.3}% of the base pressure",
+        100.0 * r.rms
+    );
+    // and the slopes themselves: least-squares fit in each layer, away from the interface
+    let ps = &sim.particles;
+    let slope = |lo: f64, hi: f64| {
+        let pts: Vec<(f64, f64)> = (0..ps.len())
+            .filter(|&p| ps.x[p][1] > lo && ps.x[p][1] < hi)
+            .map(|p| (ps.x[p][1], ps.pressure[p]))
+            .collect();
+        let n = pts.len() as f64;
+        let (sx, sy) = pts.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
+        let (mx, my) = (sx / n, sy / n);
+        let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+        let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        -sxy / sxx
+    };
+    let (s_water, s_oil) = (slope(0.02, 0.18), slope(0.22, 0.38));
+    println!(
+        "slopes: water {s_water:.1} Pa/m (exact {}), oil {s_oil:.1} Pa/m (exact {})",
+        RHO * G,
+        800.0 * G
+    );
+    assert!((s_water / (RHO * G) - 1.0).abs() < 0.02);
+    assert!((s_oil / (800.0 * G) - 1.0).abs() < 0.02);
+}
+
+/// A closed box completely filled (all walls no_slip): no free-surface node, so the pressure
+/// is fixed up to a constant. It must be hydrostatic up to that constant and at rest.
+#[test]
+fn closed_filled_box_is_hydrostatic_up_to_a_constant() {
+    let text = r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 1.0
+dt = 5.0e-3
+gravity = [0.0, -9.81]
+shape_function = "linear"
+[grid]
+size = [0.2, 0.4]
+cell_size = 0.01
+[grid.boundary]
+x_min = "no_slip"
+x_max = "no_slip"
+y_min = "no_slip"
+y_max = "no_slip"
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [0.2, 0.4] }
+[[output.probes]]
+name = "base"
+position = [0.1, 0.0]
+"#;
+    let d = deck(text);
+    let (r, sim) = in_pool(2, || {
+        run_at_rest::<2>(&d, RHO * G * 0.4, |y| RHO * G * (0.4 - y), true)
+    });
+    println!("closed box: {r:?}");
+    assert!(sim.projection.as_ref().unwrap().singular, "no free surface");
+    assert!(
+        r.rms <= 0.01,
+        "RMS deviation {:.3}% of rho g H",
+        100.0 * r.rms
+    );
+    assert!(r.max_speed <= 1e-3, "max speed {:.3e} m/s", r.max_speed);
+}
+
+/// The conjugate gradient and the direct solver give the same pressure (1e-6 relative) on the
+/// hydrostatic column; the assembled L is symmetric and, without the p = 0 rows, positive
+/// definite.
+#[test]
+fn solvers_agree_and_the_matrix_is_symmetric_positive_definite() {
+    let size = [0.2, 0.4];
+    let run = |solver: &str| {
+        let mut d = column_deck(
+            2,
+            0.01,
+            &size,
+            &water_body(&size),
+            &format!("[pressure]\nsolver = \"{solver}\"\n"),
+        );
+        d.simulation.end_time = 0.1;
+        in_pool(2, || {
+            run_at_rest::<2>(&d, RHO * G * 0.4, |y| RHO * G * (0.4 - y), false).1
+        })
+    };
+    let (a, b) = (run("pcg"), run("direct"));
+    let pmax = a
+        .particles
+        .pressure
+        .iter()
+        .fold(0.0f64, |m, p| m.max(p.abs()));
+    let diff = a
+        .particles
+        .pressure
+        .iter()
+        .zip(&b.particles.pressure)
+        .map(|(p, q)| (p - q).abs())
+        .fold(0.0, f64::max);
+    println!(
+        "pcg vs direct: max pressure difference {:.3e} of max pressure",
+        diff / pmax
+    );
+    assert!(diff <= 1e-6 * pmax);
+    let m = &a.projection.as_ref().unwrap().matrix;
+    let n = m.n;
+    assert!(n > 0);
+    let mut dense = nalgebra::DMatrix::<f64>::zeros(n, n);
+    for r in 0..n {
+        for k in 0..m.width {
+            dense[(r, m.cols[r * m.width + k] as usize)] += m.vals[r * m.width + k];
+        }
+    }
+    let asym = (&dense - dense.transpose()).abs().max();
+    assert!(asym <= 1e-12 * dense.abs().max(), "asymmetry {asym:e}");
+    let eig = dense.clone().symmetric_eigenvalues();
+    let (lo, hi) = (eig.min(), eig.max());
+    println!("L: {n} unknowns, eigenvalues in [{lo:.3e}, {hi:.3e}]");
+    assert!(lo > 0.0, "smallest eigenvalue {lo:e}");
+    assert!(nalgebra::Cholesky::new(dense).is_some());
+}
+
+/// Martin & Moyce (1952), n^2 = 2: a = 0.05715 m, column a wide and 2a high at the left wall.
+const A: f64 = 0.05715;
+
+fn dam_break_deck(dim: usize, scheme: &str, h: f64, end_time: f64) -> Deck {
+    let explicit = scheme == "explicit";
+    let (transfer, material_extra, cfl) = if explicit {
+        // c = 10 sqrt(2 g 2a) = 14.98 m/s; APIC with linear shapes is unstable explicitly
+        ("flip", "bulk_modulus = 2.2426e5", 0.4)
+    } else {
+        ("apic", "", 0.5)
+    };
+    let (size, body_max, gravity, probe) = if dim == 2 {
+        (
+            format!("[{:?}, {:?}]", 8.0 * A, 3.0 * A),
+            format!("[{A:?}, {:?}]", 2.0 * A),
+            "[0.0, -9.81]".to_string(),
+            format!("[{:?}, {:?}]", h / 2.0, h / 2.0),
+        )
+    } else {
+        let t = 4.0 * h;
+        (
+            format!("[{:?}, {t:?}, {:?}]", 8.0 * A, 3.0 * A),
+            format!("[{A:?}, {t:?}, {:?}]", 2.0 * A),
+            "[0.0, 0.0, -9.81]".to_string(),
+            format!("[{:?}, {:?}, {:?}]", h / 2.0, 2.0 * h, h / 2.0),
+        )
+    };
+    let zero = vec!["0.0"; dim].join(", ");
+    deck(&format!(
+        r#"
+[simulation]
+dimension = {dim}
+scheme = "{scheme}"
+end_time = {end_time:?}
+cfl = {cfl:?}
+gravity = {gravity}
+transfer = "{transfer}"
+shape_function = "linear"
+[grid]
+size = {size}
+cell_size = {h:?}
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+{material_extra}
+[[bodies]]
+material = "water"
+shape = {{ type = "box", min = [{zero}], max = {body_max} }}
+[[output.probes]]
+name = "wall"
+position = {probe}
+"#
+    ))
+}
+
+/// A dam-break run: per step (time, front x_front / a, height at the wall / 2a, wall probe p).
+struct DamBreak {
+    t: Vec<f64>,
+    front: Vec<f64>,
+    height: Vec<f64>,
+    probe: Vec<(f64, f64)>,
+    steps: u64,
+}
+
+fn dam_break<const D: usize>(d: &Deck) -> DamBreak {
+    let mut sim = Simulation::<D>::new(d).unwrap();
+    let h = sim.grid.geo.h;
+    let cfl = d.simulation.cfl.expect("the dam-break decks give cfl");
+    let mut out = DamBreak {
+        t: Vec::new(),
+        front: Vec::new(),
+        height: Vec::new(),
+        probe: Vec::new(),
+        steps: 0,
+    };
+    let record = |sim: &Simulation<D>, out: &mut DamBreak| {
+        // a particle stands for a sub-cell h / 2 wide: the surface is h / 4 beyond its centre
+        let ps = &sim.particles;
+        let front = ps.x.iter().map(|x| x[0]).fold(0.0, f64::max) + h / 4.0;
+        let height =
+            ps.x.iter()
+                .filter(|x| x[0] < h)
+                .map(|x| x[D - 1])
+                .fold(0.0, f64::max)
+                + h / 4.0;
+        out.t.push(sim.time);
+        out.front.push(front / A);
+        out.height.push(height / (2.0 * A));
+    };
+    record(&sim, &mut out);
+    while sim.time < d.simulation.end_time - 1e-12 {
+        let dt = sim.stable_dt(cfl).min(d.simulation.end_time - sim.time);
+        let t0 = sim.time;
+        sim.step(dt).unwrap();
+        out.probe.push((t0, sim.probe_values[0]));
+        record(&sim, &mut out);
+    }
+    out.steps = sim.steps;
+    out
+}
+
+/// Linear interpolation of (xs, ys) at x.
+fn interp(xs: &[f64], ys: &[f64], x: f64) -> f64 {
+    let k = xs.partition_point(|&v| v < x).clamp(1, xs.len() - 1);
+    let (x0, x1, y0, y1) = (xs[k - 1], xs[k], ys[k - 1], ys[k]);
+    y0 + (y1 - y0) * (x - x0) / (x1 - x0)
+}
+
+/// Martin & Moyce Table 2 (T = t sqrt(2g/a), Z = x_front / a), from
+/// reference-data/martin_moyce_1952 (its source lines are in validation/, issue 5).
+const TABLE2: [(f64, f64); 16] = [
+    (0.00, 1.00),
+    (0.41, 1.11),
+    (0.84, 1.22),
+    (1.19, 1.44),
+    (1.43, 1.67),
+    (1.63, 1.89),
+    (1.83, 2.11),
+    (1.98, 2.33),
+    (2.20, 2.56),
+    (2.32, 2.78),
+    (2.51, 3.00),
+    (2.65, 3.22),
+    (2.83, 3.44),
+    (2.98, 3.67),
+    (3.11, 3.89),
+    (3.33, 4.11),
+];
+/// Martin & Moyce Table 6 (tau = t sqrt(g/a), residual height at the wall / 2a), as quoted
+/// in the projection issue.
+const TABLE6: [(f64, f64); 14] = [
+    (0.00, 1.00),
+    (0.56, 0.94),
+    (0.77, 0.89),
+    (0.93, 0.83),
+    (1.08, 0.78),
+    (1.28, 0.72),
+    (1.46, 0.67),
+    (1.66, 0.61),
+    (1.84, 0.56),
+    (2.00, 0.50),
+    (2.21, 0.44),
+    (2.45, 0.39),
+    (2.70, 0.33),
+    (3.06, 0.28),
+];
+/// The gate of the experiment took a while to open: simulated T is shifted by +0.175 (as
+/// Lethe and others do), the same for both schemes.
+const T_SHIFT: f64 = 0.175;
+
+/// Largest deviations from Tables 2 (T <= 3.3) and 6 (tau <= 3), after the time shift.
+fn against_tables(r: &DamBreak) -> (f64, f64) {
+    let big_t: Vec<f64> =
+        r.t.iter()
+            .map(|t| t * (2.0 * G / A).sqrt() + T_SHIFT)
+            .collect();
+    let tau: Vec<f64> = big_t.iter().map(|t| t / 2f64.sqrt()).collect();
+    let front = TABLE2
+        .iter()
+        .filter(|(t, _)| *t >= big_t[0] && *t <= 3.33)
+        .map(|&(t, z)| (interp(&big_t, &r.front, t) - z).abs())
+        .fold(0.0, f64::max);
+    let height = TABLE6
+        .iter()
+        .filter(|(t, _)| *t >= tau[0] && *t <= 3.06)
+        .map(|&(t, z)| (interp(&tau, &r.height, t) - z).abs())
+        .fold(0.0, f64::max);
+    let row = |table: &[(f64, f64)], xs: &[f64], ys: &[f64]| {
+        let parts: Vec<String> = table
+            .iter()
+            .filter(|(t, _)| *t >= xs[0] && *t <= 3.33)
+            .map(|&(t, z)| format!("{t}:{:+.3}", interp(xs, ys, t) - z))
+            .collect();
+        parts.join(" ")
+    };
+    println!(
+        "  front - Table 2 at T = {}",
+        row(&TABLE2, &big_t, &r.front)
+    );
+    println!(
+        "  height - Table 6 at tau = {}",
+        row(&TABLE6, &tau, &r.height)
+    );
+    (front, height)
+}
+
+/// Total variation of the wall probe's pressure over T <= 3 (no shift: the run's own time).
+fn total_variation(r: &DamBreak) -> f64 {
+    let t_end = 3.0 / (2.0 * G / A).sqrt();
+    r.probe
+        .windows(2)
+        .filter(|w| w[1].0 <= t_end)
+        .map(|w| (w[1].1 - w[0].1).abs())
+        .sum()
+}
+
+/// Runs both schemes on the 2D dam break (h = a/20; projection at cfl = 0.5) to T = 4.6 and
+/// prints the comparison: steps, deviations from Tables 2 and 6, and the total variation of
+/// the wall-foot pressure over T <= 3 in units of rho g 2a.
+fn both_dam_breaks() -> (DamBreak, DamBreak) {
+    let h = A / 20.0;
+    let end = 0.25; // T = 4.6, tau = 3.3
+    let proj = in_pool(2, || {
+        dam_break::<2>(&dam_break_deck(2, "projection", h, end))
+    });
+    let expl = in_pool(2, || dam_break::<2>(&dam_break_deck(2, "explicit", h, end)));
+    for (name, r) in [("projection", &proj), ("explicit", &expl)] {
+        let (f, hd) = against_tables(r);
+        println!(
+            "{name}: {} steps, front dev {f:.3}, height dev {hd:.3}, wall-pressure TV {:.2} rho g 2a",
+            r.steps,
+            total_variation(r) / (RHO * G * 2.0 * A)
+        );
+    }
+    (proj, expl)
+}
+
+/// Issue cases 5 and 6, the parts that hold: the projection dam break's surge front within
+/// +-0.25 of Table 2 for T <= 3.3, in at least 10 times fewer steps than the explicit scheme
+/// on the same grid. (Wall times are in BENCHMARKS.md, not tested here.)
+#[test]
+fn dam_break_2d_front_matches_martin_moyce_in_a_tenth_of_the_steps() {
+    let (proj, expl) = both_dam_breaks();
+    let (pf, _) = against_tables(&proj);
+    assert!(pf <= 0.25, "projection front off Table 2 by {pf:.3}");
+    assert!(
+        proj.steps * 10 <= expl.steps,
+        "{} vs {} steps",
+        proj.steps,
+        expl.steps
+    );
+}
+
+/// Issue cases 5 and 6, the parts that do not hold yet (run with `--ignored`): the residual
+/// height at the wall within +-0.05 of Table 6 for tau <= 3 (measured: +0.069 at tau = 2.70,
+/// particles climbing the wall late in the collapse), and a smooth wall-foot pressure, total
+/// variation over T <= 3 at most 3 rho g 2a and a third of the explicit run's (measured: about
+/// 218 rho g 2a against 74). The particles cluster (cells at 3 to 5 times their volume next to
+/// emptied ones), cells near the corner drop below the volume-fraction tolerance and flip to
+/// free surface, and the pressure spikes when they flip back.
+#[test]
+#[ignore = "known failure of the projection issue, see the closing note"]
+fn dam_break_2d_wall_height_and_smooth_wall_pressure() {
+    let (proj, expl) = both_dam_breaks();
+    let (_, ph) = against_tables(&proj);
+    let (ptv, etv) = (total_variation(&proj), total_variation(&expl));
+    let scale = RHO * G * 2.0 * A;
+    assert!(ph <= 0.05, "projection wall height off Table 6 by {ph:.3}");
+    assert!(
+        ptv <= 3.0 * scale,
+        "wall pressure TV {:.2} rho g 2a",
+        ptv / scale
+    );
+    assert!(
+        3.0 * ptv <= etv,
+        "TV {ptv:.0} Pa against explicit {etv:.0} Pa"
+    );
+}
+
+/// Issue case 7: the dam break in 3D (a slab 4 cells thick, slip walls front and back): the
+/// front within 5% of the 2D run's at T = 1, 2, 3.
+#[test]
+fn dam_break_3d_slab_follows_the_2d_front() {
+    let h = A / 20.0;
+    let end = 3.0 / (2.0 * G / A).sqrt() + 0.005;
+    let r2 = in_pool(2, || {
+        dam_break::<2>(&dam_break_deck(2, "projection", h, end))
+    });
+    let r3 = in_pool(2, || {
+        dam_break::<3>(&dam_break_deck(3, "projection", h, end))
+    });
+    for big_t in [1.0, 2.0, 3.0] {
+        let t = big_t / (2.0 * G / A).sqrt();
+        let (z2, z3) = (interp(&r2.t, &r2.front, t), interp(&r3.t, &r3.front, t));
+        println!(
+            "T = {big_t}: front 2D {z2:.3}, 3D {z3:.3} ({:+.2}%)",
+            100.0 * (z3 / z2 - 1.0)
+        );
+        assert!(
+            (z3 / z2 - 1.0).abs() <= 0.05,
+            "T = {big_t}: 2D {z2}, 3D {z3}"
+        );
+    }
+}
