@@ -320,6 +320,19 @@ pub enum FreeSurface {
     VolumeFraction,
 }
 
+/// Right-hand side of the pressure Poisson equation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PoissonRhs {
+    /// (1/dt) sum_p V_p G_ip . v*_p with v* before the wall conditions: the wall flux of v*
+    /// enters as the Neumann condition dp/dn = rho (v* - v_wall) . n / dt, exact under gravity.
+    Flux,
+    /// METHOD.md's -(1/dt) sum_p V_p N_ip (div v*)_p with v* after the wall conditions
+    /// (dp/dn = 0 on walls), the paper's form.
+    #[default]
+    Divergence,
+}
+
 /// `[pressure]`, used by the projection scheme.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -339,6 +352,8 @@ pub struct PressureDeck {
     pub volume_fraction_tolerance: f64,
     #[serde(default = "default_beta")]
     pub beta: f64,
+    #[serde(default)]
+    pub rhs: PoissonRhs,
 }
 
 fn default_tolerance() -> f64 {
@@ -347,11 +362,9 @@ fn default_tolerance() -> f64 {
 fn default_max_iterations() -> usize {
     2000
 }
-/// Incremental projection by default: Chorin's split (beta = 0) imposes dp/dn = 0 on walls,
-/// which is wrong under gravity, and a column at rest then creeps into its floor (see the
-/// README's notes on the method).
+/// Chorin's split, as in the paper.
 fn default_beta() -> f64 {
-    1.0
+    0.0
 }
 fn default_vf_tolerance() -> f64 {
     0.3
@@ -367,6 +380,7 @@ impl Default for PressureDeck {
             free_surface: FreeSurface::default(),
             volume_fraction_tolerance: default_vf_tolerance(),
             beta: default_beta(),
+            rhs: PoissonRhs::default(),
         }
     }
 }

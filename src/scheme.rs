@@ -137,15 +137,17 @@ impl<const D: usize> Simulation<D> {
         // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure)
         self.grid
             .predict(dt, self.deck.simulation.damping, self.settings.mass_epsilon);
-        // 3. boundary conditions on v*
-        self.boundary.apply(&mut self.grid.velocity_new);
         match self.scheme {
             Scheme::Explicit => {
-                // pressure came from the equation of state in the particle stress
+                // 3. boundary conditions on v*; pressure came from the equation of state in
+                //    the particle stress
+                self.boundary.apply(&mut self.grid.velocity_new);
                 self.pressure_iterations = 0;
             }
             Scheme::Projection => {
-                // free surface, Poisson equation, corrector, pressure to particles
+                // 3. boundary conditions on v* (applied by the projection, after it has taken
+                //    the walls' flux of v* into the Poisson equation), free surface, Poisson
+                //    equation, corrector, pressure to particles
                 let projection = self.projection.as_mut().expect("set up for this scheme");
                 let stats = projection
                     .project(

@@ -80,6 +80,11 @@ pub struct ParticleQuadrature<'a, const D: usize> {
     pub volume_over_density: &'a [f64],
     /// (div v*)_p.
     pub divergence: &'a [f64],
+    /// v*_p.
+    pub velocity: &'a [Vector<D>],
+    /// Right-hand side in flux form, (1/dt) sum_p V_p G_ip . v*_p, rather than
+    /// -(1/dt) sum_p V_p N_ip (div v*)_p.
+    pub flux: bool,
 }
 
 /// Assembles the rows of the interior nodes (`node_of_row`) into `a` and the right-hand side
@@ -118,7 +123,11 @@ pub fn assemble<const D: usize>(
                 let st = Stencil::<D>::new(shape, &geo.to_cells(&q.x[p]), geo.h, q.half_width[p]);
                 let Some(o) = st.offset_of(&node) else { return };
                 let (n_i, g_i) = st.at(&o);
-                source += q.volume[p] * n_i * q.divergence[p];
+                source += if q.flux {
+                    -q.volume[p] * g_i.dot(&q.velocity[p])
+                } else {
+                    q.volume[p] * n_i * q.divergence[p]
+                };
                 let c = q.volume_over_density[p];
                 st.for_each(|nw| {
                     // slot of node j relative to node i: (j - i + w - 1) per direction

@@ -15,7 +15,7 @@ pub mod free_surface;
 pub mod solve;
 
 use crate::boundary::Boundary;
-use crate::deck::{Deck, Preconditioner, ShapeFunction, Solver};
+use crate::deck::{Deck, PoissonRhs, Preconditioner, ShapeFunction, Solver};
 use crate::grid::{CellBins, Grid, Vector};
 use crate::particles::Particles;
 use crate::shape::Stencil;
@@ -54,6 +54,8 @@ pub struct Projection<const D: usize> {
     volume: Vec<f64>,
     volume_over_density: Vec<f64>,
     divergence: Vec<f64>,
+    velocity_star: Vec<Vector<D>>,
+    rhs_form: PoissonRhs,
     pressure_gradient: Vec<Vector<D>>,
     /// Statistics of the last solve.
     pub stats: SolveStats,
@@ -101,6 +103,8 @@ impl<const D: usize> Projection<D> {
             volume,
             volume_over_density,
             divergence: vec![0.0; ps.len()],
+            velocity_star: vec![Vector::<D>::zeros(); ps.len()],
+            rhs_form: pd.rhs,
             pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
             stats: SolveStats {
                 iterations: 0,
@@ -139,7 +143,6 @@ impl<const D: usize> Projection<D> {
             // incremental form: v* -= beta (dt / m_i) sum_p V_p N_ip (grad p^n)_p
             self.particle_pressure(ps, &grid.geo, None);
             self.correct(ps, grid, mass_epsilon, beta * dt);
-            boundary.apply(&mut grid.velocity_new);
         }
         let geo = &grid.geo;
         // 3. free surface
@@ -180,26 +183,43 @@ impl<const D: usize> Projection<D> {
                     }
                 });
         }
-        // 4. (div v*)_p, then L and the right-hand side
+        // 4. v*_p (flux form: before the wall conditions) or (div v*)_p (divergence form:
+        //    after them), then L and the right-hand side
+        let flux = self.rhs_form == PoissonRhs::Flux;
+        if !flux {
+            boundary.apply(&mut grid.velocity_new);
+        }
         let v_star = &grid.velocity_new;
         (
             ps.x.par_iter(),
             ps.half_width.par_iter(),
             self.divergence.par_iter_mut(),
+            self.velocity_star.par_iter_mut(),
         )
             .into_par_iter()
-            .for_each(|(x, &lp, div)| {
+            .for_each(|(x, &lp, div, vp)| {
                 let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
-                let mut s = 0.0;
-                st.for_each(|nw| s += nw.grad.dot(&v_star[geo.flat(&nw.node)]));
+                let (mut s, mut v) = (0.0, Vector::<D>::zeros());
+                st.for_each(|nw| {
+                    let vi = &v_star[geo.flat(&nw.node)];
+                    s += nw.grad.dot(vi);
+                    v += vi * nw.n;
+                });
                 *div = s;
+                *vp = v;
             });
+        if flux {
+            boundary.apply(&mut grid.velocity_new);
+        }
+        let geo = &grid.geo;
         let quadrature = ParticleQuadrature {
             x: &ps.x,
             half_width: &ps.half_width,
             volume: &self.volume,
             volume_over_density: &self.volume_over_density,
             divergence: &self.divergence,
+            velocity: &self.velocity_star,
+            flux,
         };
         assemble::assemble(
             geo,
