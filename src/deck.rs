@@ -324,12 +324,13 @@ pub enum FreeSurface {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum PoissonRhs {
-    /// (1/dt) sum_p V_p G_ip . v*_p with v* before the wall conditions: the wall flux of v*
-    /// enters as the Neumann condition dp/dn = rho (v* - v_wall) . n / dt, exact under gravity.
+    /// The divergence form plus the wall flux (1/dt) sum_p V_p G_ip . w_p, w the part of v*
+    /// the wall conditions removed: the discrete form of the Neumann condition
+    /// dp/dn = rho (v* - v_wall) . n / dt, exact under gravity.
+    #[default]
     Flux,
     /// METHOD.md's -(1/dt) sum_p V_p N_ip (div v*)_p with v* after the wall conditions
     /// (dp/dn = 0 on walls), the paper's form.
-    #[default]
     Divergence,
 }
 

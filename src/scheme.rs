@@ -134,7 +134,13 @@ impl<const D: usize> Simulation<D> {
     pub fn step(&mut self, dt: f64) -> Result<(), Error> {
         // 1. particles -> grid: mass, momentum, internal and body forces (and probe samples)
         self.particles_to_grid();
-        // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure)
+        // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure).
+        //    The projection takes v^n on the walls from the wall conditions: P2G extrapolates
+        //    the particles' velocity onto wall nodes, and the flux form of the Poisson
+        //    equation would read that as flow through the wall.
+        if self.scheme == Scheme::Projection {
+            self.boundary.apply(&mut self.grid.velocity);
+        }
         self.grid
             .predict(dt, self.deck.simulation.damping, self.settings.mass_epsilon);
         match self.scheme {

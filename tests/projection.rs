@@ -601,7 +601,7 @@ fn dam_break_2d_matches_martin_moyce_in_a_tenth_of_the_steps() {
 
 /// Issue case 6, the part that does not hold yet (run with `--ignored`): a smooth wall-foot
 /// pressure, total variation over T <= 3 at most 3 rho g 2a and a third of the explicit run's
-/// (measured: 88 rho g 2a against 74). The particles cluster (cells at 3 to 5 times their
+/// (measured: 55 rho g 2a against 74). The particles cluster (cells at 3 to 5 times their
 /// volume next to emptied ones), cells near the corner drop below the volume-fraction
 /// tolerance and flip to free surface, and the pressure spikes when they flip back.
 #[test]

@@ -80,10 +80,9 @@ pub struct ParticleQuadrature<'a, const D: usize> {
     pub volume_over_density: &'a [f64],
     /// (div v*)_p.
     pub divergence: &'a [f64],
-    /// v*_p.
+    /// w_p: the part of v* the wall conditions removed, interpolated to the particle.
     pub velocity: &'a [Vector<D>],
-    /// Right-hand side in flux form, (1/dt) sum_p V_p G_ip . v*_p, rather than
-    /// -(1/dt) sum_p V_p N_ip (div v*)_p.
+    /// Add the wall flux (1/dt) sum_p V_p G_ip . w_p to the right-hand side.
     pub flux: bool,
 }
 
@@ -123,11 +122,10 @@ pub fn assemble<const D: usize>(
                 let st = Stencil::<D>::new(shape, &geo.to_cells(&q.x[p]), geo.h, q.half_width[p]);
                 let Some(o) = st.offset_of(&node) else { return };
                 let (n_i, g_i) = st.at(&o);
-                source += if q.flux {
-                    -q.volume[p] * g_i.dot(&q.velocity[p])
-                } else {
-                    q.volume[p] * n_i * q.divergence[p]
-                };
+                source += q.volume[p] * n_i * q.divergence[p];
+                if q.flux {
+                    source -= q.volume[p] * g_i.dot(&q.velocity[p]);
+                }
                 let c = q.volume_over_density[p];
                 st.for_each(|nw| {
                     // slot of node j relative to node i: (j - i + w - 1) per direction

@@ -55,6 +55,7 @@ pub struct Projection<const D: usize> {
     volume_over_density: Vec<f64>,
     divergence: Vec<f64>,
     velocity_star: Vec<Vector<D>>,
+    unconstrained: Vec<Vector<D>>,
     rhs_form: PoissonRhs,
     pressure_gradient: Vec<Vector<D>>,
     /// Statistics of the last solve.
@@ -104,6 +105,7 @@ impl<const D: usize> Projection<D> {
             volume_over_density,
             divergence: vec![0.0; ps.len()],
             velocity_star: vec![Vector::<D>::zeros(); ps.len()],
+            unconstrained: Vec::new(),
             rhs_form: pd.rhs,
             pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
             stats: SolveStats {
@@ -141,7 +143,7 @@ impl<const D: usize> Projection<D> {
         self.bins.sort(&grid.geo, &ps.x);
         if beta > 0.0 {
             // incremental form: v* -= beta (dt / m_i) sum_p V_p N_ip (grad p^n)_p
-            self.particle_pressure(ps, &grid.geo, None);
+            self.particle_pressure(ps, &grid.geo, false);
             self.correct(ps, grid, mass_epsilon, beta * dt);
         }
         let geo = &grid.geo;
@@ -183,13 +185,13 @@ impl<const D: usize> Projection<D> {
                     }
                 });
         }
-        // 4. v*_p (flux form: before the wall conditions) or (div v*)_p (divergence form:
-        //    after them), then L and the right-hand side
+        // 4. (div v*)_p after the wall conditions and, for the flux form, w_p: the part of v*
+        //    the walls removed; then L and the right-hand side
         let flux = self.rhs_form == PoissonRhs::Flux;
-        if !flux {
-            boundary.apply(&mut grid.velocity_new);
-        }
+        self.unconstrained.clone_from(&grid.velocity_new);
+        boundary.apply(&mut grid.velocity_new);
         let v_star = &grid.velocity_new;
+        let v_free = &self.unconstrained;
         (
             ps.x.par_iter(),
             ps.half_width.par_iter(),
@@ -199,18 +201,16 @@ impl<const D: usize> Projection<D> {
             .into_par_iter()
             .for_each(|(x, &lp, div, vp)| {
                 let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
-                let (mut s, mut v) = (0.0, Vector::<D>::zeros());
+                let (mut s, mut w) = (0.0, Vector::<D>::zeros());
                 st.for_each(|nw| {
-                    let vi = &v_star[geo.flat(&nw.node)];
-                    s += nw.grad.dot(vi);
-                    v += vi * nw.n;
+                    let i = geo.flat(&nw.node);
+                    s += nw.grad.dot(&v_star[i]);
+                    // what the walls removed from v* (zero off the wall nodes)
+                    w += (v_free[i] - v_star[i]) * nw.n;
                 });
                 *div = s;
-                *vp = v;
+                *vp = w;
             });
-        if flux {
-            boundary.apply(&mut grid.velocity_new);
-        }
         let geo = &grid.geo;
         let quadrature = ParticleQuadrature {
             x: &ps.x,
@@ -273,25 +273,28 @@ impl<const D: usize> Projection<D> {
                 });
         }
         // 5. particle pressure and (grad dp)_p, then the corrector
-        self.particle_pressure(ps, &grid.geo, Some(()));
+        self.particle_pressure(ps, &grid.geo, true);
         self.correct(ps, grid, mass_epsilon, dt);
         Ok(self.stats)
     }
 
-    /// Interpolates to the particles: with `set` the new pressure p_p = sum_i N_ip p_i^{n+1}
-    /// and (grad dp)_p of the increment; without, (grad p^n)_p of the previous pressure.
+    /// Interpolates to the particles: with `after_solve` the new pressure
+    /// p_p = sum_i N_ip p_i^{n+1} and (grad dp)_p of the increment; before the solve,
+    /// (grad p^n)_p of the previous pressure only.
     fn particle_pressure(
         &mut self,
         ps: &mut Particles<D>,
         geo: &crate::grid::GridGeometry<D>,
-        set: Option<()>,
+        after_solve: bool,
     ) {
         let shape = self.shape;
-        let (total, grad_field) = match set {
-            Some(()) => (&self.previous, &self.node_pressure),
-            None => (&self.previous, &self.previous),
+        let total = &self.previous;
+        let grad_field = if after_solve {
+            &self.node_pressure
+        } else {
+            &self.previous
         };
-        let write_pressure = set.is_some();
+        let write_pressure = after_solve;
         (
             ps.x.par_iter(),
             ps.half_width.par_iter(),
