@@ -263,6 +263,20 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             s.end_time
         );
     }
+    if s.scheme == Scheme::Projection {
+        let p = &deck.pressure;
+        let lower = |x: String| x.to_lowercase();
+        out += &format!(
+            "  pressure         {} ({}), tolerance {:e}, at most {} iterations; rhs {}, beta = {}; free surface where a cell is below {} full\n",
+            lower(format!("{:?}", p.solver)),
+            lower(format!("{:?}", p.preconditioner)),
+            p.tolerance,
+            p.max_iterations,
+            lower(format!("{:?}", p.rhs)),
+            p.beta,
+            p.volume_fraction_tolerance
+        );
+    }
     out += &format!(
         "  output           {} every {} s into {}\n",
         deck.output
