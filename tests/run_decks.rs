@@ -250,3 +250,31 @@ fn unbuilt_preconditioner_is_refused_clearly() {
     );
     assert!(!dir.join("out").exists());
 }
+
+#[test]
+fn an_unconverged_pressure_solve_stops_the_run_with_status_3() {
+    let dir = scratch_dir("unconverged");
+    let deck = dir.join("tight.toml");
+    let text = SMALL_2D
+        .replace("\"explicit\"", "\"projection\"")
+        .replace("transfer = \"apic\"", "transfer = \"pic\"")
+        + "\n[pressure]\nmax_iterations = 2\n";
+    std::fs::write(&deck, text).unwrap();
+    let out = dir.join("out");
+    let o = pmpm(&[
+        "run",
+        deck.to_str().unwrap(),
+        "--output",
+        out.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "{stderr}");
+    assert!(
+        stderr.contains("the pressure solve did not converge"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("pressure.max_iterations"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    // the initial frame is kept
+    assert!(out.join("frames/particles_000000.csv").is_file());
+}

@@ -278,6 +278,7 @@ impl Pcg {
 pub struct Direct {
     triplets: Vec<Triplet<usize, usize, f64>>,
     partials: Vec<f64>,
+    residual: Vec<f64>,
 }
 
 impl Direct {
@@ -326,8 +327,9 @@ impl Direct {
             remove_mean(x, &mut self.partials);
         }
         // report the true residual of the full system
-        let mut r = vec![0.0; n];
-        a.matvec(x, &mut r);
+        let r = &mut self.residual;
+        r.resize(n, 0.0);
+        a.matvec(x, r);
         let (mut num, mut den) = (0.0, 0.0);
         let mean_b = if singular {
             b.iter().sum::<f64>() / n as f64
