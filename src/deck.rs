@@ -219,10 +219,20 @@ pub struct SimulationDeck {
     /// Linear damping of grid velocities (1/s), a settling aid: a = ... - damping * v.
     #[serde(default)]
     pub damping: f64,
+    /// Adaptive steps (`cfl`) land exactly on the output frame times (default true): the time
+    /// left to the next frame is split into equal steps, which can halve a step before a frame.
+    /// With false the step is the stable one and a frame is written at the first step that
+    /// reaches its time. With the projection the pressure holds a (rho / dt) div v^n part that
+    /// cleans the last step's divergence, so a sudden halving of dt shows as a pressure jump.
+    #[serde(default = "default_true")]
+    pub land_on_frames: bool,
 }
 
 fn default_flip_ratio() -> f64 {
     0.99
+}
+fn default_true() -> bool {
+    true
 }
 
 /// `[grid]`
@@ -334,6 +344,20 @@ pub enum PoissonRhs {
     Divergence,
 }
 
+/// Quadrature of the Poisson matrix L and its right-hand side.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Quadrature {
+    /// The particles are the quadrature points (the paper): L_ij = sum_p (V_p / rho_p)
+    /// G_ip . G_jp.
+    #[default]
+    Particle,
+    /// 2^D Gauss points per cell, weighted by the cell's volume fraction min(phi_c, 1), with the
+    /// cell's density (METHOD.md's alternative): L and the right-hand side do not see where the
+    /// particles sit inside the fluid, only how full each cell is.
+    Cell,
+}
+
 /// `[pressure]`, used by the projection scheme.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -355,6 +379,15 @@ pub struct PressureDeck {
     pub beta: f64,
     #[serde(default)]
     pub rhs: PoissonRhs,
+    /// Quadrature of L and the right-hand side (default: the particles).
+    #[serde(default)]
+    pub quadrature: Quadrature,
+    /// Bubble closing in the free-surface detection: a face-connected set of cells at or below
+    /// the volume-fraction tolerance with at most this many cells, not reaching an open face,
+    /// counts as filled (a gap the flow spread between particles, not air). 0 (default) turns
+    /// it off.
+    #[serde(default)]
+    pub bubble_cells: usize,
 }
 
 fn default_tolerance() -> f64 {
@@ -382,6 +415,8 @@ impl Default for PressureDeck {
             volume_fraction_tolerance: default_vf_tolerance(),
             beta: default_beta(),
             rhs: PoissonRhs::default(),
+            quadrature: Quadrature::default(),
+            bubble_cells: 0,
         }
     }
 }

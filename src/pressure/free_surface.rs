@@ -94,6 +94,63 @@ pub fn classify<const D: usize>(
     });
 }
 
+/// Closes bubbles: every face-connected set of cells at or below the volume-fraction tolerance
+/// that has at most `max_cells` cells and does not reach an open face gets the fraction 1
+/// (written to `out`; other cells keep their fraction). Such a set enclosed by fluid is a gap
+/// between particles that the flow has spread apart, not air: left open, its nodes become
+/// p = 0 nodes inside the fluid, the pressure around them collapses for a step and rebounds
+/// the next.
+pub fn close_bubbles<const D: usize>(
+    geo: &GridGeometry<D>,
+    fraction: &[f64],
+    tolerance: f64,
+    open: &[bool],
+    max_cells: usize,
+    out: &mut Vec<f64>,
+) {
+    out.clear();
+    out.extend_from_slice(fraction);
+    let inside = |idx: &[usize; D]| (0..D).all(|d| idx[d] >= PAD && idx[d] < PAD + geo.cells[d]);
+    let mut seen = vec![false; fraction.len()];
+    let mut component = Vec::new();
+    let mut stack = Vec::new();
+    for start in 0..fraction.len() {
+        if seen[start] || fraction[start] > tolerance || !inside(&geo.multi(start)) {
+            continue;
+        }
+        // flood fill the low cells connected to `start` through faces
+        component.clear();
+        stack.push(start);
+        seen[start] = true;
+        let mut reaches_open = false;
+        while let Some(c) = stack.pop() {
+            component.push(c);
+            let idx = geo.multi(c);
+            for d in 0..D {
+                for (side, step) in [(0usize, -1isize), (1, 1)] {
+                    let n = idx[d] as isize + step;
+                    if n < PAD as isize || n >= (PAD + geo.cells[d]) as isize {
+                        reaches_open |= open[2 * d + side];
+                        continue;
+                    }
+                    let mut m = idx;
+                    m[d] = n as usize;
+                    let f = geo.flat(&m);
+                    if !seen[f] && fraction[f] <= tolerance {
+                        seen[f] = true;
+                        stack.push(f);
+                    }
+                }
+            }
+        }
+        if !reaches_open && component.len() <= max_cells {
+            for &c in &component {
+                out[c] = 1.0;
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -200,5 +257,45 @@ mod tests {
         classify(&geo, &mass, 1e-9, &vf, 0.2, &[false; 4], &mut kinds);
         // the corner node at the walls sees only the one (now filled) cell and the walls
         assert_eq!(kinds[geo.flat(&[PAD, PAD])], NodeKind::Interior);
+    }
+
+    /// Fractions of a 6 x 6 box: `f(cx, cy)` per cell.
+    fn fractions(geo: &GridGeometry<2>, f: impl Fn(usize, usize) -> f64) -> Vec<f64> {
+        let mut vf = vec![0.0; geo.node_count()];
+        for cy in 0..6 {
+            for cx in 0..6 {
+                vf[geo.flat(&[cx + PAD, cy + PAD])] = f(cx, cy);
+            }
+        }
+        vf
+    }
+
+    #[test]
+    fn small_enclosed_bubbles_close_and_air_stays_open() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [6, 6]);
+        // water in the lower 4 rows with a one-cell and a two-cell gap, air above
+        let vf = fractions(&geo, |cx, cy| match (cx, cy) {
+            (1, 1) | (3, 2) | (4, 2) => 0.0,
+            (_, y) if y < 4 => 1.0,
+            _ => 0.0,
+        });
+        let mut out = Vec::new();
+        close_bubbles(&geo, &vf, 0.3, &[false; 4], 2, &mut out);
+        let at = |v: &[f64], cx: usize, cy: usize| v[geo.flat(&[cx + PAD, cy + PAD])];
+        for (cx, cy) in [(1, 1), (3, 2), (4, 2)] {
+            assert_eq!(at(&out, cx, cy), 1.0, "gap ({cx}, {cy})");
+        }
+        // the air above (12 cells) is not a bubble
+        assert!((0..6).all(|cx| at(&out, cx, 4) == 0.0 && at(&out, cx, 5) == 0.0));
+        // a bubble larger than the bound stays open
+        close_bubbles(&geo, &vf, 0.3, &[false; 4], 1, &mut out);
+        assert_eq!(at(&out, 1, 1), 1.0);
+        assert_eq!(at(&out, 3, 2), 0.0);
+        // a gap that reaches an open face is air
+        let vf = fractions(&geo, |cx, cy| if (cx, cy) == (5, 3) { 0.0 } else { 1.0 });
+        close_bubbles(&geo, &vf, 0.3, &[false, true, false, false], 4, &mut out);
+        assert_eq!(at(&out, 5, 3), 0.0);
+        close_bubbles(&geo, &vf, 0.3, &[false; 4], 4, &mut out);
+        assert_eq!(at(&out, 5, 3), 1.0);
     }
 }

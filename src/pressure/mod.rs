@@ -15,7 +15,7 @@ pub mod free_surface;
 pub mod solve;
 
 use crate::boundary::Boundary;
-use crate::deck::{Deck, PoissonRhs, Preconditioner, ShapeFunction, Solver};
+use crate::deck::{Deck, PoissonRhs, Preconditioner, Quadrature, ShapeFunction, Solver};
 use crate::grid::{CellBins, Grid, Vector};
 use crate::particles::Particles;
 use crate::shape::Stencil;
@@ -57,6 +57,10 @@ pub struct Projection<const D: usize> {
     velocity_star: Vec<Vector<D>>,
     unconstrained: Vec<Vector<D>>,
     rhs_form: PoissonRhs,
+    quadrature: Quadrature,
+    bubble_cells: usize,
+    raw_fraction: Vec<f64>,
+    gauss: GaussPoints<D>,
     pressure_gradient: Vec<Vector<D>>,
     /// Statistics of the last solve.
     pub stats: SolveStats,
@@ -107,6 +111,10 @@ impl<const D: usize> Projection<D> {
             velocity_star: vec![Vector::<D>::zeros(); ps.len()],
             unconstrained: Vec::new(),
             rhs_form: pd.rhs,
+            quadrature: pd.quadrature,
+            bubble_cells: pd.bubble_cells,
+            raw_fraction: Vec::new(),
+            gauss: GaussPoints::default(),
             pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
             stats: SolveStats {
                 iterations: 0,
@@ -149,6 +157,17 @@ impl<const D: usize> Projection<D> {
         let geo = &grid.geo;
         // 3. free surface
         free_surface::volume_fractions(geo, &self.bins, &self.volume, &mut self.volume_fraction);
+        if self.bubble_cells > 0 {
+            std::mem::swap(&mut self.volume_fraction, &mut self.raw_fraction);
+            free_surface::close_bubbles(
+                geo,
+                &self.raw_fraction,
+                self.volume_fraction_tolerance,
+                &self.open,
+                self.bubble_cells,
+                &mut self.volume_fraction,
+            );
+        }
         free_surface::classify(
             geo,
             &grid.mass,
@@ -192,39 +211,56 @@ impl<const D: usize> Projection<D> {
         boundary.apply(&mut grid.velocity_new);
         let v_star = &grid.velocity_new;
         let v_free = &self.unconstrained;
-        (
-            ps.x.par_iter(),
-            ps.half_width.par_iter(),
-            self.divergence.par_iter_mut(),
-            self.velocity_star.par_iter_mut(),
-        )
-            .into_par_iter()
-            .for_each(|(x, &lp, div, vp)| {
-                let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
-                let (mut s, mut w) = (0.0, Vector::<D>::zeros());
-                st.for_each(|nw| {
-                    let i = geo.flat(&nw.node);
-                    s += nw.grad.dot(&v_star[i]);
-                    // what the walls removed from v* (zero off the wall nodes)
-                    w += (v_free[i] - v_star[i]) * nw.n;
-                });
-                *div = s;
-                *vp = w;
-            });
         let geo = &grid.geo;
-        let quadrature = ParticleQuadrature {
-            x: &ps.x,
-            half_width: &ps.half_width,
-            volume: &self.volume,
-            volume_over_density: &self.volume_over_density,
-            divergence: &self.divergence,
-            velocity: &self.velocity_star,
-            flux,
+        let cell = self.quadrature == Quadrature::Cell;
+        if cell {
+            self.gauss.build(
+                geo,
+                &self.bins,
+                &self.volume_fraction,
+                &ps.mass,
+                &self.volume,
+            );
+        }
+        let (qx, qhw, qdiv, qw) = if cell {
+            let g = &mut self.gauss;
+            (&g.x, &g.half_width, &mut g.divergence, &mut g.velocity)
+        } else {
+            (
+                &ps.x,
+                &ps.half_width,
+                &mut self.divergence,
+                &mut self.velocity_star,
+            )
         };
+        velocity_at_points(geo, shape, v_star, v_free, qx, qhw, qdiv, qw);
+        let quadrature = if cell {
+            let g = &self.gauss;
+            ParticleQuadrature {
+                x: &g.x,
+                half_width: &g.half_width,
+                volume: &g.volume,
+                volume_over_density: &g.volume_over_density,
+                divergence: &g.divergence,
+                velocity: &g.velocity,
+                flux,
+            }
+        } else {
+            ParticleQuadrature {
+                x: &ps.x,
+                half_width: &ps.half_width,
+                volume: &self.volume,
+                volume_over_density: &self.volume_over_density,
+                divergence: &self.divergence,
+                velocity: &self.velocity_star,
+                flux,
+            }
+        };
+        let bins = if cell { &self.gauss.bins } else { &self.bins };
         assemble::assemble(
             geo,
             shape,
-            &self.bins,
+            bins,
             &quadrature,
             &self.kinds,
             &self.row_of,
@@ -343,5 +379,104 @@ impl<const D: usize> Projection<D> {
                 });
                 *v -= f * (scale / m);
             });
+    }
+}
+
+/// (div v*)_q and w_q (the part of v* the walls removed) at quadrature points.
+#[allow(clippy::too_many_arguments)]
+fn velocity_at_points<const D: usize>(
+    geo: &crate::grid::GridGeometry<D>,
+    shape: ShapeFunction,
+    v_star: &[Vector<D>],
+    v_free: &[Vector<D>],
+    x: &[Vector<D>],
+    half_width: &[f64],
+    divergence: &mut [f64],
+    removed: &mut [Vector<D>],
+) {
+    (
+        x.par_iter(),
+        half_width.par_iter(),
+        divergence.par_iter_mut(),
+        removed.par_iter_mut(),
+    )
+        .into_par_iter()
+        .for_each(|(x, &lp, div, vp)| {
+            let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
+            let (mut s, mut w) = (0.0, Vector::<D>::zeros());
+            st.for_each(|nw| {
+                let i = geo.flat(&nw.node);
+                s += nw.grad.dot(&v_star[i]);
+                // what the walls removed from v* (zero off the wall nodes)
+                w += (v_free[i] - v_star[i]) * nw.n;
+            });
+            *div = s;
+            *vp = w;
+        });
+}
+
+/// Gauss points of the cell quadrature: 2^D per cell with fluid, volume min(phi_c, 1) h^D / 2^D,
+/// density of the cell (its particles' mass over their volume; cells without particles, filled
+/// by hole closing, take the mean density of all particles).
+#[derive(Default)]
+struct GaussPoints<const D: usize> {
+    x: Vec<Vector<D>>,
+    half_width: Vec<f64>,
+    volume: Vec<f64>,
+    volume_over_density: Vec<f64>,
+    divergence: Vec<f64>,
+    velocity: Vec<Vector<D>>,
+    bins: CellBins,
+}
+
+impl<const D: usize> GaussPoints<D> {
+    fn build(
+        &mut self,
+        geo: &crate::grid::GridGeometry<D>,
+        bins: &CellBins,
+        fraction: &[f64],
+        mass: &[f64],
+        volume: &[f64],
+    ) {
+        use crate::shape::PAD;
+        self.x.clear();
+        self.volume.clear();
+        self.volume_over_density.clear();
+        let mean_density = mass.iter().sum::<f64>() / volume.iter().sum::<f64>();
+        let corners = 1usize << D;
+        let cell_volume = geo.h.powi(D as i32);
+        let a = 0.5 / 3f64.sqrt();
+        for (c, &phi) in fraction.iter().enumerate() {
+            let w = phi.min(1.0);
+            if w <= 0.0 {
+                continue;
+            }
+            let idx = geo.multi(c);
+            if (0..D).any(|d| idx[d] < PAD || idx[d] >= PAD + geo.cells[d]) {
+                continue;
+            }
+            let ps = bins.particles(c);
+            let (m, v) = ps.iter().fold((0.0, 0.0), |(m, v), &p| {
+                (m + mass[p as usize], v + volume[p as usize])
+            });
+            let rho = if v > 0.0 { m / v } else { mean_density };
+            let lower = geo.node_position(&idx);
+            let vol = w * cell_volume / corners as f64;
+            for k in 0..corners {
+                let x = Vector::<D>::from_fn(|d, _| {
+                    let s = if (k >> d) & 1 == 1 { 0.5 + a } else { 0.5 - a };
+                    lower[d] + s * geo.h
+                });
+                self.x.push(x);
+                self.volume.push(vol);
+                self.volume_over_density.push(vol / rho);
+            }
+        }
+        let n = self.x.len();
+        self.half_width.clear();
+        self.half_width.resize(n, 0.0);
+        self.divergence.resize(n, 0.0);
+        self.velocity.resize(n, Vector::<D>::zeros());
+        self.bins.sort(geo, &self.x);
     }
 }
