@@ -102,7 +102,7 @@ fn run_dim<const D: usize>(
                 // the first step end at or past their time.
                 let dt = sim.stable_dt(cfl);
                 let left = next_frame.min(end) - sim.time;
-                if !deck.simulation.land_on_frames {
+                if deck.simulation.land_on_frames == Some(false) {
                     dt
                 } else if dt.is_finite() && dt > 0.0 && left > 0.0 {
                     left / (left / dt).ceil()

@@ -94,6 +94,14 @@ pub fn classify<const D: usize>(
     });
 }
 
+/// Work buffers of [`close_bubbles`], kept between steps.
+#[derive(Debug, Default)]
+pub struct FloodFill {
+    seen: Vec<bool>,
+    component: Vec<usize>,
+    stack: Vec<usize>,
+}
+
 /// Closes bubbles: every face-connected set of cells at or below the volume-fraction tolerance
 /// that has at most `max_cells` cells and does not reach an open face gets the fraction 1
 /// (written to `out`; other cells keep their fraction). Such a set enclosed by fluid is a gap
@@ -106,14 +114,19 @@ pub fn close_bubbles<const D: usize>(
     tolerance: f64,
     open: &[bool],
     max_cells: usize,
+    scratch: &mut FloodFill,
     out: &mut Vec<f64>,
 ) {
     out.clear();
     out.extend_from_slice(fraction);
     let inside = |idx: &[usize; D]| (0..D).all(|d| idx[d] >= PAD && idx[d] < PAD + geo.cells[d]);
-    let mut seen = vec![false; fraction.len()];
-    let mut component = Vec::new();
-    let mut stack = Vec::new();
+    let FloodFill {
+        seen,
+        component,
+        stack,
+    } = scratch;
+    seen.clear();
+    seen.resize(fraction.len(), false);
     for start in 0..fraction.len() {
         if seen[start] || fraction[start] > tolerance || !inside(&geo.multi(start)) {
             continue;
@@ -144,7 +157,7 @@ pub fn close_bubbles<const D: usize>(
             }
         }
         if !reaches_open && component.len() <= max_cells {
-            for &c in &component {
+            for &c in component.iter() {
                 out[c] = 1.0;
             }
         }
@@ -280,7 +293,8 @@ mod tests {
             _ => 0.0,
         });
         let mut out = Vec::new();
-        close_bubbles(&geo, &vf, 0.3, &[false; 4], 2, &mut out);
+        let mut ff = FloodFill::default();
+        close_bubbles(&geo, &vf, 0.3, &[false; 4], 2, &mut ff, &mut out);
         let at = |v: &[f64], cx: usize, cy: usize| v[geo.flat(&[cx + PAD, cy + PAD])];
         for (cx, cy) in [(1, 1), (3, 2), (4, 2)] {
             assert_eq!(at(&out, cx, cy), 1.0, "gap ({cx}, {cy})");
@@ -288,14 +302,22 @@ mod tests {
         // the air above (12 cells) is not a bubble
         assert!((0..6).all(|cx| at(&out, cx, 4) == 0.0 && at(&out, cx, 5) == 0.0));
         // a bubble larger than the bound stays open
-        close_bubbles(&geo, &vf, 0.3, &[false; 4], 1, &mut out);
+        close_bubbles(&geo, &vf, 0.3, &[false; 4], 1, &mut ff, &mut out);
         assert_eq!(at(&out, 1, 1), 1.0);
         assert_eq!(at(&out, 3, 2), 0.0);
         // a gap that reaches an open face is air
         let vf = fractions(&geo, |cx, cy| if (cx, cy) == (5, 3) { 0.0 } else { 1.0 });
-        close_bubbles(&geo, &vf, 0.3, &[false, true, false, false], 4, &mut out);
+        close_bubbles(
+            &geo,
+            &vf,
+            0.3,
+            &[false, true, false, false],
+            4,
+            &mut ff,
+            &mut out,
+        );
         assert_eq!(at(&out, 5, 3), 0.0);
-        close_bubbles(&geo, &vf, 0.3, &[false; 4], 4, &mut out);
+        close_bubbles(&geo, &vf, 0.3, &[false; 4], 4, &mut ff, &mut out);
         assert_eq!(at(&out, 5, 3), 1.0);
     }
 }

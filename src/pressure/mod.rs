@@ -60,6 +60,7 @@ pub struct Projection<const D: usize> {
     quadrature: Quadrature,
     bubble_cells: usize,
     raw_fraction: Vec<f64>,
+    flood_fill: free_surface::FloodFill,
     gauss: GaussPoints<D>,
     pressure_gradient: Vec<Vector<D>>,
     /// Statistics of the last solve.
@@ -114,6 +115,7 @@ impl<const D: usize> Projection<D> {
             quadrature: pd.quadrature,
             bubble_cells: pd.bubble_cells,
             raw_fraction: Vec::new(),
+            flood_fill: Default::default(),
             gauss: GaussPoints::default(),
             pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
             stats: SolveStats {
@@ -165,6 +167,7 @@ impl<const D: usize> Projection<D> {
                 self.volume_fraction_tolerance,
                 &self.open,
                 self.bubble_cells,
+                &mut self.flood_fill,
                 &mut self.volume_fraction,
             );
         }
