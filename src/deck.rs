@@ -221,8 +221,8 @@ pub struct SimulationDeck {
     pub damping: f64,
     /// Adaptive steps (`cfl`) land exactly on the output frame times: the time left to the
     /// next frame is split into equal steps, which can halve a step before a frame. With false
-    /// the step is the stable one and a frame is written at the first step that reaches its
-    /// time. Default: true for the explicit scheme, false for the projection, whose pressure
+    /// the step is the stable one (at most one frame interval) and a frame is written at the
+    /// first step that reaches its time. Default: true for the explicit scheme, false for the projection, whose pressure
     /// holds a (rho / dt) div v^n part that cleans the last step's divergence, so that a sudden
     /// halving of dt shows as a pressure jump.
     #[serde(default)]

@@ -98,12 +98,13 @@ fn run_dim<const D: usize>(
                 // adaptive steps land exactly on frame times, without a sliver of a step
                 // before each frame: the remaining time is split into equal steps (with the
                 // projection a tiny step turns the leftover divergence into a pressure spike).
-                // Without landing, the stable step is taken as is and frames are written at
-                // the first step end at or past their time.
+                // Without landing, the stable step is taken as is (up to one frame interval)
+                // and frames are written at the first step end at or past their time.
                 let dt = sim.stable_dt(cfl);
                 let left = next_frame.min(end) - sim.time;
                 if deck.simulation.land_on_frames == Some(false) {
-                    dt
+                    // at most one frame interval, so that no frame is skipped
+                    dt.min(interval)
                 } else if dt.is_finite() && dt > 0.0 && left > 0.0 {
                     left / (left / dt).ceil()
                 } else {

@@ -152,9 +152,21 @@ fn the_shipped_examples_are_valid() {
 
 #[test]
 fn runs_are_bitwise_repeatable_on_a_thread_count() {
-    let dir = scratch_dir("repeat");
+    let projection = SMALL_2D
+        .replace("\"explicit\"", "\"projection\"")
+        .replace("transfer = \"apic\"", "transfer = \"flip\"");
+    for (name, text) in [
+        ("explicit", SMALL_2D.to_string()),
+        ("projection", projection),
+    ] {
+        repeatable(name, &text);
+    }
+}
+
+fn repeatable(name: &str, text: &str) {
+    let dir = scratch_dir(&format!("repeat-{name}"));
     let deck = dir.join("small.toml");
-    std::fs::write(&deck, SMALL_2D).unwrap();
+    std::fs::write(&deck, text).unwrap();
     for threads in ["1", "2"] {
         let a = dir.join(format!("a{threads}"));
         let b = dir.join(format!("b{threads}"));
@@ -169,7 +181,7 @@ fn runs_are_bitwise_repeatable_on_a_thread_count() {
             let fb = std::fs::read(b.join(f)).unwrap();
             assert!(
                 fa == fb,
-                "{f} differs between two runs on {threads} threads"
+                "{name}: {f} differs between two runs on {threads} threads"
             );
         }
     }
