@@ -331,20 +331,20 @@ rhs = "flux"
 #[test]
 fn solvers_agree_and_the_matrix_is_symmetric_positive_definite() {
     let size = [0.2, 0.4];
-    let run = |solver: &str| {
+    let run = |solver: &str, quadrature: &str| {
         let mut d = column_deck(
             2,
             0.01,
             &size,
             &water_body(&size),
-            &format!("solver = \"{solver}\"\n"),
+            &format!("solver = \"{solver}\"\nquadrature = \"{quadrature}\"\n"),
         );
         d.simulation.end_time = 0.1;
         in_pool(2, || {
             run_at_rest::<2>(&d, RHO * G * 0.4, |y| RHO * G * (0.4 - y), false).1
         })
     };
-    let (a, b) = (run("pcg"), run("direct"));
+    let (a, b) = (run("pcg", "cell"), run("direct", "cell"));
     let pmax = a
         .particles
         .pressure
@@ -362,7 +362,15 @@ fn solvers_agree_and_the_matrix_is_symmetric_positive_definite() {
         diff / pmax
     );
     assert!(diff <= 1e-6 * pmax);
-    let m = &a.projection.as_ref().unwrap().matrix;
+    let particle = run("pcg", "particle");
+    for (name, sim) in [("cell", &a), ("particle", &particle)] {
+        symmetric_positive_definite(name, &sim.projection.as_ref().unwrap().matrix);
+    }
+}
+
+/// Checks an assembled L (free-surface rows and columns removed): symmetric, its eigenvalues
+/// positive, and it has a Cholesky factor.
+fn symmetric_positive_definite(name: &str, m: &pmpm::pressure::solve::EllMatrix) {
     let n = m.n;
     assert!(n > 0);
     let mut dense = nalgebra::DMatrix::<f64>::zeros(n, n);
@@ -375,7 +383,7 @@ fn solvers_agree_and_the_matrix_is_symmetric_positive_definite() {
     assert!(asym <= 1e-12 * dense.abs().max(), "asymmetry {asym:e}");
     let eig = dense.clone().symmetric_eigenvalues();
     let (lo, hi) = (eig.min(), eig.max());
-    println!("L: {n} unknowns, eigenvalues in [{lo:.3e}, {hi:.3e}]");
+    println!("L ({name} quadrature): {n} unknowns, eigenvalues in [{lo:.3e}, {hi:.3e}]");
     assert!(lo > 0.0, "smallest eigenvalue {lo:e}");
     assert!(nalgebra::Cholesky::new(dense).is_some());
 }
