@@ -43,11 +43,11 @@ impl<const D: usize> Boundary<D> {
                 }
             }
         }
-        nodes.retain(|&(_, f)| faces[f].0 != BoundaryKind::Open);
+        nodes.retain(|&(_, f)| !matches!(faces[f].0, BoundaryKind::Open | BoundaryKind::Periodic));
         Self { faces, nodes }
     }
 
-    /// Keeps particles inside closed faces. Near a wall a particle's velocity is interpolated
+    /// Wraps particles across periodic faces and keeps them inside closed faces. Near a wall a particle's velocity is interpolated
     /// from nodes off the wall as well, so it can cross the wall by a fraction of a step; it is
     /// put back on the wall and its velocity into the wall removed (the particle-level form of
     /// v . n = 0). A particle further than a cell beyond a wall, or beyond an open face, is
@@ -61,7 +61,15 @@ impl<const D: usize> Boundary<D> {
             for d in 0..D {
                 let (kmin, wmin) = faces[2 * d];
                 let (kmax, wmax) = faces[2 * d + 1];
-                if x[d] < lo[d] && x[d] > lo[d] - h && kmin != BoundaryKind::Open {
+                if kmin == BoundaryKind::Periodic {
+                    // wrap into [lo, hi)
+                    let l = hi[d] - lo[d];
+                    let mut r = (x[d] - lo[d]).rem_euclid(l);
+                    if r >= l {
+                        r = 0.0;
+                    }
+                    x[d] = lo[d] + r;
+                } else if x[d] < lo[d] && x[d] > lo[d] - h && kmin != BoundaryKind::Open {
                     x[d] = lo[d];
                     v[d] = v[d].max(wmin[d]);
                 } else if x[d] > hi[d] && x[d] < hi[d] + h && kmax != BoundaryKind::Open {
@@ -75,6 +83,18 @@ impl<const D: usize> Boundary<D> {
     /// Whether face `f` (x_min, x_max, y_min, ...) is open.
     pub fn is_open(&self, f: usize) -> bool {
         self.faces[f].0 == BoundaryKind::Open
+    }
+
+    /// Imposes only the normal part of the face conditions (v . n = v_wall . n on slip and
+    /// no-slip faces alike): what the walls' flux through them is measured against.
+    pub fn apply_normal(&self, v: &mut [Vector<D>]) {
+        for &(i, f) in &self.nodes {
+            let (kind, wall) = self.faces[f];
+            let axis = f / 2;
+            if matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip) {
+                v[i][axis] = wall[axis];
+            }
+        }
     }
 
     /// Imposes the face conditions on node velocities.

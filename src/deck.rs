@@ -863,10 +863,10 @@ impl Deck {
             }
             let spec = spec.get_or_insert(BoundarySpec::Kind(BoundaryKind::Slip));
             match spec.kind() {
-                BoundaryKind::Periodic => {
+                BoundaryKind::Periodic if spec.velocity().is_some() => {
                     return Err(c.err(
-                        key,
-                        "\"periodic\" boundaries are not available yet in this version",
+                        format!("{key}.velocity"),
+                        "a periodic face imposes nothing: a velocity needs \"slip\" or \"no_slip\"",
                     ))
                 }
                 BoundaryKind::Open if spec.velocity().is_some() => {
@@ -879,6 +879,37 @@ impl Deck {
             }
             if let Some(v) = spec.velocity() {
                 c.vector(&format!("{key}.velocity"), v, dim)?;
+            }
+        }
+
+        let faces = g.boundary.faces();
+        for d in 0..dim {
+            let lo = faces[2 * d].as_ref().map(|f| f.kind());
+            let hi = faces[2 * d + 1].as_ref().map(|f| f.kind());
+            let periodic = |k: Option<BoundaryKind>| k == Some(BoundaryKind::Periodic);
+            if periodic(lo) != periodic(hi) {
+                let (set, other) = if periodic(lo) {
+                    (2 * d, 2 * d + 1)
+                } else {
+                    (2 * d + 1, 2 * d)
+                };
+                return Err(c.err(
+                    format!("grid.boundary.{}", FACE_NAMES[other]),
+                    format!(
+                        "must be \"periodic\" too: {} is periodic, and a periodic axis needs both faces",
+                        FACE_NAMES[set]
+                    ),
+                ));
+            }
+            let n = (g.size[d] / g.cell_size).round() as usize;
+            if periodic(lo) && n < 2 * crate::shape::PAD + 1 {
+                return Err(c.err(
+                    format!("grid.size[{d}]"),
+                    format!(
+                        "a periodic axis needs at least {} cells, got {n}",
+                        2 * crate::shape::PAD + 1
+                    ),
+                ));
             }
         }
 

@@ -23,6 +23,11 @@ pub struct GridGeometry<const D: usize> {
     pub nodes: [usize; D],
     /// Flat-index stride of each direction.
     pub strides: [usize; D],
+    /// Periodic directions: node x_min + k L and x_min are the same node.
+    pub periodic: [bool; D],
+    /// (image, canonical) flat pairs of the nodes that repeat another across a periodic
+    /// direction (the ghosts and the upper boundary layer), for [`GridGeometry::fold`].
+    images: Vec<(u32, u32)>,
 }
 
 impl<const D: usize> GridGeometry<D> {
@@ -39,6 +44,113 @@ impl<const D: usize> GridGeometry<D> {
             cells,
             nodes,
             strides,
+            periodic: [false; D],
+            images: Vec::new(),
+        }
+    }
+
+    /// The same grid with the given directions periodic.
+    pub fn with_periodic(mut self, periodic: [bool; D]) -> Self {
+        self.periodic = periodic;
+        self.images = (0..self.node_count())
+            .filter_map(|f| {
+                let c = self.canonical(f);
+                (c != f).then_some((f as u32, c as u32))
+            })
+            .collect();
+        self
+    }
+
+    /// Whether any direction is periodic.
+    #[inline]
+    pub fn has_periodic(&self) -> bool {
+        !self.images.is_empty()
+    }
+
+    /// The node a periodic image stands for (itself where no direction is periodic): padded
+    /// index PAD + ((i - PAD) mod cells) in each periodic direction.
+    #[inline]
+    pub fn canonical(&self, flat: usize) -> usize {
+        if !self.periodic.iter().any(|&p| p) {
+            return flat;
+        }
+        let mut idx = self.multi(flat);
+        for d in 0..D {
+            if self.periodic[d] {
+                let n = self.cells[d] as isize;
+                let r = (idx[d] as isize - PAD as isize).rem_euclid(n);
+                idx[d] = PAD + r as usize;
+            }
+        }
+        self.flat(&idx)
+    }
+
+    /// Makes a node field periodic after a scatter: each image's sum is added to the node it
+    /// stands for, and the total is copied back to every image.
+    pub fn fold<T: Copy + std::ops::AddAssign>(&self, field: &mut [T]) {
+        for &(i, c) in &self.images {
+            let v = field[i as usize];
+            field[c as usize] += v;
+        }
+        self.copy_to_images(field);
+    }
+
+    /// Copies every node's value to its periodic images.
+    pub fn copy_to_images<T: Copy>(&self, field: &mut [T]) {
+        for &(i, c) in &self.images {
+            field[i as usize] = field[c as usize];
+        }
+    }
+
+    /// Calls `f` with every padded node index that stands for the same node as `idx`
+    /// (`idx` itself included).
+    pub fn for_each_image(&self, idx: &[usize; D], mut f: impl FnMut([usize; D])) {
+        // per direction up to three candidates: idx, idx - cells, idx + cells
+        let mut cand = [[usize::MAX; 3]; D];
+        for d in 0..D {
+            cand[d][0] = idx[d];
+            if self.periodic[d] {
+                let n = self.cells[d];
+                if idx[d] >= n {
+                    cand[d][1] = idx[d] - n;
+                }
+                if idx[d] + n < self.nodes[d] {
+                    cand[d][2] = idx[d] + n;
+                }
+            }
+        }
+        let mut k = [0usize; D];
+        loop {
+            if (0..D).all(|d| cand[d][k[d]] != usize::MAX) {
+                f(std::array::from_fn(|d| cand[d][k[d]]));
+            }
+            let mut d = 0;
+            loop {
+                if d == D {
+                    return;
+                }
+                k[d] += 1;
+                if k[d] < 3 {
+                    break;
+                }
+                k[d] = 0;
+                d += 1;
+            }
+        }
+    }
+
+    /// Wraps a position into the domain along the periodic directions.
+    #[inline]
+    pub fn wrap(&self, x: &mut Vector<D>) {
+        for d in 0..D {
+            if self.periodic[d] {
+                let l = self.cells[d] as f64 * self.h;
+                let mut r = (x[d] - self.origin[d]).rem_euclid(l);
+                if r >= l {
+                    r = 0.0;
+                }
+                x[d] = self.origin[d] + r;
+            }
         }
     }
 
@@ -191,6 +303,28 @@ impl<const D: usize> Grid<D> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn periodic_images_fold_onto_their_node() {
+        let g =
+            GridGeometry::<2>::new(Vector::<2>::zeros(), 0.1, [6, 4]).with_periodic([true, false]);
+        // node x = 0 and x = L are one node; ghosts wrap
+        assert_eq!(g.canonical(g.flat(&[PAD + 6, 3])), g.flat(&[PAD, 3]));
+        assert_eq!(g.canonical(g.flat(&[PAD - 1, 3])), g.flat(&[PAD + 5, 3]));
+        assert_eq!(g.canonical(g.flat(&[PAD + 2, 0])), g.flat(&[PAD + 2, 0]));
+        let mut f = vec![1.0; g.node_count()];
+        g.fold(&mut f);
+        // a node with images: itself plus each image
+        let mut n = 0;
+        g.for_each_image(&[PAD, 3], |_| n += 1);
+        assert_eq!(n, 2);
+        assert_eq!(f[g.flat(&[PAD, 3])], 2.0);
+        assert_eq!(f[g.flat(&[PAD + 6, 3])], 2.0);
+        assert_eq!(f[g.flat(&[PAD + 3, 3])], 1.0);
+        let mut x = Vector::<2>::new(-0.05, 0.2);
+        g.wrap(&mut x);
+        assert!((x[0] - 0.55).abs() < 1e-12 && x[1] == 0.2);
+    }
 
     #[test]
     fn flat_and_multi_are_inverse() {

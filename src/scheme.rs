@@ -66,7 +66,12 @@ impl<const D: usize> Simulation<D> {
         let g = &deck.grid;
         let h = g.cell_size;
         let cells: [usize; D] = std::array::from_fn(|d| (g.size[d] / h).round() as usize);
-        let geo = GridGeometry::new(Vector::<D>::from_column_slice(&g.origin), h, cells);
+        let faces = g.boundary.faces();
+        let periodic: [bool; D] = std::array::from_fn(|d| {
+            faces[2 * d].as_ref().map(|f| f.kind()) == Some(crate::deck::BoundaryKind::Periodic)
+        });
+        let geo = GridGeometry::new(Vector::<D>::from_column_slice(&g.origin), h, cells)
+            .with_periodic(periodic);
         let particles = Particles::from_deck(deck, &geo);
         if let Some(b) = (0..deck.bodies.len()).find(|&b| {
             !particles

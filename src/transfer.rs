@@ -140,11 +140,10 @@ pub fn particles_to_grid<const D: usize>(
         grid.momentum.par_iter_mut(),
         grid.force.par_iter_mut(),
         grid.pressure.par_iter_mut(),
-        grid.velocity.par_iter_mut(),
     )
         .into_par_iter()
         .enumerate()
-        .for_each(|(i, (m, mom, f, pr, v))| {
+        .for_each(|(i, (m, mom, f, pr))| {
             *m = 0.0;
             *mom = Vector::<D>::zeros();
             *f = Vector::<D>::zeros();
@@ -155,6 +154,21 @@ pub fn particles_to_grid<const D: usize>(
                 *f += b.force[i];
                 *pr += b.pressure[i];
             }
+        });
+    if geo.has_periodic() {
+        geo.fold(&mut grid.mass);
+        geo.fold(&mut grid.momentum);
+        geo.fold(&mut grid.force);
+        geo.fold(&mut grid.pressure);
+    }
+    (
+        grid.mass.par_iter(),
+        grid.momentum.par_iter(),
+        grid.pressure.par_iter_mut(),
+        grid.velocity.par_iter_mut(),
+    )
+        .into_par_iter()
+        .for_each(|(m, mom, pr, v)| {
             if *m > eps {
                 *v = *mom / *m;
                 *pr /= *m;
@@ -196,15 +210,24 @@ pub fn remap_velocity<const D: usize>(
     let eps = s.mass_epsilon;
     grid.velocity_new
         .par_iter_mut()
-        .zip(grid.mass.par_iter())
         .enumerate()
-        .for_each(|(i, (v, &m))| {
+        .for_each(|(i, v)| {
             *v = Vector::<D>::zeros();
+            for b in bufs {
+                *v += b.momentum[i];
+            }
+        });
+    if geo.has_periodic() {
+        geo.fold(&mut grid.velocity_new);
+    }
+    grid.velocity_new
+        .par_iter_mut()
+        .zip(grid.mass.par_iter())
+        .for_each(|(v, &m)| {
             if m > eps {
-                for b in bufs {
-                    *v += b.momentum[i];
-                }
                 *v /= m;
+            } else {
+                *v = Vector::<D>::zeros();
             }
         });
 }

@@ -8,6 +8,12 @@ fn cases() -> Vec<(&'static str, String, &'static str, &'static str)> {
     let d = SMALL_2D;
     vec![
         (
+            "periodic on one face only",
+            d.replace("x_min = \"slip\"", "x_min = \"periodic\""),
+            "grid.boundary.x_max",
+            "must be \"periodic\" too: x_min is periodic",
+        ),
+        (
             "unknown key",
             d.replace("end_time = 0.05", "endtime = 0.05"),
             "simulation.endtime",

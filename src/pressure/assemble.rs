@@ -13,7 +13,7 @@ use super::free_surface::NodeKind;
 use super::solve::EllMatrix;
 use crate::deck::ShapeFunction;
 use crate::grid::{CellBins, GridGeometry, Vector};
-use crate::shape::Stencil;
+use crate::shape::{Stencil, PAD};
 use rayon::prelude::*;
 
 /// Largest row: (2K - 1)^D slots, K = 4 (cubic B-spline), D = 3.
@@ -118,22 +118,28 @@ pub fn assemble<const D: usize>(
             let node = geo.multi(i as usize);
             let mut acc = [0.0f64; MAX_SLOTS];
             let mut source = 0.0;
-            for_particles_near(geo, bins, shape, &node, |p| {
-                let st = Stencil::<D>::new(shape, &geo.to_cells(&q.x[p]), geo.h, q.half_width[p]);
-                let Some(o) = st.offset_of(&node) else { return };
-                let (n_i, g_i) = st.at(&o);
-                source += q.volume[p] * n_i * q.divergence[p];
-                if q.flux {
-                    source -= q.volume[p] * g_i.dot(&q.velocity[p]);
-                }
-                let c = q.volume_over_density[p];
-                st.for_each(|nw| {
-                    // slot of node j relative to node i: (j - i + w - 1) per direction
-                    let mut s = 0;
-                    for d in (0..D).rev() {
-                        s = s * span + (nw.node[d] + w - 1 - node[d]);
+            // across a periodic direction the node's images gather too
+            geo.for_each_image(&node, |image| {
+                for_particles_near(geo, bins, shape, &image, |p| {
+                    let st =
+                        Stencil::<D>::new(shape, &geo.to_cells(&q.x[p]), geo.h, q.half_width[p]);
+                    let Some(o) = st.offset_of(&image) else {
+                        return;
+                    };
+                    let (n_i, g_i) = st.at(&o);
+                    source += q.volume[p] * n_i * q.divergence[p];
+                    if q.flux {
+                        source -= q.volume[p] * g_i.dot(&q.velocity[p]);
                     }
-                    acc[s] += c * g_i.dot(&nw.grad);
+                    let c = q.volume_over_density[p];
+                    st.for_each(|nw| {
+                        // slot of node j relative to node i: (j - i + w - 1) per direction
+                        let mut s = 0;
+                        for d in (0..D).rev() {
+                            s = s * span + (nw.node[d] + w - 1 - image[d]);
+                        }
+                        acc[s] += c * g_i.dot(&nw.grad);
+                    });
                 });
             });
             let mut known = 0.0;
@@ -145,11 +151,19 @@ pub fn assemble<const D: usize>(
                 for d in 0..D {
                     let off = rem % span;
                     rem /= span;
-                    let jd = (node[d] + off).wrapping_sub(w - 1);
+                    let mut jd = (node[d] + off).wrapping_sub(w - 1);
+                    if geo.periodic[d] {
+                        let r = (node[d] + off) as isize - (w - 1) as isize - PAD as isize;
+                        jd = PAD + r.rem_euclid(geo.cells[d] as isize) as usize;
+                    }
                     valid &= jd < geo.nodes[d];
                     j[d] = jd;
                 }
-                let jf = if valid { geo.flat(&j) } else { 0 };
+                let jf = if valid {
+                    geo.canonical(geo.flat(&j))
+                } else {
+                    0
+                };
                 if valid && kinds[jf] == NodeKind::Interior && acc[s] != 0.0 {
                     *col = row_of[jf];
                     *val = acc[s];

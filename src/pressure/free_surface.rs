@@ -66,7 +66,10 @@ pub fn classify<const D: usize>(
             let mut cell = [0usize; D];
             for d in 0..D {
                 // cell index node - 1 + e, with e the corner's bit d
-                let c = (node[d] + ((corner >> d) & 1)) as isize - 1;
+                let mut c = (node[d] + ((corner >> d) & 1)) as isize - 1;
+                if geo.periodic[d] {
+                    c = PAD as isize + (c - PAD as isize).rem_euclid(geo.cells[d] as isize);
+                }
                 if c < PAD as isize {
                     inside = false;
                     closed &= !open[2 * d];
@@ -141,7 +144,10 @@ pub fn close_bubbles<const D: usize>(
             let idx = geo.multi(c);
             for d in 0..D {
                 for (side, step) in [(0usize, -1isize), (1, 1)] {
-                    let n = idx[d] as isize + step;
+                    let mut n = idx[d] as isize + step;
+                    if geo.periodic[d] {
+                        n = PAD as isize + (n - PAD as isize).rem_euclid(geo.cells[d] as isize);
+                    }
                     if n < PAD as isize || n >= (PAD + geo.cells[d]) as isize {
                         reaches_open |= open[2 * d + side];
                         continue;

@@ -185,6 +185,10 @@ impl<const D: usize> Projection<D> {
         self.node_of_row.clear();
         let mut free = 0usize;
         for (i, k) in self.kinds.iter().enumerate() {
+            if geo.canonical(i) != i {
+                // a periodic image: its node has the row
+                continue;
+            }
             match k {
                 NodeKind::Interior => {
                     self.row_of[i] = self.node_of_row.len() as u32;
@@ -211,7 +215,13 @@ impl<const D: usize> Projection<D> {
         //    the walls removed; then L and the right-hand side
         let flux = self.rhs_form == PoissonRhs::Flux;
         self.unconstrained.clone_from(&grid.velocity_new);
-        boundary.apply(&mut grid.velocity_new);
+        if flux {
+            // only the normal part enters the wall flux: a no-slip wall's tangential condition
+            // is not flow through it (and the tangential condition is applied below)
+            boundary.apply_normal(&mut grid.velocity_new);
+        } else {
+            boundary.apply(&mut grid.velocity_new);
+        }
         let v_star = &grid.velocity_new;
         let v_free = &self.unconstrained;
         let geo = &grid.geo;
@@ -237,6 +247,9 @@ impl<const D: usize> Projection<D> {
             )
         };
         velocity_at_points(geo, shape, v_star, v_free, qx, qhw, qdiv, qw);
+        if flux {
+            boundary.apply(&mut grid.velocity_new);
+        }
         let quadrature = if cell {
             let g = &self.gauss;
             ParticleQuadrature {
@@ -298,6 +311,7 @@ impl<const D: usize> Projection<D> {
             for (r, &i) in node_of_row.iter().enumerate() {
                 dp[i as usize] = sol[r];
             }
+            grid.geo.copy_to_images(dp);
             // p^{n+1} = beta p^n + dp on the fluid's nodes, the memory of the next step
             let kinds = &self.kinds;
             self.previous
@@ -374,11 +388,14 @@ impl<const D: usize> Projection<D> {
                 }
                 let node = geo.multi(i);
                 let mut f = Vector::<D>::zeros();
-                assemble::for_particles_near(geo, bins, shape, &node, |p| {
-                    let st = Stencil::<D>::new(shape, &geo.to_cells(&xs[p]), geo.h, hw[p]);
-                    if let Some(o) = st.offset_of(&node) {
-                        f += gp[p] * (vol[p] * st.at(&o).0);
-                    }
+                // across a periodic direction the node's images gather too
+                geo.for_each_image(&node, |image| {
+                    assemble::for_particles_near(geo, bins, shape, &image, |p| {
+                        let st = Stencil::<D>::new(shape, &geo.to_cells(&xs[p]), geo.h, hw[p]);
+                        if let Some(o) = st.offset_of(&image) {
+                            f += gp[p] * (vol[p] * st.at(&o).0);
+                        }
+                    });
                 });
                 *v -= f * (scale / m);
             });
