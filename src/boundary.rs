@@ -15,6 +15,12 @@ pub struct Boundary<const D: usize> {
     faces: Vec<(BoundaryKind, Vector<D>)>,
     /// (node, face) pairs, precomputed so that applying costs O(boundary nodes).
     nodes: Vec<(usize, usize)>,
+    /// Wall velocities given by expressions in x, y, z, t, per face (None: constant).
+    fields: Vec<Option<crate::field::CompiledField>>,
+    /// Per (node, face) pair, the wall velocity at the node now (only with `fields`).
+    node_wall: Vec<Vector<D>>,
+    /// Node positions of the pairs (only with `fields`).
+    node_x: Vec<Vector<D>>,
 }
 
 impl<const D: usize> Boundary<D> {
@@ -26,9 +32,19 @@ impl<const D: usize> Boundary<D> {
                 let f = f.as_ref().expect("validated: every face filled in");
                 let v = f
                     .velocity()
-                    .map(Vector::<D>::from_column_slice)
+                    .map(|v| {
+                        let c = v.compile().expect("validated expressions");
+                        c.eval(&geo.origin, 0.0)
+                    })
                     .unwrap_or_else(Vector::<D>::zeros);
                 (f.kind(), v)
+            })
+            .collect();
+        let fields: Vec<Option<crate::field::CompiledField>> = deck.grid.boundary.faces()[..2 * D]
+            .iter()
+            .map(|f| {
+                let c = f.as_ref()?.velocity()?.compile().ok()?;
+                (!c.is_constant()).then_some(c)
             })
             .collect();
         let mut nodes = Vec::new();
@@ -44,7 +60,60 @@ impl<const D: usize> Boundary<D> {
             }
         }
         nodes.retain(|&(_, f)| !matches!(faces[f].0, BoundaryKind::Open | BoundaryKind::Periodic));
-        Self { faces, nodes }
+        let varying = fields.iter().any(|f| f.is_some());
+        let node_x = if varying {
+            nodes
+                .iter()
+                .map(|&(i, _)| geo.node_position(&geo.multi(i)))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let mut b = Self {
+            node_wall: vec![Vector::<D>::zeros(); if varying { nodes.len() } else { 0 }],
+            faces,
+            nodes,
+            fields,
+            node_x,
+        };
+        b.set_time(0.0, geo);
+        b
+    }
+
+    /// Evaluates the wall velocities given by expressions at time `t`: at every wall node, and
+    /// at each face's centre for the particles that [`Boundary::confine`] puts back.
+    pub fn set_time(&mut self, t: f64, geo: &GridGeometry<D>) {
+        if self.node_wall.is_empty() {
+            return;
+        }
+        for (k, &(_, f)) in self.nodes.iter().enumerate() {
+            self.node_wall[k] = match &self.fields[f] {
+                Some(c) => c.eval(&self.node_x[k], t),
+                None => self.faces[f].1,
+            };
+        }
+        let centre = (geo.origin + geo.upper()) * 0.5;
+        for f in 0..2 * D {
+            if let Some(c) = &self.fields[f] {
+                let mut x = centre;
+                x[f / 2] = if f % 2 == 0 {
+                    geo.origin[f / 2]
+                } else {
+                    geo.upper()[f / 2]
+                };
+                self.faces[f].1 = c.eval(&x, t);
+            }
+        }
+    }
+
+    /// The wall velocity of pair k (node, face).
+    #[inline]
+    fn wall(&self, k: usize, f: usize) -> Vector<D> {
+        if self.node_wall.is_empty() {
+            self.faces[f].1
+        } else {
+            self.node_wall[k]
+        }
     }
 
     /// Wraps particles across periodic faces and keeps them inside closed faces. Near a wall a particle's velocity is interpolated
@@ -88,8 +157,8 @@ impl<const D: usize> Boundary<D> {
     /// Imposes only the normal part of the face conditions (v . n = v_wall . n on slip and
     /// no-slip faces alike): what the walls' flux through them is measured against.
     pub fn apply_normal(&self, v: &mut [Vector<D>]) {
-        for &(i, f) in &self.nodes {
-            let (kind, wall) = self.faces[f];
+        for (k, &(i, f)) in self.nodes.iter().enumerate() {
+            let (kind, wall) = (self.faces[f].0, self.wall(k, f));
             let axis = f / 2;
             if matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip) {
                 v[i][axis] = wall[axis];
@@ -99,8 +168,8 @@ impl<const D: usize> Boundary<D> {
 
     /// Imposes the face conditions on node velocities.
     pub fn apply(&self, v: &mut [Vector<D>]) {
-        for &(i, f) in &self.nodes {
-            let (kind, wall) = self.faces[f];
+        for (k, &(i, f)) in self.nodes.iter().enumerate() {
+            let (kind, wall) = (self.faces[f].0, self.wall(k, f));
             let axis = f / 2;
             match kind {
                 BoundaryKind::Slip => v[i][axis] = wall[axis],

@@ -6,6 +6,7 @@
 //! bodies inside the grid, materials that exist, a stable fixed time step) and fills every
 //! default in, so that the deck written to `run.toml` is the one that was run.
 
+use crate::field::{Component, VectorField};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
@@ -117,8 +118,8 @@ pub enum BoundarySpec {
         /// Kind of the wall.
         #[serde(rename = "type")]
         kind: BoundaryKind,
-        /// Wall velocity.
-        velocity: Vec<f64>,
+        /// Wall velocity (numbers or expressions in x, y, z, t).
+        velocity: VectorField,
     },
 }
 
@@ -130,7 +131,7 @@ impl BoundarySpec {
         }
     }
     /// Wall velocity, if the wall moves.
-    pub fn velocity(&self) -> Option<&[f64]> {
+    pub fn velocity(&self) -> Option<&VectorField> {
         match self {
             Self::Kind(_) => None,
             Self::Moving { velocity, .. } => Some(velocity),
@@ -169,7 +170,7 @@ impl<'de> Deserialize<'de> for BoundarySpec {
                                     A::Error::unknown_variant(&s, BOUNDARY_KINDS)
                                 })?);
                         }
-                        "velocity" => velocity = Some(map.next_value::<Vec<f64>>()?),
+                        "velocity" => velocity = Some(map.next_value::<VectorField>()?),
                         other => return Err(A::Error::unknown_field(other, &["type", "velocity"])),
                     }
                 }
@@ -204,9 +205,10 @@ pub struct SimulationDeck {
     /// Cap of the adaptive step (s).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_dt: Option<f64>,
-    /// Body force per unit mass (m/s2); default 9.81 down the last axis.
+    /// Body force per unit mass (m/s2), numbers or expressions in x, y, z, t; default 9.81
+    /// down the last axis.
     #[serde(default)]
-    pub gravity: Vec<f64>,
+    pub gravity: VectorField,
     /// Velocity transfer (default `flip`).
     #[serde(default)]
     pub transfer: Transfer,
@@ -542,9 +544,9 @@ pub struct BodyDeck {
     /// Particles per cell per direction (default 2).
     #[serde(default = "default_ppc")]
     pub particles_per_cell: usize,
-    /// Initial velocity (default at rest).
+    /// Initial velocity (default at rest), numbers or expressions in x, y, z.
     #[serde(default)]
-    pub velocity: Vec<f64>,
+    pub velocity: VectorField,
     /// Optional initial stress.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stress: Option<InitialStress>,
@@ -727,6 +729,29 @@ impl Check<'_> {
             Err(self.err(key, format!("must be >= 0, got {v}")))
         }
     }
+    /// A vector field: `dim` components, finite numbers, expressions that parse.
+    fn field(&self, key: &str, v: &VectorField, dim: usize) -> Result<(), DeckError> {
+        if v.len() != dim {
+            return Err(self.err(
+                key,
+                format!(
+                    "must have {dim} components (dimension = {dim}), got {}",
+                    v.len()
+                ),
+            ));
+        }
+        for c in &v.0 {
+            if let Component::Number(x) = c {
+                if !x.is_finite() {
+                    return Err(self.err(key, format!("components must be finite, got {x}")));
+                }
+            }
+        }
+        v.compile()
+            .map(|_| ())
+            .map_err(|e| self.err(key, format!("bad expression: {key}{e}")))
+    }
+
     fn vector(&self, key: &str, v: &[f64], dim: usize) -> Result<(), DeckError> {
         if v.len() != dim {
             return Err(self.err(
@@ -821,10 +846,11 @@ impl Deck {
         }
         s.land_on_frames.get_or_insert(s.scheme == Scheme::Explicit);
         if s.gravity.is_empty() {
-            s.gravity = vec![0.0; dim];
-            s.gravity[dim - 1] = -9.81;
+            let mut g = vec![0.0; dim];
+            g[dim - 1] = -9.81;
+            s.gravity = VectorField::constant_from(&g);
         }
-        c.vector("simulation.gravity", &s.gravity, dim)?;
+        c.field("simulation.gravity", &s.gravity, dim)?;
         if !(0.0..=1.0).contains(&s.flip_ratio) {
             return Err(c.err(
                 "simulation.flip_ratio",
@@ -878,7 +904,7 @@ impl Deck {
                 _ => {}
             }
             if let Some(v) = spec.velocity() {
-                c.vector(&format!("{key}.velocity"), v, dim)?;
+                c.field(&format!("{key}.velocity"), v, dim)?;
             }
         }
 
@@ -1058,9 +1084,9 @@ impl Deck {
                 ));
             }
             if b.velocity.is_empty() {
-                b.velocity = vec![0.0; dim];
+                b.velocity = VectorField::constant_from(&vec![0.0; dim]);
             }
-            c.vector(&format!("{k}.velocity"), &b.velocity, dim)?;
+            c.field(&format!("{k}.velocity"), &b.velocity, dim)?;
         }
 
         let o = &mut self.output;

@@ -24,6 +24,7 @@
 pub mod boundary;
 pub mod deck;
 pub mod error;
+pub mod field;
 pub mod grid;
 pub mod material;
 pub mod output;

@@ -57,7 +57,13 @@ impl<const D: usize> Particles<D> {
     /// h / particles_per_cell, lattice points at the centres of the sub-cells.
     pub fn from_deck(deck: &Deck, geo: &GridGeometry<D>) -> Self {
         let mut ps = Particles::default();
-        let g = Vector::<D>::from_column_slice(&deck.simulation.gravity);
+        // the hydrostatic initial stress takes the body force at the origin at t = 0
+        let g = deck
+            .simulation
+            .gravity
+            .compile()
+            .expect("validated expressions")
+            .eval(&geo.origin, 0.0);
         let gnorm = g.norm();
         for body in &deck.bodies {
             let mat = deck
@@ -76,13 +82,14 @@ impl<const D: usize> Particles<D> {
             let last: [i64; D] =
                 std::array::from_fn(|d| ((hi[d] - geo.origin[d]) / spacing - 0.5).ceil() as i64);
             let start = ps.len();
+            let velocity = body.velocity.compile().expect("validated expressions");
             let mut idx = first;
             'lattice: loop {
                 let x =
                     Vector::<D>::from_fn(|d, _| geo.origin[d] + (idx[d] as f64 + 0.5) * spacing);
                 if geo.contains(&x) && body.shape.contains(x.as_slice()) {
                     ps.x.push(x);
-                    ps.v.push(Vector::<D>::from_column_slice(&body.velocity));
+                    ps.v.push(velocity.eval(&x, 0.0));
                     ps.mass.push(rho * vol);
                     ps.volume0.push(vol);
                     ps.material.push(mat as u16);

@@ -53,6 +53,8 @@ pub struct Simulation<const D: usize> {
     /// Probe samples of the last step's P2G (state at the step's start): per probe, pressure
     /// then D velocity components.
     pub probe_values: Vec<f64>,
+    /// A body force given by expressions in x, y, z, t, and its value at each particle now.
+    body_force: Option<(crate::field::CompiledField, Vec<Vector<D>>)>,
     /// The pressure projection (scheme = "projection").
     pub projection: Option<Projection<D>>,
     scratch: P2gScratch<D>,
@@ -93,11 +95,16 @@ impl<const D: usize> Simulation<D> {
         let n_particles = particles.len();
         let materials = MaterialParams::from_deck(deck);
         let min_mass = particles.mass.iter().copied().fold(f64::INFINITY, f64::min);
+        let gravity = deck
+            .simulation
+            .gravity
+            .compile()
+            .expect("validated expressions");
         let settings = TransferSettings {
             shape: deck.simulation.shape_function,
             transfer: deck.simulation.transfer,
             flip_ratio: deck.simulation.flip_ratio,
-            gravity: Vector::<D>::from_column_slice(&deck.simulation.gravity),
+            gravity: gravity.eval(&geo.origin, 0.0),
             pressure_weight: match deck.simulation.scheme {
                 Scheme::Explicit => 1.0,
                 // the projection applies its pressure on the grid
@@ -116,7 +123,12 @@ impl<const D: usize> Simulation<D> {
             .collect();
         let projection = (deck.simulation.scheme == Scheme::Projection)
             .then(|| Projection::new(deck, &particles, &boundary));
+        let body_force = (!gravity.is_constant()).then(|| {
+            let f = particles.x.iter().map(|x| gravity.eval(x, 0.0)).collect();
+            (gravity, f)
+        });
         Ok(Self {
+            body_force,
             projection,
             deck: deck.clone(),
             particles,
@@ -221,11 +233,20 @@ impl<const D: usize> Simulation<D> {
     /// P2G of the current particles, and the probes sampled from it (also used without a step,
     /// for the final state's probe row).
     pub fn particles_to_grid(&mut self) {
+        if let Some((field, f)) = &mut self.body_force {
+            let t = self.time;
+            f.par_iter_mut()
+                .zip(self.particles.x.par_iter())
+                .for_each(|(f, x)| *f = field.eval(x, t));
+        }
+        // wall velocities given by expressions, at the step's time
+        self.boundary.set_time(self.time, &self.grid.geo);
         transfer::particles_to_grid(
             &self.particles,
             &mut self.grid,
             &mut self.scratch,
             &self.settings,
+            self.body_force.as_ref().map(|(_, f)| &f[..]),
         );
         self.sample_probes();
     }
@@ -283,7 +304,10 @@ impl<const D: usize> Simulation<D> {
         };
         // body-force limit: a particle starting from rest moves at most cfl h in a step
         // (|g| dt^2 <= cfl^2 h); it sets the first steps of a flow starting at rest
-        let g = self.settings.gravity.norm();
+        let g = match &self.body_force {
+            Some((_, f)) => f.iter().map(|f| f.norm()).fold(0.0, f64::max),
+            None => self.settings.gravity.norm(),
+        };
         if g > 0.0 {
             dt = dt.min(cfl * (h / g).sqrt());
         }

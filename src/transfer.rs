@@ -95,13 +95,15 @@ fn node_velocity<const D: usize>(
     }
 }
 
-/// P2G: node mass, momentum (with APIC's affine term), internal + body force and
+/// P2G: node mass, momentum (with APIC's affine term), internal + body force (`body_force`
+/// per particle where it varies, else the settings' constant gravity) and
 /// mass-weighted pressure; then node velocity v_i^n = (m v)_i / m_i and pressure p_i.
 pub fn particles_to_grid<const D: usize>(
     ps: &Particles<D>,
     grid: &mut Grid<D>,
     scratch: &mut P2gScratch<D>,
     s: &TransferSettings<D>,
+    body_force: Option<&[Vector<D>]>,
 ) {
     let geo = &grid.geo;
     let apic = s.transfer == Transfer::Apic;
@@ -123,12 +125,13 @@ pub fn particles_to_grid<const D: usize>(
             let st = Stencil::<D>::new(s.shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
             let vp = ps.v[p];
             let c = ps.affine[p];
+            let b = body_force.map_or(s.gravity, |f| f[p]);
             st.for_each(|nw| {
                 let i = geo.flat(&nw.node);
                 let mom = node_velocity(apic, &vp, &c, geo.node_position(&nw.node), &xp);
                 acc.mass[i] += nw.n * m;
                 acc.momentum[i] += mom * (nw.n * m);
-                acc.force[i] += s.gravity * (nw.n * m) - stress * nw.grad * vol;
+                acc.force[i] += b * (nw.n * m) - stress * nw.grad * vol;
                 acc.pressure[i] += nw.n * m * ps.pressure[p];
             });
         }
@@ -375,7 +378,7 @@ mod tests {
                 let mut scratch = P2gScratch::new(3, geo.node_count());
                 let m_p: f64 = ps.mass.iter().sum();
                 let mom_p: Vector<D> = ps.v.iter().zip(&ps.mass).map(|(v, m)| v * *m).sum();
-                particles_to_grid(&ps, &mut grid, &mut scratch, &s);
+                particles_to_grid(&ps, &mut grid, &mut scratch, &s, None);
                 let m_g: f64 = grid.mass.iter().sum();
                 let mom_g: Vector<D> = grid.momentum.iter().sum();
                 assert!((m_g - m_p).abs() < 1e-12 * m_p, "{shape:?} mass");
@@ -433,7 +436,7 @@ mod tests {
             );
         }
         let mut scratch = P2gScratch::new(2, geo.node_count());
-        particles_to_grid(&ps, &mut grid, &mut scratch, &s);
+        particles_to_grid(&ps, &mut grid, &mut scratch, &s, None);
         for f in 0..geo.node_count() {
             if grid.mass[f] > 0.0 {
                 let xi = geo.node_position(&geo.multi(f));
@@ -467,8 +470,8 @@ mod tests {
         let mut g1 = Grid::new(geo.clone());
         let mut g2 = Grid::new(geo.clone());
         let mut scratch = P2gScratch::new(4, geo.node_count());
-        particles_to_grid(&ps, &mut g1, &mut scratch, &s);
-        particles_to_grid(&ps, &mut g2, &mut scratch, &s);
+        particles_to_grid(&ps, &mut g1, &mut scratch, &s, None);
+        particles_to_grid(&ps, &mut g2, &mut scratch, &s, None);
         assert_eq!(g1.momentum, g2.momentum);
         assert_eq!(g1.force, g2.force);
     }

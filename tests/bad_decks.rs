@@ -8,6 +8,12 @@ fn cases() -> Vec<(&'static str, String, &'static str, &'static str)> {
     let d = SMALL_2D;
     vec![
         (
+            "bad expression",
+            d.replace("gravity = [0.0, -9.81]", "gravity = [\"0\", \"-9.81*sin(q*t)\"]"),
+            "simulation.gravity",
+            "bad expression: simulation.gravity[1] = \"-9.81*sin(q*t)\": unknown name `q`",
+        ),
+        (
             "periodic on one face only",
             d.replace("x_min = \"slip\"", "x_min = \"periodic\""),
             "grid.boundary.x_max",
