@@ -79,7 +79,7 @@ impl VectorField {
 enum Compiled {
     Constant(f64),
     Expression {
-        ex: FlatEx<f64>,
+        ex: Box<FlatEx<f64>>,
         /// For each of exmex's variables (in its order), the index in (x, y, z, t).
         vars: Vec<usize>,
     },
@@ -159,7 +159,10 @@ fn compile_one(text: &str) -> Result<Compiled, String> {
                 .expect("names checked above")
         })
         .collect();
-    let compiled = Compiled::Expression { ex, vars };
+    let compiled = Compiled::Expression {
+        ex: Box::new(ex),
+        vars,
+    };
     // an expression must give a number at the origin at t = 0 (catches "sqrt(-1)")
     let probe = eval_one(&compiled, &[0.0; 4]);
     if probe.is_none() {
