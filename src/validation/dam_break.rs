@@ -228,7 +228,6 @@ pub fn martin_moyce(ctx: &Ctx) -> Result<Section, String> {
                 y_range: Some((0.2, 1.05)),
                 legend_low: true,
                 legend_left: true,
-                ..Default::default()
             },
         ],
         2,

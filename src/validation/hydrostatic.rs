@@ -131,8 +131,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
         }
     }
     s.notes.push("The explicit scheme starts from zero pressure and rings at the column's acoustic period (4 H / c = 0.08 s) until the damping settles it; the projection has the hydrostatic pressure from the first step.".into());
-    let mut exact = vec![(1.0, 0.0), (0.0, 1.0)];
-    exact.dedup();
+    let exact = vec![(1.0, 0.0), (0.0, 1.0)];
     profile_series.insert(0, Series::line("exact rho g (H - y)", exact, colors::REF));
     let out = &ctx.opts.out;
     save(

@@ -123,7 +123,8 @@ pub mod colors {
 /// Tick labels: short, scientific when small or large.
 fn tick(v: &f64) -> String {
     let a = v.abs();
-    if a == 0.0 {
+    if a < 1e-12 {
+        // round-off at a tick meant to be zero
         "0".into()
     } else if !(1e-3..1e4).contains(&a) {
         format!("{v:.1e}")
