@@ -34,6 +34,7 @@ pub mod run;
 pub mod scheme;
 pub mod shape;
 pub mod transfer;
+pub mod validation;
 
 pub use deck::Deck;
 pub use error::Error;

@@ -38,6 +38,27 @@ enum Command {
         /// The deck (TOML).
         deck: PathBuf,
     },
+    /// Run the validation suite (validation/decks) and write REPORT.md with plots. Exit status
+    /// 0 once the report is written, failed cases included (they are in the report); 4 with
+    /// --strict when a case does not meet its bound.
+    Validate {
+        /// Coarse versions of the same cases (a few minutes; CI).
+        #[arg(long)]
+        quick: bool,
+        /// Exit with status 4 when a row does not meet its bound.
+        #[arg(long)]
+        strict: bool,
+        /// Directory with the reference series that are not in the repository (lobovsky2014/).
+        #[arg(long, default_value = "../shared/reference-data")]
+        reference: PathBuf,
+        /// Output directory [default: validation/report, or target/validation-quick with --quick].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Only these cases (hydrostatic, martin_moyce, conservation, lobovsky, cavity,
+        /// poiseuille, couette, taylor_green).
+        #[arg(long = "case", num_args = 1..)]
+        case: Vec<String>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -60,7 +81,11 @@ fn main() -> ExitCode {
     // The whole run executes on a worker of the pool: the many short parallel loops of a step
     // then start without waking a sleeping thread from outside the pool each time.
     match pool.install(|| execute(cli.command)) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(0) => ExitCode::SUCCESS,
+        Ok(failed) => {
+            eprintln!("validate: {failed} row(s) did not meet their bound");
+            ExitCode::from(4)
+        }
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::from(e.exit_code())
@@ -68,7 +93,8 @@ fn main() -> ExitCode {
     }
 }
 
-fn execute(cmd: Command) -> Result<(), Error> {
+/// Runs a command; Ok(number of failed validation rows).
+fn execute(cmd: Command) -> Result<usize, Error> {
     match cmd {
         Command::Run {
             deck,
@@ -84,12 +110,34 @@ fn execute(cmd: Command) -> Result<(), Error> {
                 &dir,
                 &RunOptions { quiet, force },
             )?;
-            Ok(())
+            Ok(0)
         }
         Command::Check { deck } => {
             let d = run::load(&deck)?;
             print!("{}", run::check_summary(&d, &deck.display().to_string())?);
-            Ok(())
+            Ok(0)
+        }
+        Command::Validate {
+            quick,
+            strict,
+            reference,
+            out,
+            case,
+        } => {
+            let out = out.unwrap_or_else(|| {
+                PathBuf::from(if quick {
+                    "target/validation-quick"
+                } else {
+                    "validation/report"
+                })
+            });
+            let failed = pmpm::validation::validate(pmpm::validation::Options {
+                quick,
+                reference,
+                out,
+                cases: case,
+            })?;
+            Ok(if strict { failed } else { 0 })
         }
     }
 }
