@@ -729,17 +729,20 @@ impl Check<'_> {
             Err(self.err(key, format!("must be >= 0, got {v}")))
         }
     }
+    /// A vector has `dim` components.
+    fn components(&self, key: &str, n: usize, dim: usize) -> Result<(), DeckError> {
+        if n == dim {
+            return Ok(());
+        }
+        Err(self.err(
+            key,
+            format!("must have {dim} components (dimension = {dim}), got {n}"),
+        ))
+    }
+
     /// A vector field: `dim` components, finite numbers, expressions that parse.
     fn field(&self, key: &str, v: &VectorField, dim: usize) -> Result<(), DeckError> {
-        if v.len() != dim {
-            return Err(self.err(
-                key,
-                format!(
-                    "must have {dim} components (dimension = {dim}), got {}",
-                    v.len()
-                ),
-            ));
-        }
+        self.components(key, v.len(), dim)?;
         for c in &v.0 {
             if let Component::Number(x) = c {
                 if !x.is_finite() {
@@ -753,15 +756,7 @@ impl Check<'_> {
     }
 
     fn vector(&self, key: &str, v: &[f64], dim: usize) -> Result<(), DeckError> {
-        if v.len() != dim {
-            return Err(self.err(
-                key,
-                format!(
-                    "must have {dim} components (dimension = {dim}), got {}",
-                    v.len()
-                ),
-            ));
-        }
+        self.components(key, v.len(), dim)?;
         if let Some(x) = v.iter().find(|x| !x.is_finite()) {
             return Err(self.err(key, format!("components must be finite, got {x}")));
         }
