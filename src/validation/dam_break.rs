@@ -183,7 +183,10 @@ pub fn martin_moyce(ctx: &Ctx) -> Result<Section, String> {
                 format!("{hd:.3}"),
             ));
             s.notes
-                .push(format!("{tag}: {} steps, {:.1} s wall.", r.steps, r.wall_s));
+                .push(format!(
+                    "{tag}: {} steps, {:.1} s wall; the front's largest deviation is at T = {:.2}: Z - Table 2 = {:+.3}.",
+                    r.steps, r.wall_s, worst_front(&r).0, worst_front(&r).1
+                ));
             let color = match (proj, resolutions(quick).len() - 1 - k) {
                 (true, 0) => colors::PROJ,
                 (true, 1) => colors::PROJ2,
