@@ -120,6 +120,12 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
                 false,
             ));
             s.notes.push(format!("{tag}: {} steps.", r.steps));
+            if !proj && r.rms > 0.01 {
+                s.notes.push(format!(
+                    "{tag}: the particle pressures at the end are scattered about the exact line (RMS {}, see the profile figure: in the centre column some particles in the upper part carry almost no pressure). The base probe, a grid value, rings and settles; the per-particle p = K (1 - J) does not settle to the exact profile within 2 s. Not investigated further: the explicit scheme is the baseline here, and the bounds apply to the projection.",
+                    pct(r.rms)
+                ));
+            }
             let color = match (dim, proj) {
                 (2, true) => colors::PROJ,
                 (2, false) => colors::EXPL,

@@ -336,6 +336,11 @@ fn machine() -> String {
     )
 }
 
+/// A table cell: `|` escaped, one line.
+fn cell(text: &str) -> String {
+    text.replace('|', "\\|").replace('\n', " ")
+}
+
 fn render(opts: &Options, sections: &[Section], wall: f64) -> String {
     let mut s = String::new();
     let mode = if opts.quick {
@@ -384,9 +389,9 @@ fn render(opts: &Options, sections: &[Section], wall: f64) -> String {
                 "| [{}](#{}) | {} | {} | {} | {} |",
                 sec.name,
                 sec.name.replace('_', "-"),
-                r.metric,
-                r.bound,
-                r.measured,
+                cell(&r.metric),
+                cell(&r.bound),
+                cell(&r.measured),
                 r.verdict.text()
             );
         }
@@ -413,9 +418,9 @@ fn render(opts: &Options, sections: &[Section], wall: f64) -> String {
             let _ = writeln!(
                 s,
                 "| {} | {} | {} | {} |",
-                r.metric,
-                r.bound,
-                r.measured,
+                cell(&r.metric),
+                cell(&r.bound),
+                cell(&r.measured),
                 r.verdict.text()
             );
         }
