@@ -328,6 +328,11 @@ pub enum FreeSurface {
     /// From the cells' particle volume fraction.
     #[default]
     VolumeFraction,
+    /// No free surface: the fluid fills its container, every cell counts as full (a cell the
+    /// particles left empty takes the mean density), p = 0 only on open faces. For closed or
+    /// periodic flows (lid-driven cavity, channels, vortices), where a gap the particles open
+    /// is not air.
+    None,
 }
 
 /// Right-hand side of the pressure Poisson equation.

@@ -325,6 +325,96 @@ rhs = "flux"
     assert!(r.max_speed <= 1e-3, "max speed {:.3e} m/s", r.max_speed);
 }
 
+/// `free_surface = "none"`: a box the fluid fills, with a gap of 6 x 6 cells the particles
+/// left (more than `bubble_cells` closes). The volume-fraction detection puts p = 0 nodes
+/// around the gap; "none" keeps every node with mass an unknown, so the system is the closed
+/// box's (singular, no p = 0 node). The filled closed box stays hydrostatic with it.
+#[test]
+fn free_surface_none_puts_no_p0_node_inside_a_filled_box() {
+    use pmpm::pressure::free_surface::NodeKind;
+    let gap = |fs: &str| {
+        format!(
+            r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 1.0
+dt = 1.0e-3
+gravity = [0.0, 0.0]
+[grid]
+size = [0.2, 0.2]
+cell_size = 0.01
+[grid.boundary]
+x_min = "slip"
+x_max = "slip"
+y_min = "slip"
+y_max = "slip"
+[pressure]
+free_surface = "{fs}"
+[[materials]]
+name = "water"
+density = 1000.0
+[[bodies]]
+material = "water"
+shape = {{ type = "box", min = [0.0, 0.0], max = [0.07, 0.2] }}
+[[bodies]]
+material = "water"
+shape = {{ type = "box", min = [0.13, 0.0], max = [0.2, 0.2] }}
+[[bodies]]
+material = "water"
+shape = {{ type = "box", min = [0.07, 0.0], max = [0.13, 0.07] }}
+[[bodies]]
+material = "water"
+shape = {{ type = "box", min = [0.07, 0.13], max = [0.13, 0.2] }}
+"#
+        )
+    };
+    let count = |fs: &str| {
+        let d = deck(&gap(fs));
+        in_pool(2, || {
+            let mut sim = Simulation::<2>::new(&d).unwrap();
+            sim.step(1e-3).unwrap();
+            let pr = sim.projection.as_ref().unwrap();
+            let surface = pr
+                .kinds
+                .iter()
+                .filter(|k| **k == NodeKind::FreeSurface)
+                .count();
+            (surface, pr.singular)
+        })
+    };
+    let (detected, singular) = count("volume_fraction");
+    println!("gap, volume_fraction: {detected} p = 0 nodes, singular {singular}");
+    assert!(detected > 0 && !singular, "the gap reads as free surface");
+    let (none, singular) = count("none");
+    println!("gap, none: {none} p = 0 nodes, singular {singular}");
+    assert_eq!(none, 0);
+    assert!(singular, "a closed filled box: pressure up to a constant");
+
+    // the closed filled box at rest under gravity, as in the test above
+    let text = gap("none")
+        .replace("gravity = [0.0, 0.0]", "gravity = [0.0, -9.81]")
+        .replace("dt = 1.0e-3", "dt = 5.0e-3")
+        .replace("max = [0.07, 0.2]", "max = [0.2, 0.2]");
+    let text = text
+        .split("[[bodies]]")
+        .take(2)
+        .collect::<Vec<_>>()
+        .join("[[bodies]]")
+        + "[[output.probes]]\nname = \"base\"\nposition = [0.1, 0.0]\n";
+    let d = deck(&text);
+    let (r, _) = in_pool(2, || {
+        run_at_rest::<2>(&d, RHO * G * 0.2, |y| RHO * G * (0.2 - y), true)
+    });
+    println!("closed box, none: {r:?}");
+    assert!(
+        r.rms <= 0.01,
+        "RMS deviation {:.3}% of rho g H",
+        100.0 * r.rms
+    );
+    assert!(r.max_speed <= 1e-3, "max speed {:.3e} m/s", r.max_speed);
+}
+
 /// The conjugate gradient and the direct solver give the same pressure (1e-6 relative) on the
 /// hydrostatic column; the assembled L is symmetric and, without the p = 0 rows, positive
 /// definite.

@@ -15,7 +15,9 @@ pub mod free_surface;
 pub mod solve;
 
 use crate::boundary::Boundary;
-use crate::deck::{Deck, PoissonRhs, Preconditioner, Quadrature, ShapeFunction, Solver};
+use crate::deck::{
+    Deck, FreeSurface, PoissonRhs, Preconditioner, Quadrature, ShapeFunction, Solver,
+};
 use crate::grid::{CellBins, Grid, Vector};
 use crate::particles::Particles;
 use crate::shape::Stencil;
@@ -57,6 +59,7 @@ pub struct Projection<const D: usize> {
     velocity_star: Vec<Vector<D>>,
     unconstrained: Vec<Vector<D>>,
     rhs_form: PoissonRhs,
+    free_surface: FreeSurface,
     quadrature: Quadrature,
     bubble_cells: usize,
     raw_fraction: Vec<f64>,
@@ -112,6 +115,7 @@ impl<const D: usize> Projection<D> {
             velocity_star: vec![Vector::<D>::zeros(); ps.len()],
             unconstrained: Vec::new(),
             rhs_form: pd.rhs,
+            free_surface: pd.free_surface,
             quadrature: pd.quadrature,
             bubble_cells: pd.bubble_cells,
             raw_fraction: Vec::new(),
@@ -159,7 +163,13 @@ impl<const D: usize> Projection<D> {
         let geo = &grid.geo;
         // 3. free surface
         free_surface::volume_fractions(geo, &self.bins, &self.volume, &mut self.volume_fraction);
-        if self.bubble_cells > 0 {
+        if self.free_surface == FreeSurface::None {
+            // the fluid fills its container: every cell full (the cells past the walls are
+            // left to the classification, which reads the faces)
+            self.volume_fraction
+                .par_iter_mut()
+                .for_each(|f| *f = f.max(1.0));
+        } else if self.bubble_cells > 0 {
             std::mem::swap(&mut self.volume_fraction, &mut self.raw_fraction);
             free_surface::close_bubbles(
                 geo,

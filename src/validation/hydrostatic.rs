@@ -122,7 +122,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
             s.notes.push(format!("{tag}: {} steps.", r.steps));
             if !proj && r.rms > 0.01 {
                 s.notes.push(format!(
-                    "{tag}: the particle pressures at the end are scattered about the exact line (RMS {}, see the profile figure: in the centre column some particles in the upper part carry almost no pressure). The base probe, a grid value, rings and settles; the per-particle p = K (1 - J) does not settle to the exact profile within 2 s. Not investigated further: the explicit scheme is the baseline here, and the bounds apply to the projection.",
+                    "{tag}: the particle pressures at the end are scattered about the exact line (RMS {}, see the profile figure: in the upper part the two particles of a cell carry very different pressures). The particle pressure p = K (1 - J) has an intra-cell mode the grid does not see: with linear shape functions dN/dy is constant in y across a cell, so the node forces read only the sum of its particles' pressures, not how it is split between the lower and upper particle. Measured on the 2D column at t = 2 s, x = 0.0975 m: pairs 949 / 3,266 Pa at y = 0.181 / 0.186 m (their mean 2,107 against the exact 2,147), -61 / 2,486 Pa at 0.271 / 0.275 m; below y = 0.18 m the pairs agree. This is the pressure oscillation of explicit MPM the projection method sets out to remove (METHOD.md), not a fault of the baseline; the base probe, a grid value, rings and settles. The bounds apply to the projection.",
                     pct(r.rms)
                 ));
             }
