@@ -41,13 +41,13 @@ pub fn run(deck: &Deck, file: &str, dir: &Path, opts: &RunOptions) -> Result<Run
     }
     if deck.simulation.scheme == Scheme::Projection
         && deck.pressure.solver == Solver::Pcg
-        && deck.pressure.preconditioner != Preconditioner::Jacobi
+        && deck.pressure.preconditioner == Preconditioner::Ic0
     {
         return Err(Error::Unsupported {
             file: file.to_string(),
             key: "pressure.preconditioner".into(),
             message: format!(
-                "\"{}\" is not available yet in this version; use \"jacobi\" (or solver = \"direct\")",
+                "\"{}\" is not available yet in this version; use \"multigrid\" or \"jacobi\" (or solver = \"direct\")",
                 format!("{:?}", deck.pressure.preconditioner).to_lowercase()
             ),
         });

@@ -12,6 +12,7 @@
 
 pub mod assemble;
 pub mod free_surface;
+pub mod multigrid;
 pub mod solve;
 
 use crate::boundary::Boundary;
@@ -79,10 +80,12 @@ impl<const D: usize> Projection<D> {
         let solver = match (pd.solver, pd.preconditioner) {
             (Solver::Direct, _) => LinearSolver::Direct(Direct::default()),
             // validation refuses the preconditioners that are not built yet
-            (
-                Solver::Pcg,
-                Preconditioner::Jacobi | Preconditioner::Ic0 | Preconditioner::Multigrid,
-            ) => LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default()))),
+            (Solver::Pcg, Preconditioner::Multigrid) => {
+                LinearSolver::Pcg(Pcg::new(Box::<multigrid::Multigrid>::default()))
+            }
+            (Solver::Pcg, Preconditioner::Jacobi | Preconditioner::Ic0) => {
+                LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())))
+            }
         };
         let volume = ps.volume0.clone();
         let volume_over_density = ps
@@ -307,6 +310,23 @@ impl<const D: usize> Projection<D> {
                 .for_each(|(x, &i)| *x = if warm { prev[i as usize] } else { 0.0 });
         }
         self.singular = free == 0 && !self.node_of_row.is_empty();
+        if let Some(layout) = self.solver.layout_mut() {
+            // where the unknowns sit, for the multigrid's coarsening
+            let geo = &grid.geo;
+            layout.dim = D;
+            layout.reach = shape.width() - 1;
+            for d in 0..D {
+                layout.nodes[d] = geo.nodes[d];
+                layout.offset[d] = crate::shape::PAD;
+                layout.cells[d] = geo.cells[d];
+                layout.periodic[d] = geo.periodic[d];
+            }
+            layout.index.clear();
+            layout.index.extend(self.node_of_row.iter().map(|&i| {
+                let m = geo.multi(i as usize);
+                std::array::from_fn(|d| if d < D { m[d] as u32 } else { 0 })
+            }));
+        }
         self.stats = self.solver.solve(
             &self.matrix,
             &self.rhs,

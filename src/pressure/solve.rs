@@ -98,7 +98,12 @@ pub trait Preconditioner: Send + Sync {
     /// Prepares for a new matrix.
     fn setup(&mut self, a: &EllMatrix);
     /// z = M^-1 r.
-    fn apply(&self, r: &[f64], z: &mut [f64]);
+    fn apply(&mut self, r: &[f64], z: &mut [f64]);
+    /// Where the unknowns sit on the grid, for a preconditioner that needs it (multigrid);
+    /// the caller fills it before the solve.
+    fn layout_mut(&mut self) -> Option<&mut super::multigrid::GridLayout> {
+        None
+    }
 }
 
 /// Diagonal (Jacobi) preconditioner.
@@ -115,7 +120,7 @@ impl Preconditioner for Jacobi {
             .for_each(|d| *d = if *d > 0.0 { 1.0 / *d } else { 1.0 });
     }
 
-    fn apply(&self, r: &[f64], z: &mut [f64]) {
+    fn apply(&mut self, r: &[f64], z: &mut [f64]) {
         z.par_iter_mut()
             .zip(r.par_iter())
             .zip(self.inverse_diagonal.par_iter())
@@ -362,6 +367,14 @@ pub enum LinearSolver {
 }
 
 impl LinearSolver {
+    /// The grid layout the preconditioner wants filled, if any.
+    pub fn layout_mut(&mut self) -> Option<&mut super::multigrid::GridLayout> {
+        match self {
+            LinearSolver::Pcg(s) => s.preconditioner.layout_mut(),
+            LinearSolver::Direct(_) => None,
+        }
+    }
+
     /// Solves A x = b (x holds the initial guess for the iterative solver) to the relative
     /// residual `tol`. With `singular`, A is taken to have the constant vector as its null
     /// space: b is made consistent by removing its mean and the solution has zero mean.
