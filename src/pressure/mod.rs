@@ -246,6 +246,7 @@ impl<const D: usize> Projection<D> {
                 &self.volume_fraction,
                 &ps.mass,
                 &self.volume,
+                shape,
             );
         }
         let (qx, qhw, qdiv, qw) = if cell {
@@ -273,6 +274,7 @@ impl<const D: usize> Projection<D> {
                 divergence: &g.divergence,
                 velocity: &g.velocity,
                 flux,
+                templates: Some((&g.templates, &g.cell)),
             }
         } else {
             ParticleQuadrature {
@@ -283,6 +285,7 @@ impl<const D: usize> Projection<D> {
                 divergence: &self.divergence,
                 velocity: &self.velocity_star,
                 flux,
+                templates: None,
             }
         };
         let bins = if cell { &self.gauss.bins } else { &self.bins };
@@ -476,6 +479,10 @@ struct GaussPoints<const D: usize> {
     volume_over_density: Vec<f64>,
     divergence: Vec<f64>,
     velocity: Vec<Vector<D>>,
+    /// The cell of each point (padded multi-index less PAD).
+    cell: Vec<[u32; D]>,
+    /// The stencils of the 2^D places in the domain's first cell.
+    templates: Vec<Stencil<D>>,
     bins: CellBins,
 }
 
@@ -487,10 +494,12 @@ impl<const D: usize> GaussPoints<D> {
         fraction: &[f64],
         mass: &[f64],
         volume: &[f64],
+        shape: ShapeFunction,
     ) {
         use crate::shape::PAD;
         self.x.clear();
         self.volume.clear();
+        self.cell.clear();
         self.volume_over_density.clear();
         let mean_density = mass.iter().sum::<f64>() / volume.iter().sum::<f64>();
         let corners = 1usize << D;
@@ -520,7 +529,25 @@ impl<const D: usize> GaussPoints<D> {
                 self.x.push(x);
                 self.volume.push(vol);
                 self.volume_over_density.push(vol / rho);
+                self.cell
+                    .push(std::array::from_fn(|d| (idx[d] - PAD) as u32));
             }
+        }
+        if self.templates.is_empty() {
+            self.templates = (0..corners)
+                .map(|k| {
+                    let x = Vector::<D>::from_fn(
+                        |d, _| {
+                            if (k >> d) & 1 == 1 {
+                                0.5 + a
+                            } else {
+                                0.5 - a
+                            }
+                        },
+                    );
+                    Stencil::<D>::new(shape, &x, geo.h, 0.0)
+                })
+                .collect();
         }
         let n = self.x.len();
         self.half_width.clear();
