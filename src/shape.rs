@@ -78,6 +78,53 @@ impl ShapeFunction {
         }
     }
 
+    /// The weight N of padded node `node` alone, for a particle at `xi` (in cells from the grid
+    /// origin) with GIMP half-width `lp`: what `kernel_1d` gives for that node (0 outside the
+    /// stencil), without the other nodes, derivatives and APIC terms. For gathers that need one
+    /// node's weight per particle.
+    #[inline]
+    pub fn weight_1d(self, xi: f64, lp: f64, node: usize) -> f64 {
+        let first: f64 = match self {
+            ShapeFunction::Linear => floor(xi),
+            ShapeFunction::Gimp => floor(xi - 1.0 - lp) + 1.0,
+            ShapeFunction::Bspline2 => floor(xi - 0.5),
+            ShapeFunction::Bspline3 => floor(xi) - 1.0,
+        };
+        let base = (first + PAD as f64).max(0.0) as usize;
+        let o = node.wrapping_sub(base);
+        if o >= self.width() {
+            return 0.0;
+        }
+        let first = base as f64 - PAD as f64;
+        // the same arithmetic as kernel_1d, so that both give the same bits
+        match self {
+            ShapeFunction::Linear => {
+                let f = xi - first;
+                if o == 0 {
+                    1.0 - f
+                } else {
+                    f
+                }
+            }
+            ShapeFunction::Bspline2 => {
+                let f = xi - first;
+                match o {
+                    0 => {
+                        let a = 1.5 - f;
+                        0.5 * a * a
+                    }
+                    1 => 0.75 - (f - 1.0) * (f - 1.0),
+                    _ => {
+                        let b = f - 0.5;
+                        0.5 * b * b
+                    }
+                }
+            }
+            ShapeFunction::Gimp => gimp(xi - (first + o as f64), lp).0,
+            ShapeFunction::Bspline3 => cubic_bspline(xi - (first + o as f64)).0,
+        }
+    }
+
     /// 1D kernel of a particle at `xi` (in cells from the grid origin), cell size `h`, GIMP
     /// half-width `lp` (in cells; ignored by the other kinds).
     #[inline]

@@ -424,9 +424,14 @@ impl<const D: usize> Projection<D> {
                 // across a periodic direction the node's images gather too
                 geo.for_each_image(&node, |image| {
                     assemble::for_particles_near(geo, bins, shape, &image, |p| {
-                        let st = Stencil::<D>::new(shape, &geo.to_cells(&xs[p]), geo.h, hw[p]);
-                        if let Some(o) = st.offset_of(&image) {
-                            f += gp[p] * (vol[p] * st.at(&o).0);
+                        // only node i's weight: the particle's whole stencil is not needed
+                        let xc = geo.to_cells(&xs[p]);
+                        let mut n = 1.0;
+                        for d in 0..D {
+                            n *= shape.weight_1d(xc[d], hw[p], image[d]);
+                        }
+                        if n != 0.0 {
+                            f += gp[p] * (vol[p] * n);
                         }
                     });
                 });
