@@ -124,7 +124,7 @@ struct Level {
 pub struct Multigrid {
     /// The layout of the finest level, filled by the caller before each solve.
     pub layout: GridLayout,
-    fine: EllMatrix,
+    fine_n: usize,
     fine_inverse_diagonal: Vec<f64>,
     fine_r: Vec<f64>,
     fine_row_of: Vec<u32>,
@@ -143,7 +143,7 @@ impl Multigrid {
 
     /// Unknowns per level of the last setup, finest first.
     pub fn sizes(&self) -> Vec<usize> {
-        std::iter::once(self.fine.n)
+        std::iter::once(self.fine_n)
             .chain(self.levels[..self.used].iter().map(|l| l.a.n))
             .collect()
     }
@@ -453,8 +453,8 @@ impl Preconditioner for Multigrid {
     }
 
     fn setup(&mut self, a: &EllMatrix) {
-        self.fine.clone_from(a);
-        inverse_diagonal(&self.fine, &mut self.fine_inverse_diagonal);
+        self.fine_n = a.n;
+        inverse_diagonal(a, &mut self.fine_inverse_diagonal);
         self.fine_r.resize(a.n, 0.0);
         // the finest level's node -> row map, from the layout
         let mut used = 0;
@@ -475,7 +475,7 @@ impl Preconditioner for Multigrid {
                 let (finer, rest) = self.levels.split_at_mut(used);
                 let coarse = &mut rest[0];
                 let ok = if used == 0 {
-                    coarsen(&self.layout, &self.fine, &self.fine_row_of, coarse)
+                    coarsen(&self.layout, a, &self.fine_row_of, coarse)
                 } else {
                     let f = &finer[used - 1];
                     coarsen(&f.layout, &f.a, &f.row_of, coarse)
@@ -491,20 +491,20 @@ impl Preconditioner for Multigrid {
         }
         self.used = used;
         let last = if used == 0 {
-            &self.fine
+            a
         } else {
             &self.levels[used - 1].a
         };
         self.dense = last.n <= DENSE_LIMIT.max(COARSEST) && cholesky(last, &mut self.factor);
     }
 
-    fn apply(&mut self, r: &[f64], z: &mut [f64]) {
+    fn apply(&mut self, a: &EllMatrix, r: &[f64], z: &mut [f64]) {
         if self.used == 0 {
             if self.dense {
-                cholesky_solve(&self.factor, self.fine.n, r, z);
+                cholesky_solve(&self.factor, a.n, r, z);
             } else {
                 smooth(
-                    &self.fine,
+                    a,
                     &self.fine_inverse_diagonal,
                     r,
                     z,
@@ -517,7 +517,7 @@ impl Preconditioner for Multigrid {
         }
         // down: smooth, restrict the residual
         smooth(
-            &self.fine,
+            a,
             &self.fine_inverse_diagonal,
             r,
             z,
@@ -525,7 +525,7 @@ impl Preconditioner for Multigrid {
             SWEEPS,
             true,
         );
-        residual(&self.fine, r, z, &mut self.fine_r);
+        residual(a, r, z, &mut self.fine_r);
         restrict(&self.fine_r, &mut self.levels[0]);
         for l in 0..self.used {
             let last = l + 1 == self.used;
@@ -566,7 +566,7 @@ impl Preconditioner for Multigrid {
             if l == 0 {
                 prolong(coarse, z);
                 smooth(
-                    &self.fine,
+                    a,
                     &self.fine_inverse_diagonal,
                     r,
                     z,
@@ -695,8 +695,8 @@ mod tests {
         let n = a.n;
         let (x, y) = (pseudo_random(n, 1), pseudo_random(n, 2));
         let (mut mx, mut my) = (vec![0.0; n], vec![0.0; n]);
-        mg.apply(&x, &mut mx);
-        mg.apply(&y, &mut my);
+        mg.apply(&a, &x, &mut mx);
+        mg.apply(&a, &y, &mut my);
         let (xmy, ymx) = (dot(&x, &my), dot(&y, &mx));
         assert!(
             (xmy - ymx).abs() <= 1e-12 * xmy.abs().max(ymx.abs()),

@@ -97,8 +97,8 @@ fn remove_mean(x: &mut [f64], partials: &mut Vec<f64>) {
 pub trait Preconditioner: Send + Sync {
     /// Prepares for a new matrix.
     fn setup(&mut self, a: &EllMatrix);
-    /// z = M^-1 r.
-    fn apply(&mut self, r: &[f64], z: &mut [f64]);
+    /// z = M^-1 r, for the matrix `a` last given to `setup`.
+    fn apply(&mut self, a: &EllMatrix, r: &[f64], z: &mut [f64]);
     /// Where the unknowns sit on the grid, for a preconditioner that needs it (multigrid);
     /// the caller fills it before the solve.
     fn layout_mut(&mut self) -> Option<&mut super::multigrid::GridLayout> {
@@ -120,7 +120,7 @@ impl Preconditioner for Jacobi {
             .for_each(|d| *d = if *d > 0.0 { 1.0 / *d } else { 1.0 });
     }
 
-    fn apply(&mut self, r: &[f64], z: &mut [f64]) {
+    fn apply(&mut self, _a: &EllMatrix, r: &[f64], z: &mut [f64]) {
         z.par_iter_mut()
             .zip(r.par_iter())
             .zip(self.inverse_diagonal.par_iter())
@@ -221,7 +221,7 @@ impl Pcg {
         if singular {
             remove_mean(r, partials);
         }
-        preconditioner.apply(r, z);
+        preconditioner.apply(a, r, z);
         if singular {
             remove_mean(z, partials);
         }
@@ -255,7 +255,7 @@ impl Pcg {
             if singular {
                 remove_mean(r, partials);
             }
-            preconditioner.apply(r, z);
+            preconditioner.apply(a, r, z);
             if singular {
                 remove_mean(z, partials);
             }
