@@ -64,6 +64,20 @@ pub enum Transfer {
     Apic,
 }
 
+/// Where the strain rate and APIC's affine matrix come from (the order of the stress update).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum StressUpdate {
+    /// Modified update-stress-last (Sulsky et al.): node velocities remapped from the updated
+    /// particle velocities, one more P2G and G2P per step. Robust with linear shape functions,
+    /// where a node a particle has only just reached holds a tiny mass and a huge v^{n+1}.
+    #[default]
+    Musl,
+    /// Update-stress-last: strain rate and affine matrix straight from v^{n+1}, in the same
+    /// pass as G2P (as MLS-MPM codes do). Half the transfers; for B-spline shape functions.
+    Usl,
+}
+
 /// Shape functions of the background grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -218,6 +232,9 @@ pub struct SimulationDeck {
     /// Shape functions (default `linear`).
     #[serde(default)]
     pub shape_function: ShapeFunction,
+    /// Strain rate from remapped node velocities (`musl`, default) or from v^{n+1} (`usl`).
+    #[serde(default)]
+    pub stress_update: StressUpdate,
     /// Linear damping of grid velocities (1/s), a settling aid: a = ... - damping * v.
     #[serde(default)]
     pub damping: f64,

@@ -33,6 +33,7 @@ pub mod pressure;
 pub mod run;
 pub mod scheme;
 pub mod shape;
+pub mod timing;
 pub mod transfer;
 pub mod validation;
 

@@ -5,13 +5,14 @@
 //! between the predictor and the corrector.
 
 use crate::boundary::Boundary;
-use crate::deck::{Deck, Scheme};
+use crate::deck::{Deck, Scheme, StressUpdate};
 use crate::error::Error;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::material::{self, MaterialParams};
 use crate::particles::Particles;
 use crate::pressure::Projection;
 use crate::shape::Stencil;
+use crate::timing::{Phase, PhaseTimers};
 use crate::transfer::{self, P2gScratch, TransferSettings};
 use rayon::prelude::*;
 
@@ -60,6 +61,8 @@ pub struct Simulation<const D: usize> {
     scratch: P2gScratch<D>,
     /// Per-particle velocity that moves it this step (interpolated v^{n+1}).
     advect: Vec<Vector<D>>,
+    /// Wall-clock seconds per phase of the step.
+    pub timers: PhaseTimers,
 }
 
 impl<const D: usize> Simulation<D> {
@@ -144,13 +147,16 @@ impl<const D: usize> Simulation<D> {
             probes,
             scratch,
             advect: vec![Vector::<D>::zeros(); n_particles],
+            timers: PhaseTimers::default(),
         })
     }
 
     /// One time step of size `dt`, as METHOD.md sets it out.
     pub fn step(&mut self, dt: f64) -> Result<(), Error> {
+        self.timers.lap(Phase::Other);
         // 1. particles -> grid: mass, momentum, internal and body forces (and probe samples)
         self.particles_to_grid();
+        self.timers.lap(Phase::P2g);
         // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure).
         //    The projection takes v^n on the walls from the wall conditions: P2G extrapolates
         //    the particles' velocity onto wall nodes, and the flux form of the Poisson
@@ -166,8 +172,10 @@ impl<const D: usize> Simulation<D> {
                 //    the particle stress
                 self.boundary.apply(&mut self.grid.velocity_new);
                 self.pressure_iterations = 0;
+                self.timers.lap(Phase::Predictor);
             }
             Scheme::Projection => {
+                self.timers.lap(Phase::Predictor);
                 // 3. boundary conditions on v* (applied by the projection, after it has taken
                 //    the walls' flux of v* into the Poisson equation), free surface, Poisson
                 //    equation, corrector, pressure to particles
@@ -179,6 +187,7 @@ impl<const D: usize> Simulation<D> {
                         &self.boundary,
                         self.settings.mass_epsilon,
                         dt,
+                        &mut self.timers,
                     )
                     .map_err(|e| {
                         Error::BlowUp(format!(
@@ -194,30 +203,38 @@ impl<const D: usize> Simulation<D> {
                 self.boundary.apply(&mut self.grid.velocity_new);
             }
         }
-        // 4. grid -> particles (PIC / FLIP / APIC); node velocities remapped from the particles
-        //    for the strain rate (MUSL); move
-        transfer::grid_to_particles(
-            &mut self.particles,
-            &self.grid,
-            &self.settings,
-            &mut self.advect,
-        );
-        transfer::remap_velocity(
-            &self.particles,
-            &mut self.grid,
-            &mut self.scratch,
-            &self.settings,
-        );
-        self.boundary.apply(&mut self.grid.velocity_new);
-        transfer::gradient_and_move(
-            &mut self.particles,
-            &self.grid,
-            &self.settings,
-            &self.advect,
-            dt,
-        );
+        // 4. grid -> particles (PIC / FLIP / APIC) and move; the strain rate and APIC's C_p from
+        //    node velocities remapped from the particles (MUSL) or from v^{n+1} (USL)
+        match self.deck.simulation.stress_update {
+            StressUpdate::Musl => {
+                transfer::grid_to_particles(
+                    &mut self.particles,
+                    &self.grid,
+                    &self.settings,
+                    &mut self.advect,
+                );
+                transfer::remap_velocity(
+                    &self.particles,
+                    &mut self.grid,
+                    &mut self.scratch,
+                    &self.settings,
+                );
+                self.boundary.apply(&mut self.grid.velocity_new);
+                transfer::gradient_and_move(
+                    &mut self.particles,
+                    &self.grid,
+                    &self.settings,
+                    &self.advect,
+                    dt,
+                );
+            }
+            StressUpdate::Usl => {
+                transfer::grid_to_particles_usl(&mut self.particles, &self.grid, &self.settings, dt)
+            }
+        }
         self.boundary
             .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
+        self.timers.lap(Phase::G2p);
         // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme)
         material::update(
             &mut self.particles,
@@ -225,6 +242,7 @@ impl<const D: usize> Simulation<D> {
             dt,
             self.scheme == Scheme::Explicit,
         );
+        self.timers.lap(Phase::Constitutive);
         self.time += dt;
         self.steps += 1;
         self.check_particles()

@@ -105,6 +105,19 @@ pub fn particles_to_grid<const D: usize>(
     s: &TransferSettings<D>,
     body_force: Option<&[Vector<D>]>,
 ) {
+    crate::with_shape!(s.shape, S => scatter_p2g::<D, S>(ps, grid, scratch, s, body_force));
+    gather_p2g(grid, &scratch.buffers, s.mass_epsilon);
+}
+
+/// The scatter of [`particles_to_grid`] into the per-thread buffers, for shape function `S`.
+fn scatter_p2g<const D: usize, const S: u8>(
+    ps: &Particles<D>,
+    grid: &Grid<D>,
+    scratch: &mut P2gScratch<D>,
+    s: &TransferSettings<D>,
+    body_force: Option<&[Vector<D>]>,
+) {
+    let shape = ShapeFunction::from_code(S);
     let geo = &grid.geo;
     let apic = s.transfer == Transfer::Apic;
     scratch.scatter(ps.len(), |acc, range| {
@@ -122,7 +135,7 @@ pub fn particles_to_grid<const D: usize>(
                 }
             }
             let xp = ps.x[p];
-            let st = Stencil::<D>::new(s.shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
+            let st = Stencil::<D>::new(shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
             let vp = ps.v[p];
             let c = ps.affine[p];
             let b = body_force.map_or(s.gravity, |f| f[p]);
@@ -136,8 +149,11 @@ pub fn particles_to_grid<const D: usize>(
             });
         }
     });
-    let bufs = &scratch.buffers;
-    let eps = s.mass_epsilon;
+}
+
+/// The ordered sum of the per-thread buffers of [`particles_to_grid`], then v_i and p_i.
+fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bufs: &[Accumulator<D>], eps: f64) {
+    let geo = &grid.geo;
     (
         grid.mass.par_iter_mut(),
         grid.momentum.par_iter_mut(),
@@ -194,23 +210,10 @@ pub fn remap_velocity<const D: usize>(
     scratch: &mut P2gScratch<D>,
     s: &TransferSettings<D>,
 ) {
-    let geo = &grid.geo;
-    let apic = s.transfer == Transfer::Apic;
-    scratch.scatter(ps.len(), |acc, range| {
-        acc.momentum.fill(Vector::<D>::zeros());
-        for p in range {
-            let m = ps.mass[p];
-            let xp = ps.x[p];
-            let st = Stencil::<D>::new(s.shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
-            let (vp, c) = (ps.v[p], ps.affine[p]);
-            st.for_each(|nw| {
-                let mom = node_velocity(apic, &vp, &c, geo.node_position(&nw.node), &xp);
-                acc.momentum[geo.flat(&nw.node)] += mom * (nw.n * m);
-            });
-        }
-    });
+    crate::with_shape!(s.shape, S => scatter_remap::<D, S>(ps, grid, scratch, s));
     let bufs = &scratch.buffers;
     let eps = s.mass_epsilon;
+    let geo = &grid.geo;
     grid.velocity_new
         .par_iter_mut()
         .enumerate()
@@ -235,6 +238,31 @@ pub fn remap_velocity<const D: usize>(
         });
 }
 
+/// The scatter of [`remap_velocity`], for shape function `S`.
+fn scatter_remap<const D: usize, const S: u8>(
+    ps: &Particles<D>,
+    grid: &Grid<D>,
+    scratch: &mut P2gScratch<D>,
+    s: &TransferSettings<D>,
+) {
+    let shape = ShapeFunction::from_code(S);
+    let geo = &grid.geo;
+    let apic = s.transfer == Transfer::Apic;
+    scratch.scatter(ps.len(), |acc, range| {
+        acc.momentum.fill(Vector::<D>::zeros());
+        for p in range {
+            let m = ps.mass[p];
+            let xp = ps.x[p];
+            let st = Stencil::<D>::new(shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
+            let (vp, c) = (ps.v[p], ps.affine[p]);
+            st.for_each(|nw| {
+                let mom = node_velocity(apic, &vp, &c, geo.node_position(&nw.node), &xp);
+                acc.momentum[geo.flat(&nw.node)] += mom * (nw.n * m);
+            });
+        }
+    });
+}
+
 /// G2P: particle velocity (PIC / FLIP blend / APIC); the interpolated v^{n+1} (the velocity
 /// that moves the particle) goes into `advect`. APIC's C_p is set by [`gradient_and_move`].
 pub fn grid_to_particles<const D: usize>(
@@ -243,6 +271,16 @@ pub fn grid_to_particles<const D: usize>(
     s: &TransferSettings<D>,
     advect: &mut [Vector<D>],
 ) {
+    crate::with_shape!(s.shape, S => g2p::<D, S>(ps, grid, s, advect))
+}
+
+fn g2p<const D: usize, const S: u8>(
+    ps: &mut Particles<D>,
+    grid: &Grid<D>,
+    s: &TransferSettings<D>,
+    advect: &mut [Vector<D>],
+) {
+    let shape = ShapeFunction::from_code(S);
     let geo: &GridGeometry<D> = &grid.geo;
     let v_old = &grid.velocity;
     let v_new = &grid.velocity_new;
@@ -258,7 +296,7 @@ pub fn grid_to_particles<const D: usize>(
     )
         .into_par_iter()
         .for_each(|(x, &lp, v, adv)| {
-            let st = Stencil::<D>::new(s.shape, &geo.to_cells(x), geo.h, lp);
+            let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
             let mut v_pic = Vector::<D>::zeros();
             let mut dv = Vector::<D>::zeros();
             st.for_each(|nw| {
@@ -289,6 +327,17 @@ pub fn gradient_and_move<const D: usize>(
     advect: &[Vector<D>],
     dt: f64,
 ) {
+    crate::with_shape!(s.shape, S => gradient::<D, S>(ps, grid, s, advect, dt))
+}
+
+fn gradient<const D: usize, const S: u8>(
+    ps: &mut Particles<D>,
+    grid: &Grid<D>,
+    s: &TransferSettings<D>,
+    advect: &[Vector<D>],
+    dt: f64,
+) {
+    let shape = ShapeFunction::from_code(S);
     let geo: &GridGeometry<D> = &grid.geo;
     let v_node = &grid.velocity_new;
     let apic = s.transfer == Transfer::Apic;
@@ -301,7 +350,7 @@ pub fn gradient_and_move<const D: usize>(
     )
         .into_par_iter()
         .for_each(|(x, &lp, grad_v, c, adv)| {
-            let st = Stencil::<D>::new(s.shape, &geo.to_cells(x), geo.h, lp);
+            let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
             let mut l = Matrix::<D>::zeros();
             let mut b = Matrix::<D>::zeros();
             st.for_each(|nw| {
@@ -314,6 +363,72 @@ pub fn gradient_and_move<const D: usize>(
             *grad_v = l;
             *c = b;
             *x += adv * dt;
+        });
+}
+
+/// USL G2P in one pass: particle velocity (PIC / FLIP / APIC), strain rate L_p and APIC's C_p
+/// from v^{n+1} (`velocity_new`), and the move x_p += dt sum_i N_ip v_i^{n+1}.
+///
+/// Half the particle passes of the MUSL path ([`grid_to_particles`], [`remap_velocity`],
+/// [`gradient_and_move`]); the state it leaves is what MLS-MPM codes compute.
+pub fn grid_to_particles_usl<const D: usize>(
+    ps: &mut Particles<D>,
+    grid: &Grid<D>,
+    s: &TransferSettings<D>,
+    dt: f64,
+) {
+    crate::with_shape!(s.shape, S => g2p_usl::<D, S>(ps, grid, s, dt))
+}
+
+fn g2p_usl<const D: usize, const S: u8>(
+    ps: &mut Particles<D>,
+    grid: &Grid<D>,
+    s: &TransferSettings<D>,
+    dt: f64,
+) {
+    let shape = ShapeFunction::from_code(S);
+    let geo: &GridGeometry<D> = &grid.geo;
+    let v_old = &grid.velocity;
+    let v_new = &grid.velocity_new;
+    let flip = match s.transfer {
+        Transfer::Flip => s.flip_ratio,
+        _ => 0.0,
+    };
+    let apic = s.transfer == Transfer::Apic;
+    (
+        ps.x.par_iter_mut(),
+        ps.half_width.par_iter(),
+        ps.v.par_iter_mut(),
+        ps.velocity_gradient.par_iter_mut(),
+        ps.affine.par_iter_mut(),
+    )
+        .into_par_iter()
+        .for_each(|(x, &lp, v, grad_v, c)| {
+            let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
+            let mut v_pic = Vector::<D>::zeros();
+            let mut dv = Vector::<D>::zeros();
+            let mut l = Matrix::<D>::zeros();
+            let mut b = Matrix::<D>::zeros();
+            st.for_each(|nw| {
+                let i = geo.flat(&nw.node);
+                let vi = v_new[i];
+                v_pic += vi * nw.n;
+                if flip > 0.0 {
+                    dv += (vi - v_old[i]) * nw.n;
+                }
+                l += vi * nw.grad.transpose();
+                if apic {
+                    b += vi * nw.apic.transpose();
+                }
+            });
+            *v = if flip > 0.0 {
+                (*v + dv) * flip + v_pic * (1.0 - flip)
+            } else {
+                v_pic
+            };
+            *grad_v = l;
+            *c = b;
+            *x += v_pic * dt;
         });
 }
 
@@ -433,6 +548,22 @@ mod tests {
             assert!(
                 (ps.velocity_gradient[p] - a).norm() < 1e-11,
                 "{shape:?} L_p"
+            );
+        }
+        // the one-pass USL G2P picks up the same v_p, C_p and L_p, and moves by dt v_p
+        let mut usl = ps.clone();
+        let x0 = usl.x.clone();
+        grid_to_particles_usl(&mut usl, &grid, &s, 1e-3);
+        for p in 0..ps.len() {
+            assert!((usl.v[p] - ps.v[p]).norm() < 1e-12, "{shape:?} USL v_p");
+            assert!((usl.affine[p] - a).norm() < 1e-11, "{shape:?} USL C_p");
+            assert!(
+                (usl.velocity_gradient[p] - a).norm() < 1e-11,
+                "{shape:?} USL L_p"
+            );
+            assert!(
+                (usl.x[p] - x0[p] - ps.v[p] * 1e-3).norm() < 1e-14,
+                "{shape:?} USL move"
             );
         }
         let mut scratch = P2gScratch::new(2, geo.node_count());

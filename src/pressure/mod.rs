@@ -22,6 +22,7 @@ use crate::deck::{
 use crate::grid::{CellBins, Grid, Vector};
 use crate::particles::Particles;
 use crate::shape::Stencil;
+use crate::timing::{Phase, PhaseTimers};
 use assemble::ParticleQuadrature;
 use free_surface::NodeKind;
 use rayon::prelude::*;
@@ -151,6 +152,7 @@ impl<const D: usize> Projection<D> {
         boundary: &Boundary<D>,
         mass_epsilon: f64,
         dt: f64,
+        timers: &mut PhaseTimers,
     ) -> Result<SolveStats, SolveError> {
         let shape = self.shape;
         let beta = self.beta;
@@ -162,6 +164,7 @@ impl<const D: usize> Projection<D> {
             // incremental form: v* -= beta (dt / m_i) sum_p V_p N_ip (grad p^n)_p
             self.particle_pressure(ps, &grid.geo, false);
             self.correct(ps, grid, mass_epsilon, beta * dt);
+            timers.lap(Phase::Corrector);
         }
         let geo = &grid.geo;
         // 3. free surface
@@ -211,6 +214,7 @@ impl<const D: usize> Projection<D> {
                 NodeKind::Empty => {}
             }
         }
+        timers.lap(Phase::FreeSurface);
         // the unknown is p^{n+1} - beta p^n; on the free surface p^{n+1} = 0
         {
             let (kinds, prev) = (&self.kinds, &self.previous);
@@ -302,6 +306,7 @@ impl<const D: usize> Projection<D> {
             &mut self.matrix,
             &mut self.rhs,
         );
+        timers.lap(Phase::Assembly);
         // solve; Chorin's form starts from the last step's pressure at the same nodes
         self.solution.resize(self.node_of_row.len(), 0.0);
         {
@@ -358,9 +363,11 @@ impl<const D: usize> Projection<D> {
                     }
                 });
         }
+        timers.lap(Phase::Solve);
         // 5. particle pressure and (grad dp)_p, then the corrector
         self.particle_pressure(ps, &grid.geo, true);
         self.correct(ps, grid, mass_epsilon, dt);
+        timers.lap(Phase::Corrector);
         Ok(self.stats)
     }
 
