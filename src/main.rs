@@ -33,6 +33,20 @@ enum Command {
         #[arg(long)]
         force: bool,
     },
+    /// Time a deck: runs it (to its end time, or --steps steps) and prints, per phase of the
+    /// step, seconds and milliseconds per step, then particle updates per second, pressure
+    /// iterations and peak memory per particle. Frames go to a scratch directory that is
+    /// removed afterwards, unless --output is given.
+    Bench {
+        /// The deck (TOML).
+        deck: PathBuf,
+        /// Stop after this many steps.
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Keep the frames in this directory (overwritten).
+        #[arg(long, short)]
+        output: Option<PathBuf>,
+    },
     /// Parse and validate a deck, and print a summary; runs nothing.
     Check {
         /// The deck (TOML).
@@ -108,8 +122,43 @@ fn execute(cmd: Command) -> Result<usize, Error> {
                 &d,
                 &deck.display().to_string(),
                 &dir,
-                &RunOptions { quiet, force },
+                &RunOptions {
+                    quiet,
+                    force,
+                    max_steps: None,
+                },
             )?;
+            Ok(0)
+        }
+        Command::Bench {
+            deck,
+            steps,
+            output,
+        } => {
+            let d = run::load(&deck)?;
+            let scratch = output.is_none();
+            let dir = output.unwrap_or_else(|| {
+                std::env::temp_dir().join(format!("pmpm-bench-{}", std::process::id()))
+            });
+            let file = deck.display().to_string();
+            let summary = run::run(
+                &d,
+                &file,
+                &dir,
+                &RunOptions {
+                    quiet: true,
+                    force: true,
+                    max_steps: steps,
+                },
+            );
+            if scratch {
+                let _ = std::fs::remove_dir_all(&dir);
+            }
+            let summary = summary?;
+            print!(
+                "{}",
+                run::bench_report(&d, &file, &summary, rayon::current_num_threads())
+            );
             Ok(0)
         }
         Command::Check { deck } => {

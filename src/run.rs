@@ -4,6 +4,7 @@ use crate::deck::{Deck, Preconditioner, Scheme, Solver};
 use crate::error::Error;
 use crate::output::OutputWriter;
 use crate::scheme::Simulation;
+use crate::timing::Phase;
 use std::path::Path;
 use std::time::Instant;
 
@@ -14,6 +15,8 @@ pub struct RunOptions {
     pub quiet: bool,
     /// Write into a directory that holds an earlier run.
     pub force: bool,
+    /// Stop after this many steps (benchmarks), as if the end time were reached.
+    pub max_steps: Option<u64>,
 }
 
 /// What a finished run reports.
@@ -29,6 +32,12 @@ pub struct RunSummary {
     pub wall_seconds: f64,
     /// Simulated time reached.
     pub time: f64,
+    /// Wall-clock seconds per phase of the step.
+    pub timers: crate::timing::PhaseTimers,
+    /// Pressure iterations summed over the steps, and the most in one step.
+    pub pressure_iterations: (u64, usize),
+    /// Peak resident memory of the process (bytes), where the system tells it.
+    pub peak_memory: Option<u64>,
 }
 
 /// Runs a validated deck into `dir`, generic over the dimension.
@@ -88,8 +97,10 @@ fn run_dim<const D: usize>(
     }
     out.frame(&sim, 0.0, 0.0)?;
     let mut next_frame = interval;
+    let (mut iterations, mut max_iterations) = (0u64, 0usize);
+    sim.timers.lap(Phase::Other);
     let result = loop {
-        if sim.time >= end - eps {
+        if sim.time >= end - eps || opts.max_steps.is_some_and(|n| sim.steps >= n) {
             break Ok(());
         }
         let mut dt = match (deck.simulation.dt, deck.simulation.cfl) {
@@ -120,6 +131,9 @@ fn run_dim<const D: usize>(
         }
         let t0 = sim.time;
         let stepped = sim.step(dt);
+        iterations += sim.pressure_iterations as u64;
+        max_iterations = max_iterations.max(sim.pressure_iterations);
+        sim.timers.lap(Phase::Other);
         if let Err(e) = out.probe_row(t0, &sim) {
             break Err(e);
         }
@@ -127,7 +141,8 @@ fn run_dim<const D: usize>(
             break Err(e.with_file(file));
         }
         last_dt = dt;
-        if sim.time >= next_frame - eps || sim.time >= end - eps {
+        let last = opts.max_steps.is_some_and(|n| sim.steps >= n);
+        if sim.time >= next_frame - eps || sim.time >= end - eps || last {
             if let Err(e) = out.frame(&sim, dt, start.elapsed().as_secs_f64()) {
                 break Err(e);
             }
@@ -146,6 +161,7 @@ fn run_dim<const D: usize>(
                 );
             }
         }
+        sim.timers.lap(Phase::Output);
     };
     if result.is_ok() {
         // the final state's probe row
@@ -161,6 +177,9 @@ fn run_dim<const D: usize>(
         particles: sim.particles.len(),
         wall_seconds: start.elapsed().as_secs_f64(),
         time: sim.time,
+        timers: sim.timers.clone(),
+        pressure_iterations: (iterations, max_iterations),
+        peak_memory: peak_memory(),
     };
     if !opts.quiet {
         eprintln!(
@@ -172,6 +191,101 @@ fn run_dim<const D: usize>(
         );
     }
     Ok(summary)
+}
+
+/// The table `pmpm bench` prints: per phase seconds, ms per step and share of the wall time;
+/// particle updates per second; pressure iterations; peak memory per particle. The last line,
+/// `BENCH key=value ...`, is for scripts.
+pub fn bench_report(deck: &Deck, file: &str, r: &RunSummary, threads: usize) -> String {
+    use std::fmt::Write;
+    let steps = r.steps.max(1) as f64;
+    let total = r.timers.total();
+    let mut t = String::new();
+    let _ = writeln!(
+        t,
+        "pmpm bench {file}: {}D {:?}, {} particles, {} steps to t = {:.6} s, {threads} thread(s)\n",
+        deck.simulation.dimension, deck.simulation.scheme, r.particles, r.steps, r.time
+    );
+    let _ = writeln!(t, "| phase | seconds | ms/step | share |");
+    let _ = writeln!(t, "|---|---:|---:|---:|");
+    for p in Phase::ALL {
+        let sec = r.timers.seconds(p);
+        if sec == 0.0 {
+            continue;
+        }
+        let _ = writeln!(
+            t,
+            "| {} | {:.3} | {:.3} | {:.1}% |",
+            p.name(),
+            sec,
+            1e3 * sec / steps,
+            100.0 * sec / total.max(1e-300)
+        );
+    }
+    let _ = writeln!(
+        t,
+        "| **step loop** | **{total:.3}** | **{:.3}** | 100% |\n",
+        1e3 * total / steps
+    );
+    let updates = r.particles as f64 * r.steps as f64 / total.max(1e-300);
+    let _ = writeln!(t, "particle updates per second: {updates:.3e}");
+    let (iters, max_iters) = r.pressure_iterations;
+    if deck.simulation.scheme == Scheme::Projection {
+        let _ = writeln!(
+            t,
+            "pressure iterations: {:.1} per step, at most {max_iters}",
+            iters as f64 / steps
+        );
+    }
+    let mem = r
+        .peak_memory
+        .map(|b| (b, b as f64 / r.particles.max(1) as f64));
+    match mem {
+        Some((b, per)) => {
+            let _ = writeln!(
+                t,
+                "peak memory: {:.1} MB, {per:.0} bytes per particle (whole process: grid, solver and buffers included)",
+                b as f64 / 1e6
+            );
+        }
+        None => {
+            let _ = writeln!(t, "peak memory: not available on this system");
+        }
+    }
+    let _ = write!(
+        t,
+        "BENCH dim={} scheme={:?} particles={} steps={} sim_time={:.6} threads={threads} wall_s={total:.4} ms_per_step={:.4} updates_per_s={updates:.4e} pressure_iterations={iters} max_iterations={max_iters} peak_bytes={} bytes_per_particle={}",
+        deck.simulation.dimension,
+        deck.simulation.scheme,
+        r.particles,
+        r.steps,
+        r.time,
+        1e3 * total / steps,
+        mem.map_or(0, |m| m.0),
+        mem.map_or(0.0, |m| m.1).round()
+    );
+    for p in Phase::ALL {
+        let _ = write!(
+            t,
+            " {}={:.4}",
+            p.name()
+                .split([' ', '/'])
+                .next()
+                .unwrap_or("phase")
+                .to_lowercase(),
+            r.timers.seconds(p)
+        );
+    }
+    t.push('\n');
+    t
+}
+
+/// Peak resident set size of this process (VmHWM of /proc/self/status, Linux), in bytes.
+pub fn peak_memory() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }
 
 /// Loads a deck file, with defaults filled in.

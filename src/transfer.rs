@@ -30,14 +30,28 @@ pub struct TransferSettings<const D: usize> {
     pub mass_epsilon: f64,
 }
 
-/// One thread's node accumulators.
-#[derive(Debug, Clone)]
-struct Accumulator<const D: usize> {
-    mass: Vec<f64>,
-    momentum: Vec<Vector<D>>,
-    force: Vec<Vector<D>>,
-    pressure: Vec<f64>,
+/// What one thread accumulates at one node. The fields of a node sit together (one cache
+/// line in 2D) rather than in four arrays: a particle's scatter then touches K^D lines, not
+/// 4 K^D, and does one bounds check per node.
+#[derive(Debug, Clone, Copy)]
+struct NodeSums<const D: usize> {
+    mass: f64,
+    pressure: f64,
+    momentum: Vector<D>,
+    force: Vector<D>,
 }
+
+impl<const D: usize> NodeSums<D> {
+    const ZERO: Self = Self {
+        mass: 0.0,
+        pressure: 0.0,
+        momentum: Vector::<D>::from_array_storage(nalgebra::ArrayStorage([[0.0; D]; 1])),
+        force: Vector::<D>::from_array_storage(nalgebra::ArrayStorage([[0.0; D]; 1])),
+    };
+}
+
+/// One thread's node accumulators.
+type Accumulator<const D: usize> = Vec<NodeSums<D>>;
 
 /// Reusable P2G buffers, one per rayon thread.
 #[derive(Debug, Clone)]
@@ -48,12 +62,7 @@ pub struct P2gScratch<const D: usize> {
 impl<const D: usize> P2gScratch<D> {
     /// Buffers for `threads` threads on a grid of `nodes` nodes.
     pub fn new(threads: usize, nodes: usize) -> Self {
-        let acc = Accumulator {
-            mass: vec![0.0; nodes],
-            momentum: vec![Vector::<D>::zeros(); nodes],
-            force: vec![Vector::<D>::zeros(); nodes],
-            pressure: vec![0.0; nodes],
-        };
+        let acc = vec![NodeSums::ZERO; nodes];
         Self {
             buffers: vec![acc; threads.max(1)],
         }
@@ -121,10 +130,7 @@ fn scatter_p2g<const D: usize, const S: u8>(
     let geo = &grid.geo;
     let apic = s.transfer == Transfer::Apic;
     scratch.scatter(ps.len(), |acc, range| {
-        acc.mass.fill(0.0);
-        acc.momentum.fill(Vector::<D>::zeros());
-        acc.force.fill(Vector::<D>::zeros());
-        acc.pressure.fill(0.0);
+        acc.fill(NodeSums::ZERO);
         for p in range {
             let m = ps.mass[p];
             let vol = ps.volume(p);
@@ -134,18 +140,21 @@ fn scatter_p2g<const D: usize, const S: u8>(
                     stress[(d, d)] -= s.pressure_weight * ps.pressure[p];
                 }
             }
+            let stress_vol = stress * vol;
+            let pp = ps.pressure[p];
             let xp = ps.x[p];
             let st = Stencil::<D>::new(shape, &geo.to_cells(&xp), geo.h, ps.half_width[p]);
             let vp = ps.v[p];
             let c = ps.affine[p];
             let b = body_force.map_or(s.gravity, |f| f[p]);
             st.for_each(|nw| {
-                let i = geo.flat(&nw.node);
                 let mom = node_velocity(apic, &vp, &c, geo.node_position(&nw.node), &xp);
-                acc.mass[i] += nw.n * m;
-                acc.momentum[i] += mom * (nw.n * m);
-                acc.force[i] += b * (nw.n * m) - stress * nw.grad * vol;
-                acc.pressure[i] += nw.n * m * ps.pressure[p];
+                let a = &mut acc[geo.flat(&nw.node)];
+                let nm = nw.n * m;
+                a.mass += nm;
+                a.momentum += mom * nm;
+                a.force += b * nm - stress_vol * nw.grad;
+                a.pressure += nm * pp;
             });
         }
     });
@@ -168,10 +177,11 @@ fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bufs: &[Accumulator<D>], eps: 
             *f = Vector::<D>::zeros();
             *pr = 0.0;
             for b in bufs {
-                *m += b.mass[i];
-                *mom += b.momentum[i];
-                *f += b.force[i];
-                *pr += b.pressure[i];
+                let b = &b[i];
+                *m += b.mass;
+                *mom += b.momentum;
+                *f += b.force;
+                *pr += b.pressure;
             }
         });
     if geo.has_periodic() {
@@ -220,7 +230,7 @@ pub fn remap_velocity<const D: usize>(
         .for_each(|(i, v)| {
             *v = Vector::<D>::zeros();
             for b in bufs {
-                *v += b.momentum[i];
+                *v += b[i].momentum;
             }
         });
     if geo.has_periodic() {
@@ -249,7 +259,7 @@ fn scatter_remap<const D: usize, const S: u8>(
     let geo = &grid.geo;
     let apic = s.transfer == Transfer::Apic;
     scratch.scatter(ps.len(), |acc, range| {
-        acc.momentum.fill(Vector::<D>::zeros());
+        acc.fill(NodeSums::ZERO);
         for p in range {
             let m = ps.mass[p];
             let xp = ps.x[p];
@@ -257,7 +267,7 @@ fn scatter_remap<const D: usize, const S: u8>(
             let (vp, c) = (ps.v[p], ps.affine[p]);
             st.for_each(|nw| {
                 let mom = node_velocity(apic, &vp, &c, geo.node_position(&nw.node), &xp);
-                acc.momentum[geo.flat(&nw.node)] += mom * (nw.n * m);
+                acc[geo.flat(&nw.node)].momentum += mom * (nw.n * m);
             });
         }
     });

@@ -290,3 +290,64 @@ fn an_unconverged_pressure_solve_stops_the_run_with_status_3() {
     // the initial frame is kept
     assert!(out.join("frames/particles_000000.csv").is_file());
 }
+
+/// `pmpm bench` runs the steps asked for, times every phase of the projection step and
+/// reports the figures a benchmark table needs, and leaves no frames behind.
+#[test]
+fn bench_reports_every_phase_and_the_figures() {
+    let dir = scratch_dir("bench");
+    let deck = dir.join("bench.toml");
+    std::fs::write(&deck, SMALL_2D.replace("\"explicit\"", "\"projection\"")).unwrap();
+    let o = pmpm(&[
+        "--threads",
+        "1",
+        "bench",
+        deck.to_str().unwrap(),
+        "--steps",
+        "5",
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for phase in [
+        "| P2G |",
+        "| free-surface detection |",
+        "| assembly |",
+        "| pressure solve |",
+        "| corrector |",
+        "| G2P and move |",
+        "| constitutive update |",
+        "particle updates per second",
+        "pressure iterations:",
+    ] {
+        assert!(stdout.contains(phase), "{phase} missing:\n{stdout}");
+    }
+    let bench = stdout.lines().find(|l| l.starts_with("BENCH ")).unwrap();
+    assert!(bench.contains(" steps=5 "), "{bench}");
+    assert!(bench.contains(" threads=1 "), "{bench}");
+    // the phases add up to the step loop's wall time
+    let field = |k: &str| -> f64 {
+        bench
+            .split_whitespace()
+            .find_map(|kv| kv.strip_prefix(&format!("{k}=")))
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let phases: f64 = [
+        "p2g",
+        "grid",
+        "free-surface",
+        "assembly",
+        "pressure",
+        "corrector",
+        "g2p",
+        "constitutive",
+        "output",
+        "other",
+    ]
+    .iter()
+    .map(|k| field(k))
+    .sum();
+    assert!((phases - field("wall_s")).abs() < 1e-3, "{bench}");
+    assert!(!dir.join("out").exists());
+}
