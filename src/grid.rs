@@ -104,7 +104,13 @@ impl<const D: usize> GridGeometry<D> {
 
     /// Calls `f` with every padded node index that stands for the same node as `idx`
     /// (`idx` itself included).
+    #[inline]
     pub fn for_each_image(&self, idx: &[usize; D], mut f: impl FnMut([usize; D])) {
+        if !self.has_periodic() {
+            // the common case: no images, and no 3^D odometer per gathered node
+            f(*idx);
+            return;
+        }
         // per direction up to three candidates: idx, idx - cells, idx + cells
         let mut cand = [[usize::MAX; 3]; D];
         for d in 0..D {
