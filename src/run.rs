@@ -265,16 +265,7 @@ pub fn bench_report(deck: &Deck, file: &str, r: &RunSummary, threads: usize) -> 
         mem.map_or(0.0, |m| m.1).round()
     );
     for p in Phase::ALL {
-        let _ = write!(
-            t,
-            " {}={:.4}",
-            p.name()
-                .split([' ', '/'])
-                .next()
-                .unwrap_or("phase")
-                .to_lowercase(),
-            r.timers.seconds(p)
-        );
+        let _ = write!(t, " {}={:.4}", p.key(), r.timers.seconds(p));
     }
     t.push('\n');
     t

@@ -47,6 +47,22 @@ impl Phase {
         Phase::Other,
     ];
 
+    /// One-word key for the `BENCH` line of `pmpm bench`.
+    pub fn key(self) -> &'static str {
+        match self {
+            Phase::P2g => "p2g",
+            Phase::Predictor => "grid",
+            Phase::FreeSurface => "free-surface",
+            Phase::Assembly => "assembly",
+            Phase::Solve => "pressure",
+            Phase::Corrector => "corrector",
+            Phase::G2p => "g2p",
+            Phase::Constitutive => "constitutive",
+            Phase::Output => "output",
+            Phase::Other => "other",
+        }
+    }
+
     /// Name for tables.
     pub fn name(self) -> &'static str {
         match self {

@@ -273,6 +273,17 @@ fn scatter_remap<const D: usize, const S: u8>(
     });
 }
 
+/// The particle's new velocity: the PIC value, or with `flip` > 0 the blend of FLIP (old
+/// velocity plus the grid's change `dv`) and PIC.
+#[inline]
+fn blend<const D: usize>(flip: f64, v: &Vector<D>, dv: &Vector<D>, v_pic: &Vector<D>) -> Vector<D> {
+    if flip > 0.0 {
+        (v + dv) * flip + v_pic * (1.0 - flip)
+    } else {
+        *v_pic
+    }
+}
+
 /// G2P: particle velocity (PIC / FLIP blend / APIC); the interpolated v^{n+1} (the velocity
 /// that moves the particle) goes into `advect`. APIC's C_p is set by [`gradient_and_move`].
 pub fn grid_to_particles<const D: usize>(
@@ -315,11 +326,7 @@ fn g2p<const D: usize, const S: u8>(
                 v_pic += vi * nw.n;
                 dv += (vi - v_old[i]) * nw.n;
             });
-            *v = if flip > 0.0 {
-                (*v + dv) * flip + v_pic * (1.0 - flip)
-            } else {
-                v_pic
-            };
+            *v = blend(flip, v, &dv, &v_pic);
             *adv = v_pic;
         });
 }
@@ -431,11 +438,7 @@ fn g2p_usl<const D: usize, const S: u8>(
                     b += vi * nw.apic.transpose();
                 }
             });
-            *v = if flip > 0.0 {
-                (*v + dv) * flip + v_pic * (1.0 - flip)
-            } else {
-                v_pic
-            };
+            *v = blend(flip, v, &dv, &v_pic);
             *grad_v = l;
             *c = b;
             *x += v_pic * dt;
