@@ -6,10 +6,11 @@
 # gravity 9.8, slip walls, quadratic B-splines and APIC. The block's sides are rounded down to
 # whole particle rows as the script does, so both codes hold the same particles.
 # Keys: K (bulk modulus, default 400), dt (fixed step; default none), cfl, end (end time, s),
-# update (musl|usl), pc (multigrid|jacobi), shape (bspline2|linear), out (output directory).
+# update (musl|usl), pc (multigrid|jacobi), shape (bspline2|linear), sort (steps between particle
+# sorts, 0 = never; default 20), out (output directory).
 set -eu
 dim=$1; n=$2; scheme=$3; shift 3
-K=400; dt=""; cfl=0.5; end=0.4; update=usl; pc=multigrid; shape=bspline2; out=out/bench
+K=400; dt=""; cfl=0.5; end=0.4; update=usl; pc=multigrid; shape=bspline2; sort=20; out=out/bench
 for kv in "$@"; do eval "$kv"; done
 side() { python3 -c "print(int($1 * $n * 2) / (2 * $n))"; }
 h=$(python3 -c "print(1 / $n)")
@@ -33,6 +34,7 @@ gravity = $g
 transfer = "apic"
 shape_function = "$shape"
 stress_update = "$update"
+sort_interval = $sort
 
 [grid]
 size = $size

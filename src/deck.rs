@@ -235,6 +235,10 @@ pub struct SimulationDeck {
     /// Strain rate from remapped node velocities (`musl`, default) or from v^{n+1} (`usl`).
     #[serde(default)]
     pub stress_update: StressUpdate,
+    /// Steps between sorts of the particles by cell (default 20; 0: never sort). Sorted
+    /// particles visit the grid nodes in order in the transfers, which keeps them in cache.
+    #[serde(default = "default_sort_interval")]
+    pub sort_interval: usize,
     /// Linear damping of grid velocities (1/s), a settling aid: a = ... - damping * v.
     #[serde(default)]
     pub damping: f64,
@@ -246,6 +250,10 @@ pub struct SimulationDeck {
     /// halving of dt shows as a pressure jump.
     #[serde(default)]
     pub land_on_frames: Option<bool>,
+}
+
+fn default_sort_interval() -> usize {
+    20
 }
 
 fn default_flip_ratio() -> f64 {

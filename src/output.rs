@@ -153,8 +153,10 @@ fn write_csv<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
     } else {
         writeln!(w, "id,x,y,z,vx,vy,vz,pressure,mass,volume,material")?;
     }
-    for p in 0..ps.len() {
-        write!(w, "{p}")?;
+    // rows in id order, wherever the last sort put each particle
+    for (id, &p) in ps.places().iter().enumerate() {
+        let p = p as usize;
+        write!(w, "{id}")?;
         for c in ps.x[p].iter().chain(ps.v[p].iter()) {
             write!(w, ",{c:.9e}")?;
         }
@@ -185,6 +187,8 @@ fn f64s(v: impl Iterator<Item = f64>) -> Vec<u8> {
 fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Result<()> {
     let ps = &sim.particles;
     let n = ps.len();
+    // points in id order, wherever the last sort put each particle
+    let at: Vec<usize> = ps.places().into_iter().map(|p| p as usize).collect();
     // ParaView wants 3-component points and vectors: pad 2D with z = 0.
     let pad3 = |v: &crate::grid::Vector<D>| -> [f64; 3] {
         std::array::from_fn(|d| if d < D { v[d] } else { 0.0 })
@@ -193,7 +197,7 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
         name: "Points",
         vtk_type: "Float64",
         components: 3,
-        bytes: f64s(ps.x.iter().flat_map(pad3)),
+        bytes: f64s(at.iter().flat_map(|&p| pad3(&ps.x[p]))),
     };
     let point_data = vec![
         Array {
@@ -206,34 +210,33 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
             name: "velocity",
             vtk_type: "Float64",
             components: 3,
-            bytes: f64s(ps.v.iter().flat_map(pad3)),
+            bytes: f64s(at.iter().flat_map(|&p| pad3(&ps.v[p]))),
         },
         Array {
             name: "pressure",
             vtk_type: "Float64",
             components: 1,
-            bytes: f64s(ps.pressure.iter().copied()),
+            bytes: f64s(at.iter().map(|&p| ps.pressure[p])),
         },
         Array {
             name: "mass",
             vtk_type: "Float64",
             components: 1,
-            bytes: f64s(ps.mass.iter().copied()),
+            bytes: f64s(at.iter().map(|&p| ps.mass[p])),
         },
         Array {
             name: "volume",
             vtk_type: "Float64",
             components: 1,
-            bytes: f64s((0..n).map(|p| ps.volume(p))),
+            bytes: f64s(at.iter().map(|&p| ps.volume(p))),
         },
         Array {
             name: "material",
             vtk_type: "Int32",
             components: 1,
-            bytes: ps
-                .material
+            bytes: at
                 .iter()
-                .flat_map(|&m| (m as i32).to_le_bytes())
+                .flat_map(|&p| (ps.material[p] as i32).to_le_bytes())
                 .collect(),
         },
     ];

@@ -7,9 +7,13 @@ use nalgebra::SMatrix;
 /// D x D matrix of f64.
 pub type Matrix<const D: usize> = SMatrix<f64, D, D>;
 
-/// All particles, one array per field. A particle's index is its stable `id`.
+/// All particles, one array per field. The arrays are sorted by cell from time to time
+/// ([`Particles::permute`]) so that the transfers walk the grid in order; `id` keeps each
+/// particle's number from its creation, and the output lists particles by it.
 #[derive(Debug, Clone, Default)]
 pub struct Particles<const D: usize> {
+    /// Number of the particle at this place, in creation order (0 to n - 1).
+    pub id: Vec<u32>,
     /// Position x_p.
     pub x: Vec<Vector<D>>,
     /// Velocity v_p.
@@ -53,6 +57,68 @@ impl<const D: usize> Particles<D> {
         self.jacobian[p] * self.volume0[p]
     }
 
+    /// Places of the particles in id order: `places()[k]` is where particle `k` is stored.
+    pub fn places(&self) -> Vec<u32> {
+        let mut at = vec![0u32; self.len()];
+        for (p, &id) in self.id.iter().enumerate() {
+            at[id as usize] = p as u32;
+        }
+        at
+    }
+
+    /// A copy of a per-particle field in id order.
+    pub fn by_id<T: Copy>(&self, field: &[T]) -> Vec<T> {
+        let mut out = field.to_vec();
+        for (p, &id) in self.id.iter().enumerate() {
+            out[id as usize] = field[p];
+        }
+        out
+    }
+
+    /// Reorders every array so that the particle at place `order[k]` moves to place k.
+    pub fn permute(&mut self, order: &[u32], scratch: &mut PermuteScratch<D>) {
+        permute(&mut self.id, order, &mut scratch.u32s);
+        permute(&mut self.x, order, &mut scratch.vectors);
+        permute(&mut self.v, order, &mut scratch.vectors);
+        permute(&mut self.mass, order, &mut scratch.f64s);
+        permute(&mut self.volume0, order, &mut scratch.f64s);
+        permute(&mut self.jacobian, order, &mut scratch.f64s);
+        permute(&mut self.deformation, order, &mut scratch.matrices);
+        permute(&mut self.pressure, order, &mut scratch.f64s);
+        permute(&mut self.tau, order, &mut scratch.matrices);
+        permute(&mut self.velocity_gradient, order, &mut scratch.matrices);
+        permute(&mut self.affine, order, &mut scratch.matrices);
+        permute(&mut self.material, order, &mut scratch.u16s);
+        permute(&mut self.half_width, order, &mut scratch.f64s);
+    }
+}
+
+/// Spare arrays for [`Particles::permute`], one per element type, kept between sorts so that a
+/// sort allocates nothing once they have grown.
+#[derive(Debug, Default)]
+pub struct PermuteScratch<const D: usize> {
+    /// For `id`.
+    pub u32s: Vec<u32>,
+    /// For `material`.
+    pub u16s: Vec<u16>,
+    /// For scalar fields.
+    pub f64s: Vec<f64>,
+    /// For vector fields.
+    pub vectors: Vec<Vector<D>>,
+    /// For matrix fields.
+    pub matrices: Vec<Matrix<D>>,
+}
+
+/// `field[k] = old field[order[k]]`, through `spare` (whose old contents are dropped); the two
+/// buffers swap, so the field's allocation becomes the next spare.
+pub fn permute<T: Copy + Send + Sync>(field: &mut Vec<T>, order: &[u32], spare: &mut Vec<T>) {
+    use rayon::prelude::*;
+    spare.clear();
+    spare.par_extend(order.par_iter().map(|&o| field[o as usize]));
+    std::mem::swap(field, spare);
+}
+
+impl<const D: usize> Particles<D> {
     /// Fills every body of the deck with particles on a regular lattice of spacing
     /// h / particles_per_cell, lattice points at the centres of the sub-cells.
     pub fn from_deck(deck: &Deck, geo: &GridGeometry<D>) -> Self {
@@ -129,6 +195,16 @@ impl<const D: usize> Particles<D> {
             }
         }
         let n = ps.len();
+        ps.id = (0..n as u32).collect();
+        // the lattice loop grew the arrays by doubling: give back the unused half
+        ps.x.shrink_to_fit();
+        ps.v.shrink_to_fit();
+        ps.mass.shrink_to_fit();
+        ps.volume0.shrink_to_fit();
+        ps.material.shrink_to_fit();
+        ps.half_width.shrink_to_fit();
+        ps.jacobian.shrink_to_fit();
+        ps.pressure.shrink_to_fit();
         ps.deformation = vec![Matrix::<D>::identity(); n];
         ps.tau = vec![Matrix::<D>::zeros(); n];
         ps.velocity_gradient = vec![Matrix::<D>::zeros(); n];

@@ -7,9 +7,10 @@
 use crate::boundary::Boundary;
 use crate::deck::{Deck, Scheme, StressUpdate};
 use crate::error::Error;
+use crate::grid::CellBins;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::material::{self, MaterialParams};
-use crate::particles::Particles;
+use crate::particles::{Particles, PermuteScratch};
 use crate::pressure::Projection;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
@@ -61,6 +62,9 @@ pub struct Simulation<const D: usize> {
     scratch: P2gScratch<D>,
     /// Per-particle velocity that moves it this step (interpolated v^{n+1}).
     advect: Vec<Vector<D>>,
+    /// Cells of the particles, for the periodic sort.
+    sort_bins: CellBins,
+    sort_scratch: PermuteScratch<D>,
     /// Wall-clock seconds per phase of the step.
     pub timers: PhaseTimers,
 }
@@ -147,6 +151,8 @@ impl<const D: usize> Simulation<D> {
             probes,
             scratch,
             advect: vec![Vector::<D>::zeros(); n_particles],
+            sort_bins: CellBins::default(),
+            sort_scratch: PermuteScratch::default(),
             timers: PhaseTimers::default(),
         })
     }
@@ -154,6 +160,13 @@ impl<const D: usize> Simulation<D> {
     /// One time step of size `dt`, as METHOD.md sets it out.
     pub fn step(&mut self, dt: f64) -> Result<(), Error> {
         self.timers.lap(Phase::Other);
+        // 0. every sort_interval steps, particles in cell order (the transfers then walk the
+        //    grid in order); a particle keeps its id
+        let interval = self.deck.simulation.sort_interval;
+        if interval > 0 && self.steps % interval as u64 == 0 {
+            self.sort_particles();
+        }
+        self.timers.lap(Phase::Sort);
         // 1. particles -> grid: mass, momentum, internal and body forces (and probe samples)
         self.particles_to_grid();
         self.timers.lap(Phase::P2g);
@@ -246,6 +259,22 @@ impl<const D: usize> Simulation<D> {
         self.time += dt;
         self.steps += 1;
         self.check_particles()
+    }
+
+    /// Reorders the particles and every per-particle array of the step by cell (a stable
+    /// counting sort, so the order depends only on the positions, not on the threads).
+    pub fn sort_particles(&mut self) {
+        self.sort_bins.sort(&self.grid.geo, &self.particles.x);
+        let order = &self.sort_bins.order;
+        let scratch = &mut self.sort_scratch;
+        self.particles.permute(order, scratch);
+        crate::particles::permute(&mut self.advect, order, &mut scratch.vectors);
+        if let Some((_, f)) = &mut self.body_force {
+            crate::particles::permute(f, order, &mut scratch.vectors);
+        }
+        if let Some(projection) = &mut self.projection {
+            projection.permute_particles(order, scratch);
+        }
     }
 
     /// P2G of the current particles, and the probes sampled from it (also used without a step,

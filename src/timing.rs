@@ -10,6 +10,8 @@ use std::time::Instant;
 /// A phase of the time step (METHOD.md's order), plus the driver's own work.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Phase {
+    /// Sorting the particles by cell (every `simulation.sort_interval` steps).
+    Sort,
     /// Particles to grid: mass, momentum, forces.
     P2g,
     /// Grid update: predictor v* and the wall conditions.
@@ -34,7 +36,8 @@ pub enum Phase {
 
 impl Phase {
     /// Every phase, in step order.
-    pub const ALL: [Phase; 10] = [
+    pub const ALL: [Phase; 11] = [
+        Phase::Sort,
         Phase::P2g,
         Phase::Predictor,
         Phase::FreeSurface,
@@ -50,6 +53,7 @@ impl Phase {
     /// One-word key for the `BENCH` line of `pmpm bench`.
     pub fn key(self) -> &'static str {
         match self {
+            Phase::Sort => "sort",
             Phase::P2g => "p2g",
             Phase::Predictor => "grid",
             Phase::FreeSurface => "free-surface",
@@ -66,6 +70,7 @@ impl Phase {
     /// Name for tables.
     pub fn name(self) -> &'static str {
         match self {
+            Phase::Sort => "particle sort by cell",
             Phase::P2g => "P2G",
             Phase::Predictor => "grid update / predictor",
             Phase::FreeSurface => "free-surface detection",

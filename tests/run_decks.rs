@@ -334,6 +334,7 @@ fn bench_reports_every_phase_and_the_figures() {
             .unwrap()
     };
     let phases: f64 = [
+        "sort",
         "p2g",
         "grid",
         "free-surface",

@@ -55,7 +55,7 @@ pub struct Projection<const D: usize> {
     pub node_pressure: Vec<f64>,
     /// Node pressure p^{n+1} of the last solve (0 off the fluid's interior nodes).
     pub previous: Vec<f64>,
-    volume: Vec<f64>,
+    /// V_p^0 V_p^0 / m_p = V_p / rho_p per particle (permuted with the particles).
     volume_over_density: Vec<f64>,
     divergence: Vec<f64>,
     velocity_star: Vec<Vector<D>>,
@@ -88,7 +88,6 @@ impl<const D: usize> Projection<D> {
                 LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())))
             }
         };
-        let volume = ps.volume0.clone();
         let volume_over_density = ps
             .volume0
             .iter()
@@ -113,7 +112,6 @@ impl<const D: usize> Projection<D> {
             solution: Vec::new(),
             node_pressure: Vec::new(),
             previous: Vec::new(),
-            volume,
             volume_over_density,
             divergence: vec![0.0; ps.len()],
             velocity_star: vec![Vector::<D>::zeros(); ps.len()],
@@ -132,6 +130,16 @@ impl<const D: usize> Projection<D> {
             },
             singular: false,
         }
+    }
+
+    /// Follows a reordering of the particles ([`Particles::permute`]): the arrays that live
+    /// from step to step move with them (the others are refilled every step).
+    pub fn permute_particles(
+        &mut self,
+        order: &[u32],
+        scratch: &mut crate::particles::PermuteScratch<D>,
+    ) {
+        crate::particles::permute(&mut self.volume_over_density, order, &mut scratch.f64s);
     }
 
     /// Steps 3 to 5 of METHOD.md on v* (in `grid.velocity_new`, wall conditions applied):
@@ -168,7 +176,7 @@ impl<const D: usize> Projection<D> {
         }
         let geo = &grid.geo;
         // 3. free surface
-        free_surface::volume_fractions(geo, &self.bins, &self.volume, &mut self.volume_fraction);
+        free_surface::volume_fractions(geo, &self.bins, &ps.volume0, &mut self.volume_fraction);
         if self.free_surface == FreeSurface::None {
             // the fluid fills its container: every cell full (the cells past the walls are
             // left to the classification, which reads the faces)
@@ -249,7 +257,7 @@ impl<const D: usize> Projection<D> {
                 &self.bins,
                 &self.volume_fraction,
                 &ps.mass,
-                &self.volume,
+                &ps.volume0,
                 shape,
             );
         }
@@ -284,7 +292,7 @@ impl<const D: usize> Projection<D> {
             ParticleQuadrature {
                 x: &ps.x,
                 half_width: &ps.half_width,
-                volume: &self.volume,
+                volume: &ps.volume0,
                 volume_over_density: &self.volume_over_density,
                 divergence: &self.divergence,
                 velocity: &self.velocity_star,
@@ -416,7 +424,7 @@ impl<const D: usize> Projection<D> {
         let geo = &grid.geo;
         let shape = self.shape;
         let bins = &self.bins;
-        let (vol, gp) = (&self.volume, &self.pressure_gradient);
+        let (vol, gp) = (&ps.volume0, &self.pressure_gradient);
         let (xs, hw) = (&ps.x, &ps.half_width);
         grid.velocity_new
             .par_iter_mut()
