@@ -121,7 +121,7 @@ impl<const D: usize> Simulation<D> {
             mass_epsilon: 1e-12 * min_mass,
         };
         let boundary = Boundary::new(deck, &geo);
-        let scratch = P2gScratch::new(rayon::current_num_threads(), geo.node_count());
+        let scratch = P2gScratch::new(rayon::current_num_threads());
         let probes: Vec<Vector<D>> = deck
             .output
             .probes

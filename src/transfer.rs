@@ -1,8 +1,8 @@
 //! Particle-to-grid and grid-to-particle transfers (METHOD.md steps 1 and 6): PIC, FLIP, APIC.
 //!
 //! P2G is parallel and deterministic: the particles are cut into one contiguous range per rayon
-//! thread, each range scatters into its own node buffers, and the buffers are summed node by
-//! node in a fixed order. No float atomics, so a given thread count gives bitwise the same
+//! thread, each range scatters into its own node buffer (over the band of nodes it reaches),
+//! and the buffers are summed node by node in a fixed order. No float atomics, so a given thread count gives bitwise the same
 //! result on every run. The buffers are allocated once and reused every step.
 
 use crate::deck::{ShapeFunction, Transfer};
@@ -50,41 +50,64 @@ impl<const D: usize> NodeSums<D> {
     };
 }
 
-/// One thread's node accumulators.
-type Accumulator<const D: usize> = Vec<NodeSums<D>>;
-
-/// Reusable P2G buffers, one per rayon thread.
-#[derive(Debug, Clone)]
-pub struct P2gScratch<const D: usize> {
-    buffers: Vec<Accumulator<D>>,
+/// One thread's node accumulators over the band of nodes its particles reach: node i is
+/// `sums[i - start]`. With the particles sorted by cell a thread's contiguous range of
+/// particles lies in a band of cells, so the bands of all threads together cover about the
+/// occupied part of the grid once, instead of the whole grid once per thread.
+#[derive(Debug, Clone, Default)]
+struct Band<const D: usize> {
+    start: usize,
+    sums: Vec<NodeSums<D>>,
 }
 
-impl<const D: usize> P2gScratch<D> {
-    /// Buffers for `threads` threads on a grid of `nodes` nodes.
-    pub fn new(threads: usize, nodes: usize) -> Self {
-        let acc = vec![NodeSums::ZERO; nodes];
-        Self {
-            buffers: vec![acc; threads.max(1)],
-        }
+impl<const D: usize> Band<D> {
+    /// The sums at node i, if the band holds it.
+    #[inline]
+    fn at(&self, i: usize) -> Option<&NodeSums<D>> {
+        self.sums.get(i.wrapping_sub(self.start))
     }
 }
 
+/// Reusable P2G buffers, one band per rayon thread. A band keeps its allocation from step to
+/// step and grows only when its particles spread over more nodes.
+#[derive(Debug, Clone)]
+pub struct P2gScratch<const D: usize> {
+    bands: Vec<Band<D>>,
+}
+
 impl<const D: usize> P2gScratch<D> {
-    /// Runs `scatter` on every thread's buffer with that thread's contiguous range of particles.
-    fn scatter<F>(&mut self, particles: usize, scatter: F)
+    /// Buffers for `threads` threads (empty until the first transfer sizes them).
+    pub fn new(threads: usize) -> Self {
+        Self {
+            bands: vec![Band::default(); threads.max(1)],
+        }
+    }
+
+    /// Runs `scatter` on every thread's band with that thread's contiguous range of particles,
+    /// after sizing the band to the nodes those particles reach and zeroing it.
+    fn scatter<F>(&mut self, geo: &GridGeometry<D>, x: &[Vector<D>], scatter: F)
     where
-        F: Fn(&mut Accumulator<D>, std::ops::Range<usize>) + Sync,
+        F: Fn(&mut Band<D>, std::ops::Range<usize>) + Sync,
     {
-        let per = particles.div_ceil(self.buffers.len()).max(1);
-        self.buffers
-            .par_iter_mut()
-            .enumerate()
-            .for_each(|(t, acc)| {
-                scatter(
-                    acc,
-                    (t * per).min(particles)..((t + 1) * per).min(particles),
-                )
-            });
+        let particles = x.len();
+        let per = particles.div_ceil(self.bands.len()).max(1);
+        // a stencil reaches at most PAD nodes either side of its particle's cell on each axis
+        let reach = crate::shape::PAD * geo.strides.iter().sum::<usize>();
+        let nodes = geo.node_count();
+        self.bands.par_iter_mut().enumerate().for_each(|(t, band)| {
+            let range = (t * per).min(particles)..((t + 1) * per).min(particles);
+            let (lo, hi) = x[range.clone()]
+                .iter()
+                .map(|x| geo.cell_of(x))
+                .fold((usize::MAX, 0), |(lo, hi), c| (lo.min(c), hi.max(c)));
+            band.sums.clear();
+            if lo <= hi {
+                band.start = lo.saturating_sub(reach);
+                band.sums
+                    .resize((hi + reach + 1).min(nodes) - band.start, NodeSums::ZERO);
+            }
+            scatter(band, range)
+        });
     }
 }
 
@@ -115,7 +138,7 @@ pub fn particles_to_grid<const D: usize>(
     body_force: Option<&[Vector<D>]>,
 ) {
     crate::with_shape!(s.shape, S => scatter_p2g::<D, S>(ps, grid, scratch, s, body_force));
-    gather_p2g(grid, &scratch.buffers, s.mass_epsilon);
+    gather_p2g(grid, &scratch.bands, s.mass_epsilon);
 }
 
 /// The scatter of [`particles_to_grid`] into the per-thread buffers, for shape function `S`.
@@ -129,8 +152,8 @@ fn scatter_p2g<const D: usize, const S: u8>(
     let shape = ShapeFunction::from_code(S);
     let geo = &grid.geo;
     let apic = s.transfer == Transfer::Apic;
-    scratch.scatter(ps.len(), |acc, range| {
-        acc.fill(NodeSums::ZERO);
+    scratch.scatter(geo, &ps.x, |band, range| {
+        let (start, acc) = (band.start, &mut band.sums);
         for p in range {
             let m = ps.mass[p];
             let vol = ps.volume(p);
@@ -149,7 +172,7 @@ fn scatter_p2g<const D: usize, const S: u8>(
             let b = body_force.map_or(s.gravity, |f| f[p]);
             st.for_each(|nw| {
                 let mom = node_velocity(apic, &vp, &c, geo.node_position(&nw.node), &xp);
-                let a = &mut acc[geo.flat(&nw.node)];
+                let a = &mut acc[geo.flat(&nw.node) - start];
                 let nm = nw.n * m;
                 a.mass += nm;
                 a.momentum += mom * nm;
@@ -160,8 +183,8 @@ fn scatter_p2g<const D: usize, const S: u8>(
     });
 }
 
-/// The ordered sum of the per-thread buffers of [`particles_to_grid`], then v_i and p_i.
-fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bufs: &[Accumulator<D>], eps: f64) {
+/// The ordered sum of the per-thread bands of [`particles_to_grid`], then v_i and p_i.
+fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bands: &[Band<D>], eps: f64) {
     let geo = &grid.geo;
     (
         grid.mass.par_iter_mut(),
@@ -176,8 +199,7 @@ fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bufs: &[Accumulator<D>], eps: 
             *mom = Vector::<D>::zeros();
             *f = Vector::<D>::zeros();
             *pr = 0.0;
-            for b in bufs {
-                let b = &b[i];
+            for b in bands.iter().filter_map(|b| b.at(i)) {
                 *m += b.mass;
                 *mom += b.momentum;
                 *f += b.force;
@@ -221,7 +243,7 @@ pub fn remap_velocity<const D: usize>(
     s: &TransferSettings<D>,
 ) {
     crate::with_shape!(s.shape, S => scatter_remap::<D, S>(ps, grid, scratch, s));
-    let bufs = &scratch.buffers;
+    let bands = &scratch.bands;
     let eps = s.mass_epsilon;
     let geo = &grid.geo;
     grid.velocity_new
@@ -229,8 +251,8 @@ pub fn remap_velocity<const D: usize>(
         .enumerate()
         .for_each(|(i, v)| {
             *v = Vector::<D>::zeros();
-            for b in bufs {
-                *v += b[i].momentum;
+            for b in bands.iter().filter_map(|b| b.at(i)) {
+                *v += b.momentum;
             }
         });
     if geo.has_periodic() {
@@ -258,8 +280,8 @@ fn scatter_remap<const D: usize, const S: u8>(
     let shape = ShapeFunction::from_code(S);
     let geo = &grid.geo;
     let apic = s.transfer == Transfer::Apic;
-    scratch.scatter(ps.len(), |acc, range| {
-        acc.fill(NodeSums::ZERO);
+    scratch.scatter(geo, &ps.x, |band, range| {
+        let (start, acc) = (band.start, &mut band.sums);
         for p in range {
             let m = ps.mass[p];
             let xp = ps.x[p];
@@ -267,7 +289,7 @@ fn scatter_remap<const D: usize, const S: u8>(
             let (vp, c) = (ps.v[p], ps.affine[p]);
             st.for_each(|nw| {
                 let mom = node_velocity(apic, &vp, &c, geo.node_position(&nw.node), &xp);
-                acc[geo.flat(&nw.node)].momentum += mom * (nw.n * m);
+                acc[geo.flat(&nw.node) - start].momentum += mom * (nw.n * m);
             });
         }
     });
@@ -503,7 +525,7 @@ mod tests {
                 let s = settings::<D>(shape, transfer);
                 let mut ps = scatter(&geo, 300);
                 let mut grid = Grid::new(geo.clone());
-                let mut scratch = P2gScratch::new(3, geo.node_count());
+                let mut scratch = P2gScratch::new(3);
                 let m_p: f64 = ps.mass.iter().sum();
                 let mom_p: Vector<D> = ps.v.iter().zip(&ps.mass).map(|(v, m)| v * *m).sum();
                 particles_to_grid(&ps, &mut grid, &mut scratch, &s, None);
@@ -579,7 +601,7 @@ mod tests {
                 "{shape:?} USL move"
             );
         }
-        let mut scratch = P2gScratch::new(2, geo.node_count());
+        let mut scratch = P2gScratch::new(2);
         particles_to_grid(&ps, &mut grid, &mut scratch, &s, None);
         for f in 0..geo.node_count() {
             if grid.mass[f] > 0.0 {
@@ -613,7 +635,7 @@ mod tests {
         let ps = scatter(&geo, 2000);
         let mut g1 = Grid::new(geo.clone());
         let mut g2 = Grid::new(geo.clone());
-        let mut scratch = P2gScratch::new(4, geo.node_count());
+        let mut scratch = P2gScratch::new(4);
         particles_to_grid(&ps, &mut g1, &mut scratch, &s, None);
         particles_to_grid(&ps, &mut g2, &mut scratch, &s, None);
         assert_eq!(g1.momentum, g2.momentum);

@@ -88,6 +88,7 @@ impl<const D: usize> Projection<D> {
                 LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())))
             }
         };
+        let particle_quadrature = usize::from(pd.quadrature == Quadrature::Particle);
         let volume_over_density = ps
             .volume0
             .iter()
@@ -113,8 +114,10 @@ impl<const D: usize> Projection<D> {
             node_pressure: Vec::new(),
             previous: Vec::new(),
             volume_over_density,
-            divergence: vec![0.0; ps.len()],
-            velocity_star: vec![Vector::<D>::zeros(); ps.len()],
+            // the particle quadrature's values at the particles (the cell quadrature keeps
+            // them at its Gauss points)
+            divergence: vec![0.0; particle_quadrature * ps.len()],
+            velocity_star: vec![Vector::<D>::zeros(); particle_quadrature * ps.len()],
             unconstrained: Vec::new(),
             rhs_form: pd.rhs,
             free_surface: pd.free_surface,
