@@ -622,6 +622,10 @@ pub struct OutputDeck {
     /// Points sampled every step into probes.csv.
     #[serde(default)]
     pub probes: Vec<ProbeDeck>,
+    /// Simulated seconds between checkpoints (`checkpoint.bin` in the output directory,
+    /// overwritten each time; one is always written at the end). Default: none but the last.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub checkpoint_interval: Option<f64>,
 }
 
 fn default_formats() -> Vec<Format> {
@@ -1117,6 +1121,9 @@ impl Deck {
         let o = &mut self.output;
         let interval = *o.interval.get_or_insert(self.simulation.end_time / 100.0);
         c.positive("output.interval", interval)?;
+        if let Some(ci) = o.checkpoint_interval {
+            c.positive("output.checkpoint_interval", ci)?;
+        }
         for (i, pr) in o.probes.iter().enumerate() {
             let k = format!("output.probes[{i}]");
             if pr.name.is_empty() || pr.name.contains([',', '"', '\n']) {
