@@ -268,9 +268,9 @@ impl<const D: usize> Simulation<D> {
         let order = &self.sort_bins.order;
         let scratch = &mut self.sort_scratch;
         self.particles.permute(order, scratch);
-        crate::particles::permute(&mut self.advect, order, &mut scratch.vectors);
+        crate::particles::permute(&mut self.advect, order, scratch);
         if let Some((_, f)) = &mut self.body_force {
-            crate::particles::permute(f, order, &mut scratch.vectors);
+            crate::particles::permute(f, order, scratch);
         }
         if let Some(projection) = &mut self.projection {
             projection.permute_particles(order, scratch);

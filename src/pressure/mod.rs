@@ -142,7 +142,7 @@ impl<const D: usize> Projection<D> {
         order: &[u32],
         scratch: &mut crate::particles::PermuteScratch<D>,
     ) {
-        crate::particles::permute(&mut self.volume_over_density, order, &mut scratch.f64s);
+        crate::particles::permute(&mut self.volume_over_density, order, scratch);
     }
 
     /// Steps 3 to 5 of METHOD.md on v* (in `grid.velocity_new`, wall conditions applied):
