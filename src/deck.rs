@@ -153,6 +153,15 @@ impl BoundarySpec {
     }
 }
 
+/// The table form of a face, `{ type = "no_slip", velocity = [...] }`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MovingWall {
+    #[serde(rename = "type")]
+    kind: BoundaryKind,
+    velocity: Option<VectorField>,
+}
+
 impl<'de> Deserialize<'de> for BoundarySpec {
     // Hand-written so that both a string and a table are accepted with errors that say which
     // key is wrong (serde's untagged enums only say "did not match any variant").
@@ -170,28 +179,17 @@ impl<'de> Deserialize<'de> for BoundarySpec {
             }
             fn visit_map<A: serde::de::MapAccess<'de>>(
                 self,
-                mut map: A,
+                map: A,
             ) -> Result<BoundarySpec, A::Error> {
-                use serde::de::Error;
-                let mut kind = None;
-                let mut velocity = None;
-                while let Some(k) = map.next_key::<String>()? {
-                    match k.as_str() {
-                        "type" => {
-                            let s: String = map.next_value()?;
-                            kind =
-                                Some(BoundaryKind::from_name(&s).ok_or_else(|| {
-                                    A::Error::unknown_variant(&s, BOUNDARY_KINDS)
-                                })?);
-                        }
-                        "velocity" => velocity = Some(map.next_value::<VectorField>()?),
-                        other => return Err(A::Error::unknown_field(other, &["type", "velocity"])),
-                    }
-                }
-                let kind = kind.ok_or_else(|| A::Error::missing_field("type"))?;
-                Ok(match velocity {
-                    Some(velocity) => BoundarySpec::Moving { kind, velocity },
-                    None => BoundarySpec::Kind(kind),
+                // a derived struct, so that a wrong entry is reported against its own key
+                // (`grid.boundary.y_max.type`), with the valid keys and values listed
+                let w = MovingWall::deserialize(serde::de::value::MapAccessDeserializer::new(map))?;
+                Ok(match w.velocity {
+                    Some(velocity) => BoundarySpec::Moving {
+                        kind: w.kind,
+                        velocity,
+                    },
+                    None => BoundarySpec::Kind(w.kind),
                 })
             }
         }
@@ -213,7 +211,7 @@ pub struct SimulationDeck {
     /// Fixed time step (s); absent: adaptive with `cfl`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dt: Option<f64>,
-    /// Courant number of the adaptive step (default 0.4).
+    /// Courant number of the adaptive step; one of `dt` and `cfl` is required.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cfl: Option<f64>,
     /// Cap of the adaptive step (s).
@@ -294,6 +292,9 @@ pub struct BoundaryDeck {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub z_max: Option<BoundarySpec>,
 }
+
+/// Names of the axes, in messages.
+const AXES: [&str; 3] = ["x", "y", "z"];
 
 /// Face names in the order axis 0 min, axis 0 max, axis 1 min, ...
 pub const FACE_NAMES: [&str; 6] = ["x_min", "x_max", "y_min", "y_max", "z_min", "z_max"];
@@ -676,17 +677,145 @@ fn backticked(msg: &str) -> Vec<&str> {
     msg.split('`').skip(1).step_by(2).collect()
 }
 
-/// The valid name nearest to `given`, if it is near enough to be a likely typo.
+/// Other names a person may type for a key (left), and the key they mean (right).
+const SYNONYMS: &[(&str, &str)] = &[
+    ("rho", "density"),
+    ("mu", "viscosity"),
+    ("k", "bulk_modulus"),
+    ("ppc", "particles_per_cell"),
+    ("h", "cell_size"),
+    ("dx", "cell_size"),
+    ("g", "gravity"),
+    ("courant", "cfl"),
+    ("time_step", "dt"),
+    ("timestep", "dt"),
+    ("t_end", "end_time"),
+    ("tend", "end_time"),
+];
+
+/// The valid name nearest to `given`, if it is near enough to be a likely typo: a known other
+/// name for it, a name that `given` begins (`dens` for `density`), or one within a few edits.
 pub fn nearest<'a>(given: &str, valid: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    let valid: Vec<&str> = valid.into_iter().collect();
+    let lower = given.to_lowercase();
+    if let Some(&(_, to)) = SYNONYMS.iter().find(|(from, _)| *from == lower) {
+        if let Some(v) = valid.iter().find(|v| **v == to) {
+            return Some(v);
+        }
+    }
+    if lower.len() >= 3 {
+        if let Some(v) = valid
+            .iter()
+            .filter(|v| v.starts_with(&lower))
+            .min_by_key(|v| v.len())
+        {
+            return Some(v);
+        }
+    }
     valid
-        .into_iter()
-        .map(|v| (strsim::damerau_levenshtein(given, v), v))
+        .iter()
+        .map(|v| (strsim::damerau_levenshtein(&lower, v), *v))
         .filter(|(d, v)| *d <= 3.max(v.len() / 3) && *d < v.len().max(given.len()))
         .min_by_key(|(d, _)| *d)
         .map(|(_, v)| v)
 }
 
-/// Rewrites serde's messages into a user's words: the nearest key or value is suggested.
+/// The values an enum of the deck accepts, in order (read from serde's own error message).
+fn variants<'de, T: Deserialize<'de>>() -> Vec<String> {
+    use serde::de::IntoDeserializer;
+    let probe: serde::de::value::StrDeserializer<'_, serde::de::value::Error> =
+        "\u{1}".into_deserializer();
+    match T::deserialize(probe) {
+        Ok(_) => Vec::new(),
+        Err(e) => backticked(&e.to_string())
+            .into_iter()
+            .skip(1)
+            .map(String::from)
+            .collect(),
+    }
+}
+
+/// The values allowed for a key that takes one of a list of names, if it is one.
+fn allowed_values(key: &str) -> Option<Vec<String>> {
+    let last = key.rsplit('.').next().unwrap_or(key);
+    let last = last.split('[').next().unwrap_or(last);
+    Some(match last {
+        "scheme" => variants::<Scheme>(),
+        "transfer" => variants::<Transfer>(),
+        "shape_function" => variants::<ShapeFunction>(),
+        "stress_update" => variants::<StressUpdate>(),
+        "solver" => variants::<Solver>(),
+        "preconditioner" => variants::<Preconditioner>(),
+        "free_surface" => variants::<FreeSurface>(),
+        "rhs" => variants::<PoissonRhs>(),
+        "quadrature" => variants::<Quadrature>(),
+        "model" => variants::<Model>(),
+        "formats" => variants::<Format>(),
+        "stress" => variants::<InitialStress>(),
+        "type" if key.contains(".shape.") => variants::<ShapeKind>(),
+        "type" => variants::<BoundaryKind>(),
+        face if FACE_NAMES.contains(&face) => variants::<BoundaryKind>(),
+        _ => return None,
+    })
+}
+
+/// `"a", "b", "c"`
+fn quoted_list<S: AsRef<str>>(names: &[S]) -> String {
+    names
+        .iter()
+        .map(|v| format!("\"{}\"", v.as_ref()))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Keys that hold a list of tables, each entry written `[[key]]`.
+const TABLE_LISTS: [&str; 3] = ["materials", "bodies", "output.probes"];
+
+/// serde's "invalid type: GOT, expected EXPECTED" in a user's words.
+fn type_message(key: &str, got: &str, expected: &str) -> String {
+    // toml adds the type it read a large integer as: "integer `99999999999999999999` as i128"
+    let got = if got.starts_with("integer ") {
+        got.split(" as ").next().unwrap_or(got)
+    } else {
+        got
+    };
+    let value = backticked(got).first().map(|v| v.to_string());
+    let got = match got.split([' ', '`']).next().unwrap_or("") {
+        "integer" | "floating" | "boolean" => value.unwrap_or_else(|| got.to_string()),
+        "string" => got.trim_start_matches("string ").to_string(),
+        "sequence" => "a list".to_string(),
+        "map" => "a table".to_string(),
+        _ => got.to_string(),
+    };
+    if expected == "a sequence" && got == "a table" && TABLE_LISTS.contains(&key) {
+        return format!(
+            "must be a list of tables: write [[{key}]] (double brackets) above each entry, got [{key}]"
+        );
+    }
+    let expected = match expected {
+        "f64" | "f32" => "a number".to_string(),
+        "usize" | "u64" | "u32" | "u16" | "u8" if key == "simulation.dimension" => {
+            "2 or 3".to_string()
+        }
+        "usize" | "u64" | "u32" | "u16" | "u8" if key.ends_with(".particles_per_cell") => {
+            "a whole number between 1 and 8".to_string()
+        }
+        "usize" | "u64" | "u32" | "u16" | "u8" => "a whole number (0, 1, 2, ...)".to_string(),
+        "a boolean" => "true or false".to_string(),
+        "a sequence" => "a list in square brackets".to_string(),
+        "a string" => match allowed_values(key) {
+            Some(v) => format!("one of {}", quoted_list(&v)),
+            None => "a string in quotes".to_string(),
+        },
+        "struct ShapeDeck" => "a table { type = \"box\", min = [...], max = [...] } or { type = \"sphere\", center = [...], radius = ... }".to_string(),
+        e if e.starts_with("struct ") => "a table".to_string(),
+        e => e.to_string(),
+    };
+    format!("must be {expected}, got {got}")
+}
+
+/// Rewrites serde's messages into a user's words: the nearest key or value is suggested, the
+/// allowed values listed, and types named as a deck's author knows them.
 fn humanise(msg: &str, key: &mut String) -> String {
     let names = backticked(msg);
     if msg.starts_with("unknown field") && !names.is_empty() {
@@ -715,23 +844,52 @@ fn humanise(msg: &str, key: &mut String) -> String {
         if let Some(n) = nearest(given, valid.iter().copied()) {
             out += &format!("; did you mean \"{n}\"?");
         }
-        out += &format!(
-            " (allowed: {})",
-            valid
-                .iter()
-                .map(|v| format!("\"{v}\""))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
+        out += &format!(" (allowed: {})", quoted_list(valid));
         out
     } else if msg.starts_with("missing field") && !names.is_empty() {
-        if !key.is_empty() {
+        let top = key.is_empty();
+        if !top {
             key.push('.');
         }
         key.push_str(names[0]);
-        "is required but missing".to_string()
+        match names[0] {
+            "materials" | "bodies" if top => {
+                format!("at least one [[{}]] entry is required", names[0])
+            }
+            table if top => format!("the [{table}] table is required but missing"),
+            _ => "is required but missing".to_string(),
+        }
+    } else if let Some(rest) = msg
+        .strip_prefix("invalid type: ")
+        .or_else(|| msg.strip_prefix("invalid value: "))
+    {
+        match rest.trim().rsplit_once(", expected ") {
+            Some((got, expected)) => type_message(key, got, expected),
+            None => msg.trim().to_string(),
+        }
+    } else if msg.starts_with("wanted string or table") {
+        // toml's word for a number or list where a name in quotes belongs
+        match allowed_values(key) {
+            Some(v) => format!("must be one of {} (in quotes)", quoted_list(&v)),
+            None => "must be a string in quotes".to_string(),
+        }
+    } else if msg.starts_with("data did not match any variant of untagged enum Component") {
+        "must be a number or an expression in quotes (in x, y, z, t)".to_string()
     } else {
         msg.trim().to_string()
+    }
+}
+
+/// exmex's parse errors in plain words where they are written for its developers.
+fn plain_exmex(msg: &str) -> String {
+    // field.rs writes `[k] = "text": why`
+    let split = msg.find("\": ").map(|i| (&msg[..i + 1], &msg[i + 3..]));
+    match split {
+        Some((head, why)) if why.contains("we always need one more node than op") => {
+            format!("{head}: an operator or a function lacks a value, or two values have no operator between them")
+        }
+        Some((head, why)) if why.starts_with("wlog ") => format!("{head}: {}", &why[5..]),
+        _ => msg.to_string(),
     }
 }
 
@@ -784,9 +942,40 @@ impl Check<'_> {
                 }
             }
         }
+        for (k, comp) in v.0.iter().enumerate() {
+            // exmex reads `{name}` as a variable of any name, which the names check of
+            // field.rs does not see (and then panics on)
+            if let Component::Expression(text) = comp {
+                if text.contains(['{', '}']) {
+                    return Err(self.err(
+                        key,
+                        format!("bad expression: {key}[{k}] = \"{text}\": braces {{ }} are not allowed; use ( ) and the variables x, y, z, t"),
+                    ));
+                }
+            }
+        }
         v.compile()
-            .map(|_| ())
-            .map_err(|e| self.err(key, format!("bad expression: {key}{e}")))
+            .map_err(|e| self.err(key, format!("bad expression: {key}{}", plain_exmex(&e))))?;
+        // an expression without x, y, z or t is a number: it must be a finite one ("sqrt(-1)",
+        // "1/0" would only show as a blow-up of the run)
+        for (k, comp) in v.0.iter().enumerate() {
+            if let Component::Expression(text) = comp {
+                let one = VectorField(vec![comp.clone()]).compile().map_err(|e| {
+                    self.err(key, format!("bad expression: {key}[{k}] = \"{text}\": {e}"))
+                })?;
+                if !one.is_constant() {
+                    continue;
+                }
+                let x = one.eval::<1>(&crate::grid::Vector::<1>::zeros(), 0.0)[0];
+                if !x.is_finite() {
+                    return Err(self.err(
+                        key,
+                        format!("bad expression: {key}[{k}] = \"{text}\": gives {x}, not a finite number"),
+                    ));
+                }
+            }
+        }
+        Ok(())
     }
 
     fn vector(&self, key: &str, v: &[f64], dim: usize) -> Result<(), DeckError> {
@@ -822,11 +1011,27 @@ impl Deck {
 
     /// Parses TOML text into a deck (types only; see [`Deck::validate`]).
     pub fn parse(src: &str, file: &str) -> Result<Deck, DeckError> {
-        let de = toml::Deserializer::parse(src).map_err(|e| DeckError {
-            file: file.to_string(),
-            key: "(syntax)".into(),
-            line_col: e.span().map(|s| line_col(src, s.start)),
-            message: e.message().trim().to_string(),
+        let de = toml::Deserializer::parse(src).map_err(|e| {
+            let mut message = e.message().trim().to_string();
+            if message == "duplicate key" {
+                // toml does not say which: it is the name where the error points
+                let name: String = e
+                    .span()
+                    .and_then(|s| src.get(s.start..))
+                    .unwrap_or("")
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || matches!(c, '_' | '-' | '.'))
+                    .collect();
+                if !name.is_empty() {
+                    message = format!("duplicate key: `{name}` is given twice");
+                }
+            }
+            DeckError {
+                file: file.to_string(),
+                key: "(syntax)".into(),
+                line_col: e.span().map(|s| line_col(src, s.start)),
+                message,
+            }
         })?;
         serde_path_to_error::deserialize(de).map_err(|e| {
             let mut key = e.path().to_string();
@@ -865,7 +1070,12 @@ impl Deck {
                 ));
             }
         } else {
-            let cfl = *s.cfl.get_or_insert(0.4);
+            let Some(cfl) = s.cfl else {
+                return Err(c.err(
+                    "simulation",
+                    "needs a time step: give dt (a fixed step, in s) or cfl (an adaptive step, e.g. cfl = 0.4)",
+                ));
+            };
             if !(cfl > 0.0 && cfl <= 1.0) {
                 return Err(c.err("simulation.cfl", format!("must be in (0, 1], got {cfl}")));
             }
@@ -907,6 +1117,27 @@ impl Deck {
                     ),
                 ));
             }
+        }
+        // every node and particle index is a u32: refuse a grid that cannot be numbered (a
+        // cell_size typed in the wrong unit would otherwise hang in setting up the particles)
+        let cells: Vec<f64> = g.size.iter().map(|l| (l / g.cell_size).round()).collect();
+        let nodes: f64 = cells
+            .iter()
+            .map(|n| n + 1.0 + 2.0 * crate::shape::PAD as f64)
+            .product();
+        if nodes >= u32::MAX as f64 {
+            return Err(c.err(
+                "grid.cell_size",
+                format!(
+                    "gives a grid of {} cells, too many: pmpm numbers at most {} grid nodes; use a larger cell_size",
+                    cells
+                        .iter()
+                        .map(|n| if *n < 1e12 { format!("{n:.0}") } else { format!("{n:.1e}") })
+                        .collect::<Vec<_>>()
+                        .join(" x "),
+                    u32::MAX
+                ),
+            ));
         }
         for (f, spec) in g.boundary.faces_mut().into_iter().enumerate() {
             let key = format!("grid.boundary.{}", FACE_NAMES[f]);
@@ -989,6 +1220,17 @@ impl Deck {
         if self.materials.is_empty() {
             return Err(c.err("materials", "at least one [[materials]] entry is required"));
         }
+        if self.materials.len() > u16::MAX as usize + 1 {
+            // a particle keeps its material's index in a u16
+            return Err(c.err(
+                "materials",
+                format!(
+                    "{} entries, too many: pmpm takes at most {}",
+                    self.materials.len(),
+                    u16::MAX as usize + 1
+                ),
+            ));
+        }
         let explicit = self.simulation.scheme == Scheme::Explicit;
         for (i, m) in self.materials.iter().enumerate() {
             let k = format!("materials[{i}]");
@@ -1027,6 +1269,7 @@ impl Deck {
                 .map(|(o, s)| o + s)
                 .collect(),
         );
+        let mut lattice = 0.0;
         for (i, b) in self.bodies.iter_mut().enumerate() {
             let k = format!("bodies[{i}]");
             if !self.materials.iter().any(|m| m.name == b.material) {
@@ -1101,8 +1344,8 @@ impl Deck {
                 return Err(c.err(
                     format!("{k}.shape"),
                     format!(
-                        "extends outside the grid along axis {d}: body spans [{}, {}], grid spans [{}, {}]",
-                        mn[d], mx[d], lo[d], hi[d]
+                        "extends outside the grid along {}: the body spans [{}, {}], the grid [{}, {}]",
+                        AXES[d], mn[d], mx[d], lo[d], hi[d]
                     ),
                 ));
             }
@@ -1110,6 +1353,20 @@ impl Deck {
                 return Err(c.err(
                     format!("{k}.particles_per_cell"),
                     format!("must be between 1 and 8, got {}", b.particles_per_cell),
+                ));
+            }
+            // the lattice positions over the body's bounding box that are tried
+            let spacing = self.grid.cell_size / b.particles_per_cell as f64;
+            lattice += (0..dim)
+                .map(|d| ((mx[d] - mn[d]) / spacing).ceil() + 2.0)
+                .product::<f64>();
+            if lattice >= u32::MAX as f64 {
+                return Err(c.err(
+                    k.clone(),
+                    format!(
+                        "the bodies would hold up to {lattice:.3e} particles, too many: pmpm numbers at most {} particles; use a larger cell_size or fewer particles_per_cell",
+                        u32::MAX
+                    ),
                 ));
             }
             if b.velocity.is_empty() {
@@ -1142,7 +1399,10 @@ impl Deck {
             if let Some(d) = (0..dim).find(|&d| pr.position[d] < lo[d] || pr.position[d] > hi[d]) {
                 return Err(c.err(
                     format!("{k}.position"),
-                    format!("lies outside the grid along axis {d}"),
+                    format!(
+                        "lies outside the grid along {}: {} = {}, the grid spans [{}, {}]",
+                        AXES[d], AXES[d], pr.position[d], lo[d], hi[d]
+                    ),
                 ));
             }
         }
