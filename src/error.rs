@@ -32,6 +32,10 @@ pub enum Error {
     /// The run blew up: NaN, or a particle left the grid (exit status 3).
     #[error("{0}")]
     BlowUp(String),
+    /// The run was stopped by SIGINT (Ctrl-C) or SIGTERM after writing a checkpoint (exit
+    /// status 130, as a shell reports a command stopped by Ctrl-C).
+    #[error("{0}")]
+    Interrupted(String),
 }
 
 impl Error {
@@ -41,6 +45,7 @@ impl Error {
             Error::Deck(_) | Error::Unsupported { .. } | Error::Usage(_) => 2,
             Error::Io { .. } => 1,
             Error::BlowUp(_) => 3,
+            Error::Interrupted(_) => 130,
         }
     }
 

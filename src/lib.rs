@@ -22,6 +22,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod boundary;
+pub mod checkpoint;
 pub mod deck;
 pub mod error;
 pub mod field;

@@ -20,18 +20,28 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Run a deck: writes frames, series.csv, probes.csv and run.toml into the output directory.
+    ///
+    /// On a terminal a progress bar shows the simulated time, steps per second, the last step's
+    /// pressure iterations and the time left; elsewhere (a log file, CI) one line per frame.
+    /// Ctrl-C (or SIGTERM) finishes the current step, writes the frame and a checkpoint, and
+    /// stops with exit status 130; `--resume OUTDIR/checkpoint.bin` goes on from there.
     Run {
         /// The deck (TOML).
         deck: PathBuf,
         /// Output directory (overrides [output].directory).
         #[arg(long, short)]
         output: Option<PathBuf>,
-        /// No progress lines.
+        /// No progress bar or lines.
         #[arg(long, short)]
         quiet: bool,
         /// Overwrite an output directory that holds an earlier run.
         #[arg(long)]
         force: bool,
+        /// Go on from a checkpoint (OUTDIR/checkpoint.bin) written by a run of the same deck;
+        /// simulation.end_time, the time step (dt, cfl, max_dt) and [output] may have changed.
+        /// The frames, series.csv and probes.csv go on in the output directory.
+        #[arg(long, value_name = "CHECKPOINT")]
+        resume: Option<PathBuf>,
     },
     /// Time a deck: runs it (to its end time, or --steps steps) and prints, per phase of the
     /// step, seconds and milliseconds per step, then particle updates per second, pressure
@@ -115,7 +125,9 @@ fn execute(cmd: Command) -> Result<usize, Error> {
             output,
             quiet,
             force,
+            resume,
         } => {
+            run::catch_interrupts();
             let d = run::load(&deck)?;
             let dir = output.unwrap_or_else(|| PathBuf::from(&d.output.directory));
             run::run(
@@ -126,6 +138,7 @@ fn execute(cmd: Command) -> Result<usize, Error> {
                     quiet,
                     force,
                     max_steps: None,
+                    resume,
                 },
             )?;
             Ok(0)
@@ -149,6 +162,7 @@ fn execute(cmd: Command) -> Result<usize, Error> {
                     quiet: true,
                     force: true,
                     max_steps: steps,
+                    resume: None,
                 },
             );
             if scratch {

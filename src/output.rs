@@ -17,7 +17,7 @@ pub struct OutputWriter {
     csv: bool,
     vtk: bool,
     /// (time, file name) of each .vtu frame, for particles.pvd.
-    pvd: Vec<(f64, String)>,
+    pub pvd: Vec<(f64, String)>,
     series: BufWriter<File>,
     probes: Option<BufWriter<File>>,
     /// Frames written so far.
@@ -30,6 +30,56 @@ fn create(path: &Path) -> Result<BufWriter<File>, Error> {
         .map_err(|e| Error::io(path, e))
 }
 
+/// The header of series.csv.
+const SERIES_HEADER: &str =
+    "frame,time,step,dt,kinetic_energy,max_speed,pressure_iterations,wall_seconds";
+
+/// The header of probes.csv: time, then per probe its pressure and velocity components.
+fn probes_header<const D: usize>(sim: &Simulation<D>) -> String {
+    let mut head = String::from("time");
+    let axes = ["vx", "vy", "vz"];
+    for p in &sim.deck.output.probes {
+        head += &format!(",{}_pressure", p.name);
+        for a in &axes[..D] {
+            head += &format!(",{}_{a}", p.name);
+        }
+    }
+    head
+}
+
+/// A new CSV file at `path` holding only `header`.
+fn fresh(path: &Path, header: &str) -> Result<BufWriter<File>, Error> {
+    let mut w = create(path)?;
+    writeln!(w, "{header}").map_err(|e| Error::io(path, e))?;
+    Ok(w)
+}
+
+/// Rewrites the CSV file at `path` with its header and the rows `keep` accepts (by their first
+/// field), and opens it for appending; a missing file is created with `header`.
+fn reopen(
+    path: &Path,
+    header: &str,
+    keep: impl Fn(&str) -> bool,
+) -> Result<BufWriter<File>, Error> {
+    let old = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
+        Err(e) => return Err(Error::io(path, e)),
+    };
+    let mut w = create(path)?;
+    let r = (|| {
+        writeln!(w, "{header}")?;
+        for line in old.lines().skip(1) {
+            if keep(line.split(',').next().unwrap_or("")) {
+                writeln!(w, "{line}")?;
+            }
+        }
+        w.flush()
+    })();
+    r.map_err(|e| Error::io(path, e))?;
+    Ok(w)
+}
+
 impl OutputWriter {
     /// Creates the directory and the files that grow during the run (series.csv, probes.csv),
     /// and writes run.toml.
@@ -38,28 +88,11 @@ impl OutputWriter {
         std::fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
         let run_toml = dir.join("run.toml");
         std::fs::write(&run_toml, sim.deck.to_run_toml()).map_err(|e| Error::io(&run_toml, e))?;
-        let series_path = dir.join("series.csv");
-        let mut series = create(&series_path)?;
-        writeln!(
-            series,
-            "frame,time,step,dt,kinetic_energy,max_speed,pressure_iterations,wall_seconds"
-        )
-        .map_err(|e| Error::io(&series_path, e))?;
+        let series = fresh(&dir.join("series.csv"), SERIES_HEADER)?;
         let probes = if sim.deck.output.probes.is_empty() {
             None
         } else {
-            let path = dir.join("probes.csv");
-            let mut w = create(&path)?;
-            let mut head = String::from("time");
-            let axes = ["vx", "vy", "vz"];
-            for p in &sim.deck.output.probes {
-                head += &format!(",{}_pressure", p.name);
-                for a in &axes[..D] {
-                    head += &format!(",{}_{a}", p.name);
-                }
-            }
-            writeln!(w, "{head}").map_err(|e| Error::io(&path, e))?;
-            Some(w)
+            Some(fresh(&dir.join("probes.csv"), &probes_header(sim))?)
         };
         let formats = &sim.deck.output.formats;
         Ok(Self {
@@ -70,6 +103,44 @@ impl OutputWriter {
             series,
             probes,
             frames: 0,
+        })
+    }
+
+    /// Reopens the output of a run resumed from a checkpoint: series.csv keeps the rows of the
+    /// frames written before the checkpoint, probes.csv the rows before its time (later rows,
+    /// from the stretch of the run after the checkpoint, are dropped: the resumed run writes them
+    /// again), and frames go on from the checkpoint's frame count.
+    pub fn resume<const D: usize>(
+        dir: &Path,
+        sim: &Simulation<D>,
+        driver: &crate::checkpoint::DriverState,
+    ) -> Result<Self, Error> {
+        let frames_dir = dir.join("frames");
+        std::fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
+        let run_toml = dir.join("run.toml");
+        std::fs::write(&run_toml, sim.deck.to_run_toml()).map_err(|e| Error::io(&run_toml, e))?;
+        let frames = driver.frames;
+        let series = reopen(&dir.join("series.csv"), SERIES_HEADER, |f| {
+            f.parse::<usize>().is_ok_and(|k| k < frames)
+        })?;
+        // rows are stamped with the time at the start of their step, printed as {:.9e}
+        let t: f64 = format!("{:.9e}", sim.time).parse().expect("a number");
+        let probes = if sim.deck.output.probes.is_empty() {
+            None
+        } else {
+            Some(reopen(&dir.join("probes.csv"), &probes_header(sim), |f| {
+                f.parse::<f64>().is_ok_and(|s| s < t)
+            })?)
+        };
+        let formats = &sim.deck.output.formats;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            csv: formats.contains(&Format::Csv),
+            vtk: formats.contains(&Format::Vtk),
+            pvd: driver.pvd.clone(),
+            series,
+            probes,
+            frames,
         })
     }
 

@@ -1,22 +1,40 @@
 //! The run driver: time-step control, frames and probes, and what happens when a run fails.
 
+use crate::checkpoint::{self, DriverState};
 use crate::deck::{Deck, Preconditioner, Scheme, Solver};
 use crate::error::Error;
 use crate::output::OutputWriter;
 use crate::scheme::Simulation;
 use crate::timing::Phase;
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 /// How a run is asked for from the command line.
 #[derive(Debug, Clone, Default)]
 pub struct RunOptions {
-    /// No progress lines.
+    /// No progress bar or lines.
     pub quiet: bool,
     /// Write into a directory that holds an earlier run.
     pub force: bool,
     /// Stop after this many steps (benchmarks), as if the end time were reached.
     pub max_steps: Option<u64>,
+    /// Go on from this checkpoint instead of starting from the deck's initial state.
+    pub resume: Option<std::path::PathBuf>,
+}
+
+/// Set by SIGINT / SIGTERM: the run finishes its step, writes a frame and a checkpoint, and
+/// stops.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// Makes SIGINT (Ctrl-C) and SIGTERM stop a run cleanly at the end of its current step instead
+/// of killing it. A second signal while the first is being handled kills the process.
+pub fn catch_interrupts() {
+    let _ = ctrlc::set_handler(|| {
+        if INTERRUPTED.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+    });
 }
 
 /// What a finished run reports.
@@ -42,7 +60,7 @@ pub struct RunSummary {
 
 /// Runs a validated deck into `dir`, generic over the dimension.
 pub fn run(deck: &Deck, file: &str, dir: &Path, opts: &RunOptions) -> Result<RunSummary, Error> {
-    if dir.join("series.csv").exists() && !opts.force {
+    if dir.join("series.csv").exists() && !opts.force && opts.resume.is_none() {
         return Err(Error::Usage(format!(
             "{}: the output directory holds an earlier run (series.csv); pass --force to overwrite it or --output to write elsewhere",
             dir.display()
@@ -76,15 +94,47 @@ fn run_dim<const D: usize>(
 ) -> Result<RunSummary, Error> {
     let start = Instant::now();
     let mut sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
-    let mut out = OutputWriter::new(dir, &sim)?;
     let end = deck.simulation.end_time;
     let interval = deck.output.interval.expect("validated: interval filled in");
+    // checkpoints at every frame unless the deck says otherwise: one file, overwritten, and
+    // small next to the frames
+    let checkpoint_interval = deck.output.checkpoint_interval.unwrap_or(interval);
     // times are compared with a tolerance far below any step, so that frame k lands at k interval
     let eps = 1e-9 * interval.min(end);
-    let mut last_dt = 0.0;
+    let checkpoint_path = dir.join("checkpoint.bin");
+    let (mut out, mut driver) = match &opts.resume {
+        None => {
+            let out = OutputWriter::new(dir, &sim)?;
+            let driver = DriverState {
+                next_frame: 0.0,
+                next_checkpoint: checkpoint_interval,
+                frames: 0,
+                pvd: Vec::new(),
+                iterations: (0, 0),
+            };
+            (out, driver)
+        }
+        Some(path) => {
+            let driver = checkpoint::read(path, &mut sim)?;
+            if sim.time >= end - eps {
+                return Err(Error::Usage(format!(
+                    "{}: the checkpoint is at t = {} s, at or past simulation.end_time = {end} s \
+                     in {file}: raise end_time to go on",
+                    path.display(),
+                    sim.time
+                )));
+            }
+            let out = OutputWriter::resume(dir, &sim, &driver)?;
+            (out, driver)
+        }
+    };
     if !opts.quiet {
+        let from = match &opts.resume {
+            Some(p) => format!(" from {} (t = {} s)", p.display(), sim.time),
+            None => String::new(),
+        };
         eprintln!(
-            "pmpm: {}D {:?} run of {}: {} particles, {} grid nodes, to t = {end} s",
+            "pmpm: {}D {:?} run of {}{from}: {} particles, {} grid nodes, to t = {end} s",
             D,
             deck.simulation.scheme,
             file,
@@ -95,14 +145,19 @@ fn run_dim<const D: usize>(
     for w in warnings(deck) {
         eprintln!("warning: {file}: {w}");
     }
-    out.frame(&sim, 0.0, 0.0)?;
-    let mut next_frame = interval;
-    let (mut iterations, mut max_iterations) = (0u64, 0usize);
+    if opts.resume.is_none() {
+        out.frame(&sim, 0.0, 0.0)?;
+        driver.next_frame = interval;
+    }
+    let progress = Progress::new(opts.quiet, sim.time, sim.steps, end);
+    let mut last_dt = 0.0;
+    let mut last_checkpoint: Option<f64> = None;
     sim.timers.lap(Phase::Other);
     let result = loop {
         if sim.time >= end - eps || opts.max_steps.is_some_and(|n| sim.steps >= n) {
             break Ok(());
         }
+        let next_frame = driver.next_frame;
         let mut dt = match (deck.simulation.dt, deck.simulation.cfl) {
             (Some(dt), _) => dt,
             (None, Some(cfl)) => {
@@ -131,25 +186,35 @@ fn run_dim<const D: usize>(
         }
         let t0 = sim.time;
         let stepped = sim.step(dt);
-        iterations += sim.pressure_iterations as u64;
-        max_iterations = max_iterations.max(sim.pressure_iterations);
+        let (iters, max_iters) = &mut driver.iterations;
+        *iters += sim.pressure_iterations as u64;
+        *max_iters = (*max_iters).max(sim.pressure_iterations);
         sim.timers.lap(Phase::Other);
         if let Err(e) = out.probe_row(t0, &sim) {
             break Err(e);
         }
         if let Err(e) = stepped {
-            break Err(e.with_file(file));
+            progress.clear();
+            let resume = resume_command(file, &checkpoint_path, dir, deck);
+            break Err(blow_up_hint(
+                e.with_file(file),
+                last_checkpoint,
+                &resume,
+                file,
+            ));
         }
         last_dt = dt;
+        let interrupted = INTERRUPTED.load(Ordering::SeqCst);
         let last = opts.max_steps.is_some_and(|n| sim.steps >= n);
-        if sim.time >= next_frame - eps || sim.time >= end - eps || last {
+        let at_end = sim.time >= end - eps;
+        if sim.time >= next_frame - eps || at_end || last || interrupted {
             if let Err(e) = out.frame(&sim, dt, start.elapsed().as_secs_f64()) {
                 break Err(e);
             }
-            while next_frame <= sim.time + eps {
-                next_frame += interval;
+            while driver.next_frame <= sim.time + eps {
+                driver.next_frame += interval;
             }
-            if !opts.quiet {
+            if !opts.quiet && !progress.is_bar() {
                 eprintln!(
                     "frame {:>5}  t = {:.5} s  step {:>8}  dt = {:.3e} s  max |v| = {:.4} m/s  wall {:.1} s",
                     out.frames - 1,
@@ -161,8 +226,32 @@ fn run_dim<const D: usize>(
                 );
             }
         }
+        let checkpoint_due = sim.time >= driver.next_checkpoint - eps;
+        if checkpoint_due || at_end || interrupted {
+            while driver.next_checkpoint <= sim.time + eps {
+                driver.next_checkpoint += checkpoint_interval;
+            }
+            driver.frames = out.frames;
+            driver.pvd.clone_from(&out.pvd);
+            if let Err(e) = checkpoint::write(&checkpoint_path, &sim, &driver) {
+                break Err(e);
+            }
+            last_checkpoint = Some(sim.time);
+        }
         sim.timers.lap(Phase::Output);
+        progress.update(&sim, start.elapsed().as_secs_f64());
+        if interrupted {
+            progress.clear();
+            break Err(Error::Interrupted(format!(
+                "interrupted at step {}, t = {:.6} s; the frame and a checkpoint are written. \
+                 To go on: {}",
+                sim.steps,
+                sim.time,
+                resume_command(file, &checkpoint_path, dir, deck)
+            )));
+        }
     };
+    progress.clear();
     if result.is_ok() {
         // the final state's probe row
         sim.particles_to_grid();
@@ -178,7 +267,7 @@ fn run_dim<const D: usize>(
         wall_seconds: start.elapsed().as_secs_f64(),
         time: sim.time,
         timers: sim.timers.clone(),
-        pressure_iterations: (iterations, max_iterations),
+        pressure_iterations: driver.iterations,
         peak_memory: peak_memory(),
     };
     if !opts.quiet {
@@ -191,6 +280,92 @@ fn run_dim<const D: usize>(
         );
     }
     Ok(summary)
+}
+
+/// The command that resumes this run from its checkpoint.
+fn resume_command(file: &str, checkpoint: &Path, dir: &Path, deck: &Deck) -> String {
+    let output = if dir != Path::new(&deck.output.directory) {
+        format!(" --output {}", dir.display())
+    } else {
+        String::new()
+    };
+    format!("pmpm run {file} --resume {}{output}", checkpoint.display())
+}
+
+/// Adds to a blow-up message where the last good state is and how to go on from it.
+fn blow_up_hint(e: Error, checkpoint: Option<f64>, resume: &str, file: &str) -> Error {
+    match (e, checkpoint) {
+        (Error::BlowUp(m), Some(t)) => Error::BlowUp(format!(
+            "{m}. Every frame is kept, and the last checkpoint, at t = {t:.6} s: to go on from \
+             it with a smaller step, lower simulation.cfl (or dt) in {file} and run {resume}"
+        )),
+        (Error::BlowUp(m), None) => Error::BlowUp(format!(
+            "{m}. Every frame is kept; no checkpoint was written yet (the first is at the first \
+             frame or output.checkpoint_interval)"
+        )),
+        (e, _) => e,
+    }
+}
+
+/// The progress display: an indicatif bar on a terminal (simulated time of end time, steps per
+/// second, the last step's pressure iterations, time left), nothing otherwise (the driver
+/// prints one line per frame instead).
+struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+    /// Steps taken before this process started (a resumed run), for the step rate.
+    start_steps: u64,
+    end: f64,
+}
+
+/// Bar resolution: the bar's length in ticks.
+const TICKS: u64 = 10_000;
+
+impl Progress {
+    fn new(quiet: bool, time: f64, start_steps: u64, end: f64) -> Self {
+        use std::io::IsTerminal;
+        let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
+            let bar = indicatif::ProgressBar::new(TICKS);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{bar:30} {percent:>3}%  {msg}  [{elapsed_precise} elapsed, {eta} left]",
+                )
+                .expect("a valid template"),
+            );
+            bar.set_position((TICKS as f64 * time / end) as u64);
+            bar.reset_eta();
+            bar
+        });
+        Self {
+            bar,
+            start_steps,
+            end,
+        }
+    }
+
+    fn is_bar(&self) -> bool {
+        self.bar.is_some()
+    }
+
+    fn update<const D: usize>(&self, sim: &Simulation<D>, wall: f64) {
+        let Some(bar) = &self.bar else { return };
+        bar.set_position((TICKS as f64 * sim.time / self.end).min(TICKS as f64) as u64);
+        let rate = (sim.steps - self.start_steps) as f64 / wall.max(1e-9);
+        let iters = if sim.scheme == Scheme::Projection {
+            format!(", {} pressure iterations", sim.pressure_iterations)
+        } else {
+            String::new()
+        };
+        bar.set_message(format!(
+            "t = {:.4} / {} s, step {}, {rate:.1} steps/s{iters}",
+            sim.time, self.end, sim.steps
+        ));
+    }
+
+    fn clear(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
 }
 
 /// The table `pmpm bench` prints: per phase seconds, ms per step and share of the wall time;

@@ -261,6 +261,16 @@ impl<const D: usize> Simulation<D> {
         self.check_particles()
     }
 
+    /// The body force at each particle, where it varies in space or time.
+    pub fn body_force_values(&self) -> Option<&[Vector<D>]> {
+        self.body_force.as_ref().map(|(_, f)| &f[..])
+    }
+
+    /// The same, to restore it from a checkpoint.
+    pub fn body_force_values_mut(&mut self) -> Option<&mut Vec<Vector<D>>> {
+        self.body_force.as_mut().map(|(_, f)| f)
+    }
+
     /// Reorders the particles and every per-particle array of the step by cell (a stable
     /// counting sort, so the order depends only on the positions, not on the threads).
     pub fn sort_particles(&mut self) {
@@ -387,7 +397,8 @@ impl<const D: usize> Simulation<D> {
         };
         let what = if x.iter().chain(v.iter()).all(|c| c.is_finite()) {
             format!(
-                "particle {p} left the grid [{}, {}] at x = {}, v = {} m/s",
+                "particle {} left the grid [{}, {}] at x = {}, v = {} m/s",
+                self.particles.id[p],
                 fmt(&geo.origin),
                 fmt(&geo.upper()),
                 fmt(&x),
@@ -395,7 +406,8 @@ impl<const D: usize> Simulation<D> {
             )
         } else {
             format!(
-                "particle {p} has a non-finite state (x = {}, v = {})",
+                "particle {} has a non-finite state (x = {}, v = {})",
+                self.particles.id[p],
                 fmt(&x),
                 fmt(&v)
             )
@@ -404,9 +416,14 @@ impl<const D: usize> Simulation<D> {
             "likely causes: a time step above the stability limit, an \"open\" face material can \
              flow through, or a body pushed out by its initial velocity",
         );
-        if let (Scheme::Explicit, Some(dt)) = (self.scheme, self.deck.simulation.dt) {
+        if let Some(dt) = self.deck.simulation.dt {
+            let limit = match self.scheme {
+                Scheme::Explicit => "h / max(|v| + c)",
+                Scheme::Projection => "h / max |v|",
+            };
             cause = format!(
-                "{cause}; the fixed dt = {dt:.3e} s against the limit now h / max(|v| + c) = {:.3e} s",
+                "{cause}; the fixed dt = {dt:.3e} s against the limit now {limit} = {:.3e} s \
+                 (or give simulation.cfl instead of dt)",
                 self.stable_dt(1.0)
             );
         }

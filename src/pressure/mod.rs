@@ -135,6 +135,16 @@ impl<const D: usize> Projection<D> {
         }
     }
 
+    /// V_p / rho_p per particle (for checkpoints).
+    pub fn volume_over_density(&self) -> &[f64] {
+        &self.volume_over_density
+    }
+
+    /// Restores V_p / rho_p per particle from a checkpoint.
+    pub fn restore_volume_over_density(&mut self, v: Vec<f64>) {
+        self.volume_over_density = v;
+    }
+
     /// Follows a reordering of the particles ([`Particles::permute`]): the arrays that live
     /// from step to step move with them (the others are refilled every step).
     pub fn permute_particles(

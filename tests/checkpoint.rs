@@ -1,0 +1,241 @@
+//! Checkpoint and restart: a run stopped half-way and resumed writes the same frames, bit for
+//! bit, as the run that never stopped; Ctrl-C stops cleanly with a checkpoint; a checkpoint
+//! from another deck or a damaged file is refused with a clear message.
+
+mod common;
+
+use common::{pmpm, scratch_dir, SMALL_2D};
+use std::path::Path;
+use std::process::Command;
+
+fn write_deck(dir: &Path, name: &str, text: &str) -> String {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path.to_str().unwrap().to_string()
+}
+
+fn run_ok(args: &[&str]) {
+    let o = pmpm(args);
+    assert!(
+        o.status.success(),
+        "pmpm {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// The first line of stderr, with the `error: ` prefix, and the exit status.
+fn failure(args: &[&str]) -> (i32, String) {
+    let o = pmpm(args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("error: "))
+        .unwrap_or("")
+        .to_string();
+    (o.status.code().unwrap_or(-1), line)
+}
+
+/// Every file of `a/frames` is in `b/frames` with the same bytes.
+fn same_frames(a: &Path, b: &Path) -> usize {
+    let mut n = 0;
+    for e in std::fs::read_dir(a.join("frames")).unwrap() {
+        let p = e.unwrap().path();
+        let other = b.join("frames").join(p.file_name().unwrap());
+        assert!(
+            std::fs::read(&p).unwrap() == std::fs::read(&other).unwrap(),
+            "{} differs",
+            p.display()
+        );
+        n += 1;
+    }
+    n
+}
+
+/// Stopped at t = 0.02 s (a frame time, with a checkpoint at the end) and resumed to 0.05 s
+/// with end_time raised, as a user would, the run writes every frame (CSV and VTU) and every
+/// probe row exactly as the run straight to 0.05 s, for both schemes, on 2 threads.
+#[test]
+fn a_resumed_run_writes_the_frames_of_the_uninterrupted_run() {
+    for scheme in ["explicit", "projection"] {
+        let dir = scratch_dir(&format!("resume-{scheme}"));
+        let full = SMALL_2D.replace("\"explicit\"", &format!("\"{scheme}\""));
+        let half = full.replace("end_time = 0.05", "end_time = 0.02");
+        let full_deck = write_deck(&dir, "full.toml", &full);
+        let half_deck = write_deck(&dir, "half.toml", &half);
+        let (a, b) = (dir.join("a"), dir.join("b"));
+        let (a, b) = (a.to_str().unwrap(), b.to_str().unwrap());
+        run_ok(&["--threads", "2", "run", &full_deck, "-o", a, "-q"]);
+        run_ok(&["--threads", "2", "run", &half_deck, "-o", b, "-q"]);
+        let checkpoint = format!("{b}/checkpoint.bin");
+        run_ok(&[
+            "--threads",
+            "2",
+            "run",
+            &full_deck,
+            "-o",
+            b,
+            "-q",
+            "--resume",
+            &checkpoint,
+        ]);
+        let n = same_frames(Path::new(a), Path::new(b));
+        assert_eq!(n, 12, "{scheme}: 6 frames in CSV and VTU");
+        for file in ["probes.csv", "particles.pvd"] {
+            assert_eq!(
+                std::fs::read_to_string(Path::new(a).join(file)).unwrap(),
+                std::fs::read_to_string(Path::new(b).join(file)).unwrap(),
+                "{scheme}: {file}"
+            );
+        }
+        // series.csv: the same rows but for the wall-clock column
+        let rows = |d: &str| -> Vec<String> {
+            std::fs::read_to_string(Path::new(d).join("series.csv"))
+                .unwrap()
+                .lines()
+                .map(|l| l.rsplit_once(',').unwrap().0.to_string())
+                .collect()
+        };
+        assert_eq!(rows(a), rows(b), "{scheme}: series.csv");
+    }
+}
+
+/// A checkpoint is refused, with exit status 2 and a message that says why, when the deck
+/// differs in a key that matters, when the file is damaged or cut short, when it is not a
+/// checkpoint, and when the run it holds is already at the deck's end time.
+#[test]
+fn bad_checkpoints_are_refused_with_a_reason() {
+    let dir = scratch_dir("resume-refused");
+    let deck = write_deck(&dir, "deck.toml", SMALL_2D);
+    let half = write_deck(
+        &dir,
+        "half.toml",
+        &SMALL_2D.replace("end_time = 0.05", "end_time = 0.02"),
+    );
+    let other = write_deck(
+        &dir,
+        "other.toml",
+        &SMALL_2D.replace("density = 1000.0", "density = 1020.0"),
+    );
+    let out = dir.join("out");
+    let out = out.to_str().unwrap();
+    run_ok(&["run", &half, "-o", out, "-q"]);
+    let good = format!("{out}/checkpoint.bin");
+    let bytes = std::fs::read(&good).unwrap();
+    let damaged = dir.join("damaged.bin");
+    let mut d = bytes.clone();
+    d[bytes.len() / 2] ^= 1;
+    std::fs::write(&damaged, &d).unwrap();
+    let cut = dir.join("cut.bin");
+    std::fs::write(&cut, &bytes[..bytes.len() - 100]).unwrap();
+    let (damaged, cut) = (damaged.to_str().unwrap(), cut.to_str().unwrap());
+    let cases = [
+        (
+            other.as_str(),
+            good.as_str(),
+            format!(
+                "error: {good}: cannot resume from this file: it was written with a different \
+                 deck: materials[0].density was 1000.0, the deck has 1020.0 (only \
+                 simulation.end_time, simulation.dt, simulation.cfl, simulation.max_dt, \
+                 output.directory, output.interval, output.formats, output.checkpoint_interval \
+                 may change on resume)"
+            ),
+        ),
+        (
+            deck.as_str(),
+            damaged,
+            format!(
+                "error: {damaged}: cannot resume from this file: it is damaged (checksum mismatch)"
+            ),
+        ),
+        (
+            deck.as_str(),
+            cut,
+            format!(
+                "error: {cut}: cannot resume from this file: it is truncated or damaged ({} bytes \
+                 of state, {} expected)",
+                bytes.len() - 124,
+                bytes.len() - 24
+            ),
+        ),
+        (
+            deck.as_str(),
+            deck.as_str(),
+            format!("error: {deck}: cannot resume from this file: it is not a pmpm checkpoint"),
+        ),
+        (
+            half.as_str(),
+            good.as_str(),
+            format!(
+                "error: {good}: the checkpoint is at t = 0.02 s, at or past simulation.end_time \
+                 = 0.02 s in {half}: raise end_time to go on"
+            ),
+        ),
+    ];
+    for (deck, file, message) in cases {
+        let (status, line) = failure(&["run", deck, "-o", out, "-q", "--resume", file]);
+        assert_eq!(status, 2, "{line}");
+        assert_eq!(line, message);
+    }
+}
+
+/// SIGINT (Ctrl-C) stops the run at the end of a step with exit status 130, a frame and a
+/// checkpoint, and a message with the command that goes on; going on reaches the same last
+/// state as the run that was never stopped (the interrupted run wrote one frame more, at the
+/// time it stopped, so the frame numbers after it are one higher).
+#[test]
+fn ctrl_c_stops_cleanly_and_the_run_goes_on_from_there() {
+    let dir = scratch_dir("interrupt");
+    // a closed tank, fixed small step: long enough (about 15,000 steps) to be interrupted
+    let text = SMALL_2D
+        .replace("\"explicit\"", "\"projection\"")
+        .replace("transfer = \"apic\"", "transfer = \"flip\"")
+        .replace("y_max = \"open\"", "y_max = \"slip\"")
+        .replace("cfl = 0.4", "dt = 2.0e-4")
+        .replace("end_time = 0.05", "end_time = 1.0")
+        .replace("interval = 0.01", "interval = 0.1")
+        .replace("cell_size = 0.02", "cell_size = 0.01");
+    let deck = write_deck(&dir, "deck.toml", &text);
+    let (a, b) = (dir.join("a"), dir.join("b"));
+    let (a_s, b_s) = (a.to_str().unwrap(), b.to_str().unwrap());
+    run_ok(&["--threads", "2", "run", &deck, "-o", a_s, "-q"]);
+    let child = Command::new(env!("CARGO_BIN_EXE_pmpm"))
+        .args(["--threads", "2", "run", &deck, "-o", b_s, "-q"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // once frame 1 is written the handler is installed and the run is under way
+    while !b.join("frames/particles_000001.csv").exists() {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let killed = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    let checkpoint = format!("{b_s}/checkpoint.bin");
+    assert!(
+        err.contains(&format!(
+            "the frame and a checkpoint are written. To go on: pmpm run {deck} --resume \
+             {checkpoint} --output {b_s}"
+        )),
+        "{err}"
+    );
+    run_ok(&[
+        "--threads",
+        "2",
+        "run",
+        &deck,
+        "-o",
+        b_s,
+        "-q",
+        "--resume",
+        &checkpoint,
+    ]);
+    let last_a = std::fs::read(a.join("frames/particles_000010.csv")).unwrap();
+    let last_b = std::fs::read(b.join("frames/particles_000011.csv")).unwrap();
+    assert!(last_a == last_b, "the last states differ");
+    assert!(!b.join("frames/particles_000012.csv").exists());
+}
