@@ -30,6 +30,7 @@ pub mod grid;
 pub mod material;
 pub mod output;
 pub mod particles;
+pub mod plot;
 pub mod pressure;
 pub mod run;
 pub mod scheme;

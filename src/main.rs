@@ -83,6 +83,38 @@ enum Command {
         #[arg(long = "case", num_args = 1..)]
         case: Vec<String>,
     },
+    /// Draw a run's output directory as PNG pictures: a frame's particles coloured by a field
+    /// (default: the last frame, into OUTDIR/plot_<field>_NNNNNN.png), every frame (--all), or
+    /// the time series and probes (--series, into OUTDIR/plot_series.png). Needs the CSV frames
+    /// ("csv" in [output].formats).
+    Plot {
+        /// The output directory of a run.
+        outdir: PathBuf,
+        /// Frame number [default: the last frame].
+        #[arg(long, conflicts_with_all = ["all", "series"])]
+        frame: Option<usize>,
+        /// Colour the particles by this field.
+        #[arg(long, default_value = "pressure", value_parser = ["pressure", "speed", "material"])]
+        field: String,
+        /// Output PNG file (with --all: a directory) [default: in OUTDIR].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// One PNG per frame (for a movie), with one colour range over all frames.
+        #[arg(long, conflicts_with = "series")]
+        all: bool,
+        /// Plot series.csv (kinetic energy, max speed, pressure iterations, dt) and the probes.
+        #[arg(long)]
+        series: bool,
+        /// 3D runs: the plane the particles are projected onto.
+        #[arg(long, default_value = "xy", value_parser = ["xy", "xz", "yz"])]
+        plane: String,
+        /// Lower end of the colour range [default: the data's].
+        #[arg(long, allow_negative_numbers = true)]
+        min: Option<f64>,
+        /// Upper end of the colour range [default: the data's].
+        #[arg(long, allow_negative_numbers = true)]
+        max: Option<f64>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -201,6 +233,32 @@ fn execute(cmd: Command) -> Result<usize, Error> {
                 cases: case,
             })?;
             Ok(if strict { failed } else { 0 })
+        }
+        Command::Plot {
+            outdir,
+            frame,
+            field,
+            out,
+            all,
+            series,
+            plane,
+            min,
+            max,
+        } => {
+            let opts = pmpm::plot::PlotOptions {
+                frame,
+                field: pmpm::plot::Field::from_name(&field),
+                out,
+                all,
+                series,
+                plane: pmpm::plot::Plane::from_name(&plane).unwrap_or_default(),
+                min,
+                max,
+            };
+            for png in pmpm::plot::plot(&outdir, &opts)? {
+                println!("wrote {}", png.display());
+            }
+            Ok(0)
         }
     }
 }

@@ -11,7 +11,8 @@ static FONT: &[u8] = include_bytes!(concat!(
     "/validation/assets/DejaVuSans.ttf"
 ));
 
-fn register() {
+/// Registers the embedded font as "sans-serif" (once; also used by `pmpm plot`).
+pub(crate) fn register() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         // the font is a valid TTF compiled in; a failure would show as missing text only
@@ -120,8 +121,8 @@ pub mod colors {
     pub const ORANGE: RGBColor = RGBColor(255, 127, 14);
 }
 
-/// Tick labels: short, scientific when small or large.
-fn tick(v: &f64) -> String {
+/// Tick labels: short, scientific when small or large (also used by `pmpm plot`).
+pub(crate) fn tick(v: &f64) -> String {
     let a = v.abs();
     if a < 1e-12 {
         // round-off at a tick meant to be zero
@@ -235,6 +236,10 @@ fn draw(
                     .legend(move |(x, y)| Circle::new((x + 11, y), 4, c.filled()));
             }
         }
+    }
+    if p.series.iter().all(|s| s.label.is_empty()) {
+        // nothing to name (`pmpm plot`'s one-series panels)
+        return Ok(());
     }
     let pos = match (p.legend_left, p.legend_low) {
         (false, false) => SeriesLabelPosition::UpperRight,

@@ -1,0 +1,1263 @@
+//! `pmpm plot`: PNG pictures of a run's output directory.
+//!
+//! * a frame (`frames/particles_NNNNNN.csv`): every particle as a small filled square, twice the
+//!   particle's own size (volume^(1/D)) across and clipped to the grid, so that a body of water
+//!   looks like a continuum even where the particles have lined up with gaps between the lines;
+//!   coloured by pressure, speed or material, with a colour bar (a legend for materials), axes
+//!   in metres at equal scale, and the frame's time (from `series.csv`) in the title. A 3D run is
+//!   shown as a projection onto a coordinate plane, the particles nearest the viewer on top;
+//! * the time series (`series.csv`: kinetic energy, largest speed, pressure iterations, time
+//!   step) and, when `probes.csv` has rows, the probes' pressure and speed, as panels of one PNG.
+//!
+//! The domain drawn is the background grid of `run.toml` (the particles' extent when it cannot be
+//! read), so that every frame of a run is drawn at the same place and scale.
+
+use crate::error::Error;
+use crate::validation::plot::{self as vplot, colors, Panel, Series};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// What colours the particles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Field {
+    /// Pressure (Pa, positive in compression).
+    Pressure,
+    /// Speed |v| (m/s).
+    Speed,
+    /// Material index, named from `run.toml`.
+    Material,
+}
+
+impl Field {
+    /// The field of a command-line name (`pressure`, `speed`, `material`).
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "pressure" => Some(Field::Pressure),
+            "speed" => Some(Field::Speed),
+            "material" => Some(Field::Material),
+            _ => None,
+        }
+    }
+
+    /// The name used on the command line and in file names.
+    pub fn name(self) -> &'static str {
+        match self {
+            Field::Pressure => "pressure",
+            Field::Speed => "speed",
+            Field::Material => "material",
+        }
+    }
+
+    fn label(self) -> &'static str {
+        match self {
+            Field::Pressure => "pressure (Pa)",
+            Field::Speed => "speed (m/s)",
+            Field::Material => "material",
+        }
+    }
+}
+
+/// The coordinate plane a 3D run is projected onto (2D runs ignore it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Plane {
+    /// x to the right, y up, seen from +z.
+    #[default]
+    Xy,
+    /// x to the right, z up, seen from -y.
+    Xz,
+    /// y to the right, z up, seen from +x.
+    Yz,
+}
+
+impl Plane {
+    /// The plane of a command-line name (`xy`, `xz`, `yz`).
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "xy" => Some(Plane::Xy),
+            "xz" => Some(Plane::Xz),
+            "yz" => Some(Plane::Yz),
+            _ => None,
+        }
+    }
+
+    /// (horizontal axis, vertical axis, depth axis, depth grows towards the viewer).
+    fn axes(self) -> (usize, usize, usize, bool) {
+        match self {
+            Plane::Xy => (0, 1, 2, true),
+            Plane::Xz => (0, 2, 1, false),
+            Plane::Yz => (1, 2, 0, true),
+        }
+    }
+
+    fn describe(self) -> &'static str {
+        match self {
+            Plane::Xy => {
+                "3D run: projection onto the x-y plane, seen from +z (top particles in front)"
+            }
+            Plane::Xz => {
+                "3D run: projection onto the x-z plane, seen from -y (front particles in front)"
+            }
+            Plane::Yz => {
+                "3D run: projection onto the y-z plane, seen from +x (front particles in front)"
+            }
+        }
+    }
+}
+
+/// What `pmpm plot` draws.
+#[derive(Debug, Clone, Default)]
+pub struct PlotOptions {
+    /// Frame number (default: the last frame). Ignored with `all` or `series`.
+    pub frame: Option<usize>,
+    /// Colouring field (default: pressure).
+    pub field: Option<Field>,
+    /// Output file (a directory with `all`); default: inside the output directory.
+    pub out: Option<PathBuf>,
+    /// One PNG per frame with a colour range fixed over all frames.
+    pub all: bool,
+    /// Plot series.csv (and probes.csv) instead of a frame.
+    pub series: bool,
+    /// Projection plane of a 3D run.
+    pub plane: Plane,
+    /// Lower end of the colour range (default: the data's).
+    pub min: Option<f64>,
+    /// Upper end of the colour range (default: the data's).
+    pub max: Option<f64>,
+}
+
+/// Draws what `opts` asks for from the output directory `dir`; returns the PNG files written.
+///
+/// Errors a user can cause (no such directory, no CSV frames, a frame that does not exist, an
+/// unreadable CSV file) are [`Error::Usage`] (exit status 2); a PNG that cannot be written is
+/// [`Error::Io`].
+pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
+    if !dir.exists() {
+        return Err(Error::Usage(format!(
+            "{}: no such directory",
+            dir.display()
+        )));
+    }
+    if !dir.is_dir() {
+        return Err(Error::Usage(format!(
+            "{}: not a directory (give the output directory of a run)",
+            dir.display()
+        )));
+    }
+    for (name, v) in [("--min", opts.min), ("--max", opts.max)] {
+        if let Some(v) = v.filter(|v| !v.is_finite()) {
+            return Err(Error::Usage(format!(
+                "{name}: must be a finite number, got {v}"
+            )));
+        }
+    }
+    if let (Some(lo), Some(hi)) = (opts.min, opts.max) {
+        if lo >= hi {
+            return Err(Error::Usage(format!(
+                "--min ({lo}) must be below --max ({hi})"
+            )));
+        }
+    }
+    vplot::register();
+    if opts.series {
+        let out = opts
+            .out
+            .clone()
+            .unwrap_or_else(|| dir.join("plot_series.png"));
+        plot_series(dir, &out)?;
+        return Ok(vec![out]);
+    }
+    let field = opts.field.unwrap_or(Field::Pressure);
+    let frames = list_frames(dir)?;
+    let info = RunInfo::read(dir);
+    let times = read_times(dir);
+    let name = |n: usize| format!("plot_{}_{n:06}.png", field.name());
+    if opts.all {
+        let out_dir = opts.out.clone().unwrap_or_else(|| dir.to_path_buf());
+        std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
+        // first pass: the colour range and the extent over every frame
+        let stats = frames
+            .par_iter()
+            .map(|(_, path)| {
+                let f = Frame::read(path)?;
+                Ok((f.range(field), f.extent(opts.plane, 0.5)))
+            })
+            .collect::<Result<Vec<_>, Error>>()?;
+        let mut all = Stats::empty();
+        let mut extent = Extent::empty();
+        for (r, e) in &stats {
+            all = all.union(r);
+            extent = extent.union(e);
+        }
+        let range = color_range(field, &all, opts);
+        return frames
+            .par_iter()
+            .map(|(n, path)| {
+                let f = Frame::read(path)?;
+                let out = out_dir.join(name(*n));
+                let time = times.iter().find(|t| t.0 == *n).map(|t| t.1);
+                draw_frame(&f, *n, time, field, range, &info, extent, opts.plane, &out)?;
+                Ok(out)
+            })
+            .collect();
+    }
+    let (n, path) = match opts.frame {
+        None => frames.last().cloned().expect("list_frames returns frames"),
+        Some(n) => match frames.iter().find(|f| f.0 == n) {
+            Some(f) => f.clone(),
+            None => {
+                return Err(Error::Usage(format!(
+                    "{}: no frame {n}; the run has frames {} to {}",
+                    dir.display(),
+                    frames[0].0,
+                    frames[frames.len() - 1].0
+                )))
+            }
+        },
+    };
+    let f = Frame::read(&path)?;
+    let range = color_range(field, &f.range(field), opts);
+    let out = opts.out.clone().unwrap_or_else(|| dir.join(name(n)));
+    let time = times.iter().find(|t| t.0 == n).map(|t| t.1);
+    let extent = f.extent(opts.plane, 0.5);
+    draw_frame(&f, n, time, field, range, &info, extent, opts.plane, &out)?;
+    Ok(vec![out])
+}
+
+/// The CSV frames of `dir`, (number, path) in order; a usage error when there are none.
+fn list_frames(dir: &Path) -> Result<Vec<(usize, PathBuf)>, Error> {
+    let frames_dir = dir.join("frames");
+    let mut csv = Vec::new();
+    let mut vtu = 0usize;
+    if let Ok(entries) = std::fs::read_dir(&frames_dir) {
+        for e in entries.flatten() {
+            let file = e.file_name();
+            let Some(file) = file.to_str() else { continue };
+            let Some(rest) = file.strip_prefix("particles_") else {
+                continue;
+            };
+            if let Some(num) = rest.strip_suffix(".csv") {
+                if let Ok(n) = num.parse::<usize>() {
+                    csv.push((n, e.path()));
+                }
+            } else if rest.ends_with(".vtu") {
+                vtu += 1;
+            }
+        }
+    }
+    if csv.is_empty() {
+        return Err(Error::Usage(if vtu > 0 {
+            format!(
+                "{}: the run wrote VTK frames only; add \"csv\" to [output].formats in the deck \
+                 and run it again to plot it",
+                dir.display()
+            )
+        } else {
+            format!(
+                "{}: no frames (frames/particles_NNNNNN.csv); is it the output directory of a run?",
+                dir.display()
+            )
+        }));
+    }
+    csv.sort();
+    Ok(csv)
+}
+
+/// What `run.toml` tells about the run (each part optional: the plot works without it).
+#[derive(Debug, Default)]
+struct RunInfo {
+    /// Grid origin and size.
+    grid: Option<(Vec<f64>, Vec<f64>)>,
+    /// Material names, by index.
+    materials: Vec<String>,
+    /// 2 or 3.
+    dim: Option<usize>,
+}
+
+impl RunInfo {
+    fn read(dir: &Path) -> Self {
+        let Ok(text) = std::fs::read_to_string(dir.join("run.toml")) else {
+            return Self::default();
+        };
+        let Ok(t) = text.parse::<toml::Table>() else {
+            return Self::default();
+        };
+        let floats = |v: Option<&toml::Value>| -> Option<Vec<f64>> {
+            v?.as_array()?
+                .iter()
+                .map(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64)))
+                .collect()
+        };
+        let grid = t.get("grid").and_then(|g| {
+            let size = floats(g.get("size"))?;
+            let origin = floats(g.get("origin")).unwrap_or_else(|| vec![0.0; size.len()]);
+            (origin.len() == size.len()).then_some((origin, size))
+        });
+        let materials = t
+            .get("materials")
+            .and_then(|m| m.as_array())
+            .map(|m| {
+                m.iter()
+                    .enumerate()
+                    .map(|(i, m)| {
+                        m.get("name")
+                            .and_then(|n| n.as_str())
+                            .map_or_else(|| format!("material {i}"), str::to_string)
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        let dim = t
+            .get("simulation")
+            .and_then(|s| s.get("dimension"))
+            .and_then(|d| d.as_integer())
+            .map(|d| d as usize)
+            .or_else(|| grid.as_ref().map(|g| g.0.len()));
+        Self {
+            grid,
+            materials,
+            dim,
+        }
+    }
+}
+
+/// (frame, time) of each row of series.csv; empty when it cannot be read.
+fn read_times(dir: &Path) -> Vec<(usize, f64)> {
+    let Ok(t) = Table::read(&dir.join("series.csv")) else {
+        return Vec::new();
+    };
+    let (Some(f), Some(time)) = (t.column("frame"), t.column("time")) else {
+        return Vec::new();
+    };
+    f.iter().zip(time).map(|(&f, t)| (f as usize, t)).collect()
+}
+
+/// A CSV file of numbers with a header line.
+struct Table {
+    header: Vec<String>,
+    rows: Vec<Vec<f64>>,
+}
+
+impl Table {
+    fn read(path: &Path) -> Result<Self, Error> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let mut lines = text.lines();
+        let header: Vec<String> = lines
+            .next()
+            .unwrap_or("")
+            .split(',')
+            .map(|s| s.trim().to_string())
+            .collect();
+        let mut rows = Vec::new();
+        for (i, line) in lines.enumerate() {
+            if line.trim().is_empty() {
+                continue;
+            }
+            let row = line
+                .split(',')
+                .map(|s| s.trim().parse::<f64>())
+                .collect::<Result<Vec<f64>, _>>()
+                .ok()
+                .filter(|r| r.len() == header.len());
+            match row {
+                Some(r) => rows.push(r),
+                None => {
+                    return Err(Error::Usage(format!(
+                        "{}: line {}: expected {} numbers ({})",
+                        path.display(),
+                        i + 2,
+                        header.len(),
+                        header.join(",")
+                    )))
+                }
+            }
+        }
+        Ok(Self { header, rows })
+    }
+
+    fn index(&self, name: &str) -> Option<usize> {
+        self.header.iter().position(|h| h == name)
+    }
+
+    fn column(&self, name: &str) -> Option<Vec<f64>> {
+        let i = self.index(name)?;
+        Some(self.rows.iter().map(|r| r[i]).collect())
+    }
+}
+
+/// The particles of one frame.
+struct Frame {
+    /// 2 or 3.
+    dim: usize,
+    /// Positions (z = 0 in 2D).
+    x: Vec<[f64; 3]>,
+    pressure: Vec<f64>,
+    speed: Vec<f64>,
+    /// Particle size: volume^(1/D).
+    size: Vec<f64>,
+    material: Vec<usize>,
+}
+
+impl Frame {
+    fn read(path: &Path) -> Result<Self, Error> {
+        let t = Table::read(path)?;
+        let dim = if t.index("z").is_some() { 3 } else { 2 };
+        let need = |name: &str| {
+            t.index(name).ok_or_else(|| {
+                Error::Usage(format!(
+                    "{}: no column \"{name}\" in the header (a pmpm frame has \
+                     id,x,y,vx,vy,pressure,mass,volume,material)",
+                    path.display()
+                ))
+            })
+        };
+        let xs = ["x", "y", "z"];
+        let vs = ["vx", "vy", "vz"];
+        let xi: Vec<usize> = xs[..dim]
+            .iter()
+            .map(|a| need(a))
+            .collect::<Result<_, _>>()?;
+        let vi: Vec<usize> = vs[..dim]
+            .iter()
+            .map(|a| need(a))
+            .collect::<Result<_, _>>()?;
+        let (pi, voli, mi) = (need("pressure")?, need("volume")?, need("material")?);
+        let n = t.rows.len();
+        let mut f = Frame {
+            dim,
+            x: Vec::with_capacity(n),
+            pressure: Vec::with_capacity(n),
+            speed: Vec::with_capacity(n),
+            size: Vec::with_capacity(n),
+            material: Vec::with_capacity(n),
+        };
+        for r in &t.rows {
+            let mut x = [0.0; 3];
+            for (d, &i) in xi.iter().enumerate() {
+                x[d] = r[i];
+            }
+            f.x.push(x);
+            f.speed
+                .push(vi.iter().map(|&i| r[i] * r[i]).sum::<f64>().sqrt());
+            f.pressure.push(r[pi]);
+            f.size.push(r[voli].max(0.0).powf(1.0 / dim as f64));
+            f.material.push(r[mi].max(0.0) as usize);
+        }
+        Ok(f)
+    }
+
+    fn value(&self, field: Field, p: usize) -> f64 {
+        match field {
+            Field::Pressure => self.pressure[p],
+            Field::Speed => self.speed[p],
+            Field::Material => self.material[p] as f64,
+        }
+    }
+
+    /// The field's finite values: their extremes and the range to colour them over.
+    fn range(&self, field: Field) -> Stats {
+        let mut v: Vec<f64> = (0..self.x.len())
+            .map(|p| self.value(field, p))
+            .filter(|v| v.is_finite())
+            .collect();
+        Stats::of(&mut v)
+    }
+
+    /// The particles' extent in the plot's plane, each grown by `grow` times its size.
+    fn extent(&self, plane: Plane, grow: f64) -> Extent {
+        let (a, b) = self.axes(plane);
+        let mut e = Extent::empty();
+        for (x, s) in self.x.iter().zip(&self.size) {
+            let g = grow * s;
+            if x[a].is_finite() && x[b].is_finite() {
+                e.x = (e.x.0.min(x[a] - g), e.x.1.max(x[a] + g));
+                e.y = (e.y.0.min(x[b] - g), e.y.1.max(x[b] + g));
+            }
+        }
+        e
+    }
+
+    fn axes(&self, plane: Plane) -> (usize, usize) {
+        if self.dim == 2 {
+            (0, 1)
+        } else {
+            let (a, b, _, _) = plane.axes();
+            (a, b)
+        }
+    }
+}
+
+/// The extremes of a field's values, and the range its colours span: the extremes, or where a
+/// few values lie far outside the rest (a pressure spike at a wall impact), the 2% and 98%
+/// quantiles, so that one particle does not leave the rest in a single colour.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Stats {
+    min: f64,
+    max: f64,
+    lo: f64,
+    hi: f64,
+}
+
+impl Stats {
+    fn empty() -> Self {
+        Self {
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+            lo: f64::INFINITY,
+            hi: f64::NEG_INFINITY,
+        }
+    }
+
+    fn of(v: &mut [f64]) -> Self {
+        if v.is_empty() {
+            return Self::empty();
+        }
+        v.sort_unstable_by(f64::total_cmp);
+        let q = |f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+        let (min, max) = (v[0], v[v.len() - 1]);
+        let (q_lo, q_hi) = (q(0.02), q(0.98));
+        let bulk = q_hi - q_lo;
+        let lo = if q_lo - min > 0.5 * bulk { q_lo } else { min };
+        let hi = if max - q_hi > 0.5 * bulk { q_hi } else { max };
+        Self { min, max, lo, hi }
+    }
+
+    /// Both ranges over two sets of values (frames of a movie).
+    fn union(&self, o: &Stats) -> Stats {
+        Stats {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+            lo: self.lo.min(o.lo),
+            hi: self.hi.max(o.hi),
+        }
+    }
+}
+
+/// A rectangle in the plot's plane (m).
+#[derive(Debug, Clone, Copy)]
+struct Extent {
+    x: (f64, f64),
+    y: (f64, f64),
+}
+
+impl Extent {
+    fn empty() -> Self {
+        Self {
+            x: (f64::INFINITY, f64::NEG_INFINITY),
+            y: (f64::INFINITY, f64::NEG_INFINITY),
+        }
+    }
+
+    fn union(&self, o: &Extent) -> Extent {
+        Extent {
+            x: (self.x.0.min(o.x.0), self.x.1.max(o.x.1)),
+            y: (self.y.0.min(o.y.0), self.y.1.max(o.y.1)),
+        }
+    }
+
+    fn width(&self) -> f64 {
+        self.x.1 - self.x.0
+    }
+
+    fn height(&self) -> f64 {
+        self.y.1 - self.y.0
+    }
+
+    /// Non-empty, finite, at least a little wide and high.
+    fn sane(self) -> Extent {
+        let fix = |(lo, hi): (f64, f64)| {
+            if !(lo.is_finite() && hi.is_finite()) {
+                (0.0, 1.0)
+            } else if hi - lo <= 1e-12 * (1.0 + hi.abs()) {
+                (lo - 0.5, hi + 0.5)
+            } else {
+                (lo, hi)
+            }
+        };
+        let mut e = Extent {
+            x: fix(self.x),
+            y: fix(self.y),
+        };
+        // one side never below 1/20 of the other (a line of particles)
+        let (w, h) = (e.width(), e.height());
+        if h < w / 20.0 {
+            let c = 0.5 * (e.y.0 + e.y.1);
+            e.y = (c - w / 40.0, c + w / 40.0);
+        } else if w < h / 20.0 {
+            let c = 0.5 * (e.x.0 + e.x.1);
+            e.x = (c - h / 40.0, c + h / 40.0);
+        }
+        e
+    }
+}
+
+/// The colour range: the data's (from 0 for speed), overridden by --min / --max.
+fn color_range(field: Field, data: &Stats, opts: &PlotOptions) -> (f64, f64) {
+    let (mut lo, mut hi) = if data.lo.is_finite() {
+        (data.lo, data.hi)
+    } else {
+        (0.0, 1.0)
+    };
+    if field == Field::Speed {
+        lo = 0.0;
+    }
+    if field == Field::Material {
+        return (lo, hi);
+    }
+    lo = opts.min.unwrap_or(lo);
+    hi = opts.max.unwrap_or(hi);
+    if hi - lo <= 1e-12 * (lo.abs() + hi.abs()) || hi <= lo {
+        // a constant field (a run at rest): a range around it
+        let d = if lo.abs() > 0.0 { 0.1 * lo.abs() } else { 1.0 };
+        if opts.min.is_some() {
+            hi = lo + d;
+        } else if opts.max.is_some() {
+            lo = hi - d;
+        } else {
+            lo -= d;
+            hi += d;
+            if field == Field::Speed {
+                lo = 0.0;
+            }
+        }
+    }
+    (lo, hi)
+}
+
+/// Viridis (matplotlib), at nine points; `t` in [0, 1].
+fn viridis(t: f64) -> RGBColor {
+    const C: [(f64, f64, f64); 9] = [
+        (68.0, 1.0, 84.0),
+        (71.0, 45.0, 123.0),
+        (59.0, 82.0, 139.0),
+        (44.0, 114.0, 142.0),
+        (33.0, 145.0, 140.0),
+        (40.0, 174.0, 128.0),
+        (94.0, 201.0, 98.0),
+        (173.0, 220.0, 48.0),
+        (253.0, 231.0, 37.0),
+    ];
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let s = t * 8.0;
+    let i = (s.floor() as usize).min(7);
+    let f = s - i as f64;
+    let mix = |a: f64, b: f64| (a + f * (b - a)).round() as u8;
+    RGBColor(
+        mix(C[i].0, C[i + 1].0),
+        mix(C[i].1, C[i + 1].1),
+        mix(C[i].2, C[i + 1].2),
+    )
+}
+
+/// Colours of materials 0, 1, 2, ... (matplotlib's tab10).
+const MATERIAL_COLORS: [RGBColor; 10] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
+];
+
+/// Pixel sizes of the frame picture.
+const TITLE_H: u32 = 44;
+const TITLE_3D_H: u32 = 24;
+const MARGIN: u32 = 14;
+const Y_LABELS: u32 = 80;
+const X_LABELS: u32 = 56;
+const BAR_W: u32 = 126;
+const BAR_LABELS: u32 = 76;
+/// Particles are drawn this many times their own size: MPM particles line up and leave gaps
+/// of up to a particle spacing as the material stretches, which would read as dust.
+const SPLAT: f64 = 2.0;
+
+/// Image size (pixels) of a frame picture whose drawn domain is `w` x `h` metres: the plotting
+/// area is 1200 pixels wide (at most 800 high, at least 240: the range is widened then, the
+/// scale is the same on both axes), plus the title, the axes' labels and the colour bar.
+pub fn frame_image_size(w: f64, h: f64, three_d: bool) -> (u32, u32) {
+    let (pw, ph) = plot_area_size(w, h);
+    (
+        Y_LABELS + pw + 2 * MARGIN + BAR_W,
+        TITLE_H + if three_d { TITLE_3D_H } else { 0 } + ph + X_LABELS + 2 * MARGIN,
+    )
+}
+
+fn plot_area_size(w: f64, h: f64) -> (u32, u32) {
+    let ar = h / w;
+    let mut pw = 1200.0;
+    let mut ph = pw * ar;
+    if ph > 800.0 {
+        ph = 800.0;
+        pw = (ph / ar).max(400.0);
+    }
+    (pw.round() as u32, ph.clamp(240.0, 800.0).round() as u32)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn draw_frame(
+    f: &Frame,
+    n: usize,
+    time: Option<f64>,
+    field: Field,
+    range: (f64, f64),
+    info: &RunInfo,
+    particles: Extent,
+    plane: Plane,
+    out: &Path,
+) -> Result<(), Error> {
+    let (a, b) = f.axes(plane);
+    // the grid of run.toml (and the particles if some lie outside it), else the particles'
+    // extent (`particles`: over every frame of a movie)
+    let extent = match &info.grid {
+        Some((o, s)) if o.len() == f.dim => {
+            let grid = Extent {
+                x: (o[a], o[a] + s[a]),
+                y: (o[b], o[b] + s[b]),
+            };
+            grid.union(&f.extent(plane, 0.0))
+        }
+        _ => particles,
+    }
+    .sane();
+    let three_d = f.dim == 3;
+    let size = frame_image_size(extent.width(), extent.height(), three_d);
+    let err = |e: &dyn std::fmt::Display| Error::io(out, std::io::Error::other(e.to_string()));
+    let root = BitMapBackend::new(out, size).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let title_h = TITLE_H + if three_d { TITLE_3D_H } else { 0 };
+    let (title, body) = root.split_vertically(title_h);
+    let what = match field {
+        Field::Pressure => "Pressure",
+        Field::Speed => "Speed",
+        Field::Material => "Material",
+    };
+    let when = match time {
+        Some(t) => format!("t = {}", fmt_time(t)),
+        None => "time not in series.csv".to_string(),
+    };
+    let (tw, _) = title.dim_in_pixel();
+    title
+        .draw_text(
+            &format!("{what}, frame {n}, {when}"),
+            &("sans-serif", 24)
+                .into_text_style(&title)
+                .pos(Pos::new(HPos::Center, VPos::Center)),
+            (tw as i32 / 2, TITLE_H as i32 / 2 + 4),
+        )
+        .map_err(|e| err(&e))?;
+    if three_d {
+        title
+            .draw_text(
+                plane.describe(),
+                &("sans-serif", 16)
+                    .into_text_style(&title)
+                    .pos(Pos::new(HPos::Center, VPos::Center)),
+                (tw as i32 / 2, (TITLE_H + TITLE_3D_H / 2) as i32),
+            )
+            .map_err(|e| err(&e))?;
+    }
+    let (bw, _) = body.dim_in_pixel();
+    let (plot_area, bar_area) = body.split_horizontally(bw - BAR_W);
+    draw_particles(f, field, range, extent, a, b, plane, &plot_area).map_err(|e| err(&*e))?;
+    match field {
+        Field::Material => {
+            draw_legend(f, info, &bar_area).map_err(|e| err(&*e))?;
+        }
+        _ => draw_bar(field, range, &f.range(field), &bar_area).map_err(|e| err(&*e))?,
+    }
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
+}
+
+type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+type DrawResult = Result<(), Box<dyn std::error::Error>>;
+
+#[allow(clippy::too_many_arguments)]
+fn draw_particles(
+    f: &Frame,
+    field: Field,
+    range: (f64, f64),
+    extent: Extent,
+    a: usize,
+    b: usize,
+    plane: Plane,
+    area: &Area<'_>,
+) -> DrawResult {
+    let build = |x: (f64, f64), y: (f64, f64)| {
+        ChartBuilder::on(area)
+            .margin(MARGIN)
+            .x_label_area_size(X_LABELS)
+            .y_label_area_size(Y_LABELS)
+            .build_cartesian_2d(x.0..x.1, y.0..y.1)
+    };
+    // equal scale: widen the range on the side with room to spare, at the true pixel size
+    let (pw, ph) = build(extent.x, extent.y)?.plotting_area().dim_in_pixel();
+    let (pw, ph) = (pw.max(2) as f64 - 1.0, ph.max(2) as f64 - 1.0);
+    let ppm = (pw / extent.width()).min(ph / extent.height());
+    let grow = |(lo, hi): (f64, f64), pixels: f64| {
+        let pad = 0.5 * (pixels / ppm - (hi - lo));
+        (lo - pad, hi + pad)
+    };
+    let xr = grow(extent.x, pw);
+    let yr = grow(extent.y, ph);
+    let mut chart = build(xr, yr)?;
+    let axis = ["x (m)", "y (m)", "z (m)"];
+    chart
+        .configure_mesh()
+        .x_desc(axis[a])
+        .y_desc(axis[b])
+        .x_label_formatter(&vplot::tick)
+        .y_label_formatter(&vplot::tick)
+        .label_style(("sans-serif", 15))
+        .axis_desc_style(("sans-serif", 17))
+        .light_line_style(RGBColor(240, 240, 240))
+        .bold_line_style(RGBColor(218, 218, 218))
+        .draw()?;
+    // draw order: in 3D the particles nearest the viewer last
+    let mut order: Vec<usize> = (0..f.x.len()).collect();
+    if f.dim == 3 {
+        let (_, _, depth, towards) = plane.axes();
+        order.sort_by(|&p, &q| {
+            let (u, v) = (f.x[p][depth], f.x[q][depth]);
+            if towards {
+                u.total_cmp(&v)
+            } else {
+                v.total_cmp(&u)
+            }
+        });
+    }
+    let span = range.1 - range.0;
+    let color = |p: usize| -> RGBColor {
+        match field {
+            Field::Material => MATERIAL_COLORS[f.material[p] % MATERIAL_COLORS.len()],
+            _ => {
+                let v = f.value(field, p);
+                if v.is_finite() {
+                    viridis((v - range.0) / span)
+                } else {
+                    RGBColor(255, 0, 255)
+                }
+            }
+        }
+    };
+    // squares in pixels, clipped to the drawn domain: a particle drawn larger than itself at a
+    // wall does not spill over the wall (or the axes)
+    let (bx, by) = area.get_base_pixel();
+    let local = |c: (i32, i32)| (c.0 - bx, c.1 - by);
+    let (c0, c1) = (
+        local(chart.backend_coord(&(extent.x.0, extent.y.1))),
+        local(chart.backend_coord(&(extent.x.1, extent.y.0))),
+    );
+    for p in order {
+        let x = f.x[p];
+        if !(x[a].is_finite() && x[b].is_finite()) {
+            continue;
+        }
+        // side in pixels, rounded up so that neighbours touch
+        let s = (SPLAT * f.size[p] * ppm).ceil().clamp(2.0, 200.0) as i32;
+        let (cx, cy) = local(chart.backend_coord(&(x[a], x[b])));
+        let (x0, y0) = ((cx - s / 2).max(c0.0), (cy - s / 2).max(c0.1));
+        let (x1, y1) = ((cx - s / 2 + s).min(c1.0), (cy - s / 2 + s).min(c1.1));
+        if x0 < x1 && y0 < y1 {
+            area.draw(&Rectangle::new([(x0, y0), (x1, y1)], color(p).filled()))?;
+        }
+    }
+    // the drawn domain's border on top of the particles at the walls
+    chart.draw_series(std::iter::once(Rectangle::new(
+        [(extent.x.0, extent.y.0), (extent.x.1, extent.y.1)],
+        RGBColor(90, 90, 90).stroke_width(1),
+    )))?;
+    Ok(())
+}
+
+fn draw_bar(field: Field, range: (f64, f64), data: &Stats, area: &Area<'_>) -> DrawResult {
+    let mut chart = ChartBuilder::on(area)
+        .margin_top(MARGIN)
+        .margin_bottom(MARGIN)
+        .margin_left(8)
+        .margin_right(MARGIN)
+        .x_label_area_size(X_LABELS)
+        .right_y_label_area_size(BAR_LABELS)
+        .build_cartesian_2d(0.0..1.0, range.0..range.1)?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .disable_x_axis()
+        .set_tick_mark_size(LabelAreaPosition::Right, 6)
+        .y_desc(field.label())
+        .y_label_formatter(&vplot::tick)
+        .y_labels(8)
+        .label_style(("sans-serif", 15))
+        .axis_desc_style(("sans-serif", 17))
+        .draw()?;
+    let steps = 256;
+    let d = (range.1 - range.0) / steps as f64;
+    chart.draw_series((0..steps).map(|i| {
+        let lo = range.0 + i as f64 * d;
+        Rectangle::new(
+            [(0.0, lo), (1.0, lo + d * 1.01)],
+            viridis((i as f64 + 0.5) / steps as f64).filled(),
+        )
+    }))?;
+    chart.draw_series(std::iter::once(Rectangle::new(
+        [(0.0, range.0), (1.0, range.1)],
+        BLACK.stroke_width(1),
+    )))?;
+    // values beyond the range (drawn in the end colours): a triangle at that end of the bar
+    let (px, py) = chart.plotting_area().get_pixel_range();
+    let (bx, by) = area.get_base_pixel();
+    let (x0, x1) = (px.start - bx, px.end - 1 - bx);
+    let (top, bottom) = (py.start - by, py.end - 1 - by);
+    let xm = (x0 + x1) / 2;
+    let tri = (x1 - x0) / 2 + 2;
+    if data.max.is_finite() && data.max > range.1 {
+        area.draw(&Polygon::new(
+            vec![(x0, top - 1), (x1, top - 1), (xm, top - 1 - tri)],
+            viridis(1.0).filled(),
+        ))?;
+    }
+    if data.min.is_finite() && data.min < range.0 {
+        area.draw(&Polygon::new(
+            vec![(x0, bottom + 1), (x1, bottom + 1), (xm, bottom + 1 + tri)],
+            viridis(0.0).filled(),
+        ))?;
+    }
+    // the data's extremes under the bar
+    if data.min.is_finite() {
+        let style = ("sans-serif", 14).into_text_style(area);
+        let y = bottom + tri + 8;
+        area.draw_text(&format!("min {}", short(data.min)), &style, (x0, y))?;
+        area.draw_text(&format!("max {}", short(data.max)), &style, (x0, y + 17))?;
+    }
+    Ok(())
+}
+
+fn draw_legend(f: &Frame, info: &RunInfo, area: &Area<'_>) -> DrawResult {
+    let mut present: Vec<usize> = f.material.clone();
+    present.sort_unstable();
+    present.dedup();
+    let style = ("sans-serif", 16).into_text_style(area);
+    let x0 = 10;
+    let mut y = MARGIN as i32 + 6;
+    area.draw_text(
+        "material",
+        &("sans-serif", 17).into_text_style(area),
+        (x0, y),
+    )?;
+    y += 30;
+    for m in present {
+        let c = MATERIAL_COLORS[m % MATERIAL_COLORS.len()];
+        area.draw(&Rectangle::new([(x0, y), (x0 + 18, y + 18)], c.filled()))?;
+        let name = info
+            .materials
+            .get(m)
+            .cloned()
+            .unwrap_or_else(|| format!("material {m}"));
+        area.draw_text(&name, &style, (x0 + 26, y + 1))?;
+        y += 28;
+    }
+    Ok(())
+}
+
+/// A number to about three significant digits.
+fn short(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if !(1e-3..1e5).contains(&a) {
+        format!("{v:.2e}")
+    } else {
+        let decimals = (2 - a.log10().floor() as i32).max(0) as usize;
+        format!("{v:.decimals$}")
+    }
+}
+
+fn fmt_time(t: f64) -> String {
+    if t == 0.0 {
+        "0 s".into()
+    } else if (1e-3..1e4).contains(&t.abs()) {
+        format!("{t:.4} s")
+    } else {
+        format!("{t:.3e} s")
+    }
+}
+
+/// The series of a run, and its probes when probes.csv has rows, as panels of one PNG.
+fn plot_series(dir: &Path, out: &Path) -> Result<(), Error> {
+    let path = dir.join("series.csv");
+    if !path.is_file() {
+        return Err(Error::Usage(format!(
+            "{}: no series.csv; is it the output directory of a run?",
+            dir.display()
+        )));
+    }
+    let t = Table::read(&path)?;
+    let col = |name: &str| {
+        t.column(name).ok_or_else(|| {
+            Error::Usage(format!(
+                "{}: no column \"{name}\" in the header",
+                path.display()
+            ))
+        })
+    };
+    if t.rows.is_empty() {
+        return Err(Error::Usage(format!("{}: no rows", path.display())));
+    }
+    let time = col("time")?;
+    // frame 0 comes before any step: no time step, no pressure solve
+    let stepped: Vec<bool> = col("step")?.iter().map(|&s| s > 0.0).collect();
+    let per_m = if dimension(dir) == Some(2) {
+        " per m of thickness"
+    } else {
+        ""
+    };
+    let panel = |title: &str, y_label: &str, name: &str, color, scale: f64, all_rows: bool| {
+        let pts: Vec<(f64, f64)> = time
+            .iter()
+            .zip(col(name)?)
+            .zip(&stepped)
+            .filter(|(_, &s)| all_rows || s)
+            .map(|((&t, v), _)| (t, v * scale))
+            .collect();
+        // y from 0: none of these is negative, and a flat line stays readable
+        let hi = pts
+            .iter()
+            .map(|q| q.1)
+            .filter(|v| v.is_finite())
+            .fold(0.0, f64::max);
+        Ok::<_, Error>(Panel {
+            title: title.into(),
+            x_label: "time (s)".into(),
+            y_label: y_label.into(),
+            series: vec![line("", pts, color)],
+            x_range: Some(time_range(&time)),
+            y_range: Some((0.0, if hi > 0.0 { 1.05 * hi } else { 1.0 })),
+            ..Default::default()
+        })
+    };
+    let dt_max = col("dt")?.into_iter().fold(0.0, f64::max);
+    let (dt_unit, dt_scale) = if dt_max >= 0.1 {
+        ("s", 1.0)
+    } else if dt_max >= 1e-4 {
+        ("ms", 1e3)
+    } else {
+        ("\u{b5}s", 1e6)
+    };
+    let mut panels = vec![
+        panel(
+            "Kinetic energy",
+            &format!("kinetic energy (J{per_m})"),
+            "kinetic_energy",
+            colors::PROJ,
+            1.0,
+            true,
+        )?,
+        panel(
+            "Largest particle speed",
+            "max speed (m/s)",
+            "max_speed",
+            colors::EXPL,
+            1.0,
+            true,
+        )?,
+        panel(
+            "Pressure solver iterations (last step before each frame)",
+            "iterations",
+            "pressure_iterations",
+            colors::GREEN,
+            1.0,
+            false,
+        )?,
+        panel(
+            "Time step (last step before each frame)",
+            &format!("dt ({dt_unit})"),
+            "dt",
+            colors::ORANGE,
+            dt_scale,
+            false,
+        )?,
+    ];
+    panels.extend(probe_panels(dir)?);
+    vplot::save(out, &panels, 2, 640, 400).map_err(|e| Error::io(out, std::io::Error::other(e)))
+}
+
+/// The time axis: from the first to the last time (a little around a single time).
+fn time_range(t: &[f64]) -> (f64, f64) {
+    let lo = t.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = t.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !(lo.is_finite() && hi.is_finite()) {
+        (0.0, 1.0)
+    } else if hi - lo <= 1e-12 * (1.0 + hi.abs()) {
+        let d = 0.05 * (1.0 + hi.abs());
+        (lo - d, hi + d)
+    } else {
+        (lo, hi)
+    }
+}
+
+/// The run's dimension: from run.toml, else from the first frame's header.
+fn dimension(dir: &Path) -> Option<usize> {
+    if let Some(d) = RunInfo::read(dir).dim {
+        return Some(d);
+    }
+    let (_, path) = list_frames(dir).ok()?.into_iter().next()?;
+    let text = std::fs::read_to_string(path).ok()?;
+    let head = text.lines().next()?;
+    Some(if head.split(',').any(|c| c.trim() == "z") {
+        3
+    } else {
+        2
+    })
+}
+
+/// A line, or markers when there are too few points for a line.
+fn line(label: &str, pts: Vec<(f64, f64)>, color: RGBColor) -> Series {
+    if pts.len() < 3 {
+        Series::markers(label, pts, color)
+    } else {
+        Series::line(label, pts, color)
+    }
+}
+
+/// Pressure and speed of each probe against time; none without probes.csv or rows in it.
+fn probe_panels(dir: &Path) -> Result<Vec<Panel>, Error> {
+    let path = dir.join("probes.csv");
+    if !path.is_file() {
+        return Ok(Vec::new());
+    }
+    let t = Table::read(&path)?;
+    let Some(ti) = t.index("time") else {
+        return Ok(Vec::new());
+    };
+    if t.rows.is_empty() {
+        return Ok(Vec::new());
+    }
+    let names: Vec<&str> = t
+        .header
+        .iter()
+        .filter_map(|h| h.strip_suffix("_pressure"))
+        .collect();
+    if names.is_empty() {
+        return Ok(Vec::new());
+    }
+    let palette = [
+        colors::PROJ,
+        colors::EXPL,
+        colors::GREEN,
+        colors::ORANGE,
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        colors::REF,
+    ];
+    let mut pressure = Panel {
+        title: "Probe pressure".into(),
+        x_label: "time (s)".into(),
+        y_label: "pressure (Pa)".into(),
+        ..Default::default()
+    };
+    let mut speed = Panel {
+        title: "Probe speed".into(),
+        x_label: "time (s)".into(),
+        y_label: "speed (m/s)".into(),
+        ..Default::default()
+    };
+    for (k, name) in names.iter().enumerate() {
+        let c = palette[k % palette.len()];
+        let pi = t.index(&format!("{name}_pressure")).expect("found above");
+        let vi: Vec<usize> = ["vx", "vy", "vz"]
+            .iter()
+            .filter_map(|a| t.index(&format!("{name}_{a}")))
+            .collect();
+        pressure.series.push(thin(
+            name,
+            t.rows.iter().map(|r| (r[ti], r[pi])).collect(),
+            c,
+        ));
+        speed.series.push(thin(
+            name,
+            t.rows
+                .iter()
+                .map(|r| (r[ti], vi.iter().map(|&i| r[i] * r[i]).sum::<f64>().sqrt()))
+                .collect(),
+            c,
+        ));
+    }
+    let times: Vec<f64> = t.rows.iter().map(|r| r[ti]).collect();
+    pressure.x_range = Some(time_range(&times));
+    speed.x_range = pressure.x_range;
+    Ok(vec![pressure, speed])
+}
+
+/// A thin line (probes are sampled every step), or markers for very few points.
+fn thin(label: &str, pts: Vec<(f64, f64)>, color: RGBColor) -> Series {
+    if pts.len() < 3 {
+        Series::markers(label, pts, color)
+    } else {
+        Series::thin(label, pts, color)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn short_numbers() {
+        assert_eq!(short(2799.77), "2800");
+        assert_eq!(short(-20.3645), "-20.4");
+        assert_eq!(short(0.012345), "0.0123");
+        assert_eq!(short(2.2e9), "2.20e9");
+    }
+
+    #[test]
+    fn viridis_ends() {
+        assert_eq!(viridis(0.0), RGBColor(68, 1, 84));
+        assert_eq!(viridis(1.0), RGBColor(253, 231, 37));
+        assert_eq!(viridis(2.0), RGBColor(253, 231, 37));
+        assert_eq!(viridis(f64::NAN), RGBColor(68, 1, 84));
+    }
+
+    #[test]
+    fn constant_fields_get_a_range() {
+        let o = PlotOptions::default();
+        assert_eq!(
+            color_range(Field::Speed, &Stats::of(&mut [0.0]), &o),
+            (0.0, 1.0)
+        );
+        let (lo, hi) = color_range(Field::Pressure, &Stats::of(&mut [100.0, 100.0]), &o);
+        assert!(lo < 100.0 && hi > 100.0);
+        let s = Stats::of(&mut [0.2, 1.5]);
+        assert_eq!(color_range(Field::Speed, &s, &o), (0.0, 1.5));
+    }
+
+    #[test]
+    fn a_spike_does_not_set_the_range() {
+        // a column at rest: the range is the data's
+        let mut v: Vec<f64> = (0..1000).map(|i| i as f64).collect();
+        let s = Stats::of(&mut v);
+        assert_eq!((s.lo, s.hi), (0.0, 999.0));
+        // one particle at 100 times the rest: the range stops at the 98% quantile
+        v[3] = 1e5;
+        let s = Stats::of(&mut v);
+        assert_eq!((s.min, s.max), (0.0, 1e5));
+        assert!(s.hi < 1000.0);
+    }
+
+    #[test]
+    fn image_keeps_the_aspect() {
+        // a wide tank: the plotting area is 1200 x 480
+        assert_eq!(plot_area_size(0.4, 0.16), (1200, 480));
+        // a tall one: at most 800 high, narrower
+        assert_eq!(plot_area_size(0.2, 0.4), (400, 800));
+    }
+}
