@@ -510,16 +510,58 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         geo.h,
         geo.node_count()
     );
+    // particles per body (the bodies are filled in deck order, so body b's particles are a
+    // range of ids), and those of a later body that lie inside an earlier one
+    let per_body: Vec<usize> = (0..deck.bodies.len())
+        .map(|b| {
+            let mut one = deck.clone();
+            one.bodies = vec![deck.bodies[b].clone()];
+            crate::particles::Particles::<D>::from_deck(&one, geo).len()
+        })
+        .collect();
+    let mut overlaps: Vec<(usize, usize, usize)> = Vec::new();
+    let mut first = 0;
+    for (b, &n) in per_body.iter().enumerate() {
+        let xs = &sim.particles.x[first..first + n];
+        for a in 0..b {
+            let inside = xs
+                .iter()
+                .filter(|x| deck.bodies[a].shape.contains(x.as_slice()))
+                .count();
+            if inside > 0 {
+                overlaps.push((a, b, inside));
+            }
+        }
+        first += n;
+    }
+    let mut warn = Vec::new();
     for (b, body) in deck.bodies.iter().enumerate() {
-        let n = sim
-            .particles
-            .x
-            .iter()
-            .filter(|x| body.shape.contains(x.as_slice()))
-            .count();
         out += &format!(
-            "  bodies[{b}]        {} particles of \"{}\"\n",
-            n, body.material
+            "  bodies[{b}]        {} particles of \"{}\" ({} per cell per direction)\n",
+            per_body[b], body.material, body.particles_per_cell
+        );
+        if body.particles_per_cell < 2 {
+            warn.push(format!(
+                "bodies[{b}].particles_per_cell = {}: fewer than 2 particles per cell per \
+                 direction leave cells empty as the material deforms (the pressure then \
+                 checkerboards and the free surface is found inside the water); use 2 or more",
+                body.particles_per_cell
+            ));
+        }
+    }
+    for (a, b, n) in overlaps {
+        warn.push(format!(
+            "bodies[{a}] and bodies[{b}] overlap: {n} particles of bodies[{b}] lie inside \
+             bodies[{a}], which has its own there (more mass than the material's density)"
+        ));
+    }
+    for m in &deck.materials {
+        let k = m
+            .bulk_modulus
+            .map_or(String::new(), |k| format!(", bulk modulus {k:e} Pa"));
+        out += &format!(
+            "  material         \"{}\": {:?}, density {} kg/m3, viscosity {} Pa s{k}\n",
+            m.name, m.model, m.density, m.viscosity
         );
     }
     out += &format!("  particles        {}\n", sim.particles.len());
@@ -540,6 +582,69 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         (None, None) => unreachable!("validated: dt or cfl"),
     };
     out += &format!("  time step        {dt}\n");
+    // steps: the fixed dt, or for cfl the step at the speed of a free fall through the grid's
+    // height along gravity (the fastest a gravity-driven flow gets), plus the sound speed for
+    // the explicit scheme
+    let g = sim.settings.gravity;
+    let gnorm = g.norm();
+    let steps = match (s.dt, s.cfl) {
+        (Some(dt), _) => Some(s.end_time / dt),
+        (None, Some(cfl)) => {
+            let height = (0..D)
+                .map(|d| (g[d] / gnorm.max(1e-300)).abs() * geo.cells[d] as f64 * geo.h)
+                .sum::<f64>();
+            let c = deck
+                .materials
+                .iter()
+                .filter(|m| s.scheme == Scheme::Explicit && m.bulk_modulus.is_some())
+                .map(|m| m.sound_speed())
+                .fold(0.0, f64::max);
+            let speed = (2.0 * gnorm * height).sqrt() + c;
+            (speed > 0.0).then(|| s.end_time * speed / (cfl * geo.h))
+        }
+        (None, None) => None,
+    };
+    if let Some(n) = steps {
+        out += &format!(
+            "  steps            about {:.0} to t = {} s{}\n",
+            n.ceil(),
+            s.end_time,
+            if s.dt.is_none() {
+                " (at most: with cfl the step follows the flow)"
+            } else {
+                ""
+            }
+        );
+    }
+    if let (Some(dt), Scheme::Projection) = (s.dt, s.scheme) {
+        if gnorm > 0.0 && dt > (geo.h / gnorm).sqrt() {
+            warn.push(format!(
+                "simulation.dt = {dt} s is above sqrt(h / |g|) = {:.3e} s: a particle falling \
+                 from rest crosses more than a cell in a step; lower dt or use cfl",
+                (geo.h / gnorm).sqrt()
+            ));
+        }
+    }
+    // gravity pulling the material out of the grid through an open face
+    let faces = deck.grid.boundary.faces();
+    for d in 0..D {
+        if g[d] == 0.0 {
+            continue;
+        }
+        let face = 2 * d + usize::from(g[d] > 0.0);
+        let open = faces[face]
+            .as_ref()
+            .is_none_or(|f| f.kind() == crate::deck::BoundaryKind::Open);
+        if open {
+            warn.push(format!(
+                "grid.boundary.{} is open and gravity pulls the material towards it: particles \
+                 that fall out of the grid stop the run (exit status 3); make it a wall \
+                 (\"slip\" or \"no_slip\") unless the bodies rest on something",
+                crate::deck::FACE_NAMES[face]
+            ));
+        }
+    }
+
     if s.scheme == Scheme::Explicit {
         let limit = deck.explicit_dt_limit();
         out += &format!(
@@ -562,16 +667,65 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             p.volume_fraction_tolerance
         );
     }
+    let frames = (s.end_time / deck.output.interval.unwrap_or(s.end_time)).round() as usize + 1;
+    let n = sim.particles.len() as f64;
+    // bytes per particle: a CSV row (about 17 characters per number), the .vtu's raw arrays,
+    // the checkpoint's particle state
+    let csv = 17.0 * (2 * D + 5) as f64;
+    let vtu = 8.0 * 3.0 * 2.0 + 8.0 * 4.0 + 4.0 + 17.0;
+    let checkpoint = 8.0 * (2 * D + 5 + 4 * D * D) as f64 + 6.0;
+    let formats = &deck.output.formats;
+    let has = |f: crate::deck::Format| formats.contains(&f);
+    let per_frame = n
+        * (if has(crate::deck::Format::Csv) {
+            csv
+        } else {
+            0.0
+        } + if has(crate::deck::Format::Vtk) {
+            vtu
+        } else {
+            0.0
+        });
     out += &format!(
-        "  output           {} every {} s into {}\n",
-        deck.output
-            .formats
+        "  output           {} every {} s into {}: {frames} frames of about {}, {} in all, \
+         and a checkpoint of {}\n",
+        formats
             .iter()
             .map(|f| format!("{f:?}").to_lowercase())
             .collect::<Vec<_>>()
             .join(", "),
         deck.output.interval.unwrap_or(0.0),
-        deck.output.directory
+        deck.output.directory,
+        bytes(per_frame),
+        bytes(per_frame * frames as f64),
+        bytes(n * checkpoint + 8.0 * geo.node_count() as f64)
     );
+    // memory: the per-particle and per-node figures of the largest runs in BENCHMARKS.md
+    // (peak resident size, projection scheme, multigrid), rounded up, and the program itself
+    // (about 8 MB with its threads)
+    let (per_particle, per_node) = if D == 2 {
+        (330.0, 420.0)
+    } else {
+        (580.0, 290.0)
+    };
+    out += &format!(
+        "  memory           about {} (8 MB, {per_particle} B per particle and {per_node} B \
+         per grid node, from the benchmarks)\n",
+        bytes(8e6 + n * per_particle + geo.node_count() as f64 * per_node)
+    );
+    for w in warn {
+        out += &format!("warning: {w}\n");
+    }
     Ok(out)
+}
+
+/// A byte count for people: kB, MB or GB.
+fn bytes(b: f64) -> String {
+    if b >= 1e9 {
+        format!("{:.1} GB", b / 1e9)
+    } else if b >= 1e6 {
+        format!("{:.1} MB", b / 1e6)
+    } else {
+        format!("{:.0} kB", (b / 1e3).ceil())
+    }
 }

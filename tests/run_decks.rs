@@ -352,3 +352,34 @@ fn bench_reports_every_phase_and_the_figures() {
     assert!((phases - field("wall_s")).abs() < 1e-3, "{bench}");
     assert!(!dir.join("out").exists());
 }
+
+/// `pmpm check` prints what the run will be (particles per body, materials, steps, output size,
+/// memory) and warns of what commonly goes wrong: too few particles per cell, overlapping
+/// bodies, an open face that gravity pulls the material through.
+#[test]
+fn check_summarises_the_run_and_warns() {
+    let dir = scratch_dir("check-warnings");
+    let deck = dir.join("deck.toml");
+    let text = SMALL_2D
+        .replace("y_min = \"no_slip\"", "y_min = \"open\"")
+        .replace("particles_per_cell = 2", "particles_per_cell = 1")
+        + "\n[[bodies]]\nmaterial = \"water\"\nshape = { type = \"box\", min = [0.05, 0.0], max = [0.15, 0.1] }\nparticles_per_cell = 2\n";
+    std::fs::write(&deck, text).unwrap();
+    let o = pmpm(&["check", deck.to_str().unwrap()]);
+    assert!(o.status.success());
+    let out = String::from_utf8_lossy(&o.stdout);
+    for line in [
+        "  bodies[0]        25 particles of \"water\" (1 per cell per direction)",
+        "  bodies[1]        100 particles of \"water\" (2 per cell per direction)",
+        "  material         \"water\": Newtonian, density 1000 kg/m3, viscosity 0.001 Pa s, bulk modulus 4e4 Pa",
+        "  particles        125",
+        "warning: bodies[0].particles_per_cell = 1: fewer than 2 particles per cell per direction",
+        "warning: bodies[0] and bodies[1] overlap: 50 particles of bodies[1] lie inside bodies[0]",
+        "warning: grid.boundary.y_min is open and gravity pulls the material towards it",
+    ] {
+        assert!(out.contains(line), "missing {line:?} in\n{out}");
+    }
+    assert!(out.contains("  steps            about "), "{out}");
+    assert!(out.contains("  memory           about "), "{out}");
+    assert!(out.contains(": 6 frames of about "), "{out}");
+}
