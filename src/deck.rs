@@ -624,7 +624,7 @@ pub struct OutputDeck {
     #[serde(default)]
     pub probes: Vec<ProbeDeck>,
     /// Simulated seconds between checkpoints (`checkpoint.bin` in the output directory,
-    /// overwritten each time; one is always written at the end). Default: none but the last.
+    /// overwritten each time; one is always written at the end). Default: the frame interval.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub checkpoint_interval: Option<f64>,
 }
