@@ -8,7 +8,12 @@ use std::process::ExitCode;
 
 /// pmpm: material point method for incompressible materials (water, mud, clay, rubber).
 #[derive(Parser)]
-#[command(version, about, long_about = None)]
+#[command(
+    version,
+    about,
+    long_about = None,
+    after_help = "Examples:\n  pmpm check examples/dam_break_2d.toml\n  pmpm run examples/dam_break_2d.toml\n  pmpm plot out/dam_break_2d --field speed\n  pmpm run examples/dam_break_2d.toml --resume out/dam_break_2d/checkpoint.bin\n\nExit status: 0 done, 1 a file could not be written, 2 a bad deck, argument or checkpoint,\n3 the run blew up, 4 validate --strict with a missed bound, 130 interrupted (Ctrl-C).\nThe deck keys: docs/deck.md."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -19,7 +24,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Run a deck: writes frames, series.csv, probes.csv and run.toml into the output directory.
+    /// Run a deck: frames, series.csv, probes.csv, run.toml and checkpoints in the output directory.
     ///
     /// On a terminal a progress bar shows the simulated time, steps per second, the last step's
     /// pressure iterations and the time left; elsewhere (a log file, CI) one line per frame.
@@ -43,8 +48,9 @@ enum Command {
         #[arg(long, value_name = "CHECKPOINT")]
         resume: Option<PathBuf>,
     },
-    /// Time a deck: runs it (to its end time, or --steps steps) and prints, per phase of the
-    /// step, seconds and milliseconds per step, then particle updates per second, pressure
+    /// Time a deck, phase by phase.
+    ///
+    /// Runs it (to its end time, or --steps steps) and prints, per phase of the step, seconds and milliseconds per step, then particle updates per second, pressure
     /// iterations and peak memory per particle. Frames go to a scratch directory that is
     /// removed afterwards, unless --output is given.
     Bench {
@@ -57,12 +63,17 @@ enum Command {
         #[arg(long, short)]
         output: Option<PathBuf>,
     },
-    /// Parse and validate a deck, and print a summary; runs nothing.
+    /// Validate a deck and print what it sets up, what it will cost, and warnings.
+    ///
+    /// Runs nothing: prints the grid, particles per body, materials, time step and estimated
+    /// steps, output and checkpoint sizes and memory, and warns of common mistakes.
     Check {
         /// The deck (TOML).
         deck: PathBuf,
     },
-    /// Run the validation suite (validation/decks) and write REPORT.md with plots. Exit status
+    /// Run the validation suite and write REPORT.md with plots.
+    ///
+    /// The cases are in validation/decks. Exit status
     /// 0 once the report is written, failed cases included (they are in the report); 4 with
     /// --strict when a case does not meet its bound.
     Validate {
@@ -83,7 +94,9 @@ enum Command {
         #[arg(long = "case", num_args = 1..)]
         case: Vec<String>,
     },
-    /// Draw a run's output directory as PNG pictures: a frame's particles coloured by a field
+    /// Draw a run's output as PNG pictures.
+    ///
+    /// A frame's particles coloured by a field
     /// (default: the last frame, into OUTDIR/plot_<field>_NNNNNN.png), every frame (--all), or
     /// the time series and probes (--series, into OUTDIR/plot_series.png). Needs the CSV frames
     /// ("csv" in [output].formats).
