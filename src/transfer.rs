@@ -2,8 +2,8 @@
 //!
 //! P2G is parallel and deterministic: the particles are cut into one contiguous range per rayon
 //! thread, each range scatters into its own node buffer (over the band of nodes it reaches),
-//! and the buffers are summed node by node in a fixed order. No float atomics, so a given thread count gives bitwise the same
-//! result on every run. The buffers are allocated once and reused every step.
+//! and the buffers are summed node by node in a fixed order. No float atomics, so a given
+//! thread count gives bitwise the same result on every run. The buffers are reused every step.
 
 use crate::deck::{ShapeFunction, Transfer};
 use crate::grid::{Grid, GridGeometry, Vector};
