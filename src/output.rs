@@ -47,6 +47,14 @@ fn probes_header<const D: usize>(sim: &Simulation<D>) -> String {
     head
 }
 
+/// The frames directory and run.toml (the deck as run).
+fn prepare<const D: usize>(dir: &Path, sim: &Simulation<D>) -> Result<(), Error> {
+    let frames_dir = dir.join("frames");
+    std::fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
+    let run_toml = dir.join("run.toml");
+    std::fs::write(&run_toml, sim.deck.to_run_toml()).map_err(|e| Error::io(&run_toml, e))
+}
+
 /// A new CSV file at `path` holding only `header`.
 fn fresh(path: &Path, header: &str) -> Result<BufWriter<File>, Error> {
     let mut w = create(path)?;
@@ -84,26 +92,35 @@ impl OutputWriter {
     /// Creates the directory and the files that grow during the run (series.csv, probes.csv),
     /// and writes run.toml.
     pub fn new<const D: usize>(dir: &Path, sim: &Simulation<D>) -> Result<Self, Error> {
-        let frames_dir = dir.join("frames");
-        std::fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
-        let run_toml = dir.join("run.toml");
-        std::fs::write(&run_toml, sim.deck.to_run_toml()).map_err(|e| Error::io(&run_toml, e))?;
+        prepare(dir, sim)?;
         let series = fresh(&dir.join("series.csv"), SERIES_HEADER)?;
         let probes = if sim.deck.output.probes.is_empty() {
             None
         } else {
             Some(fresh(&dir.join("probes.csv"), &probes_header(sim))?)
         };
+        Ok(Self::with(dir, sim, series, probes, Vec::new(), 0))
+    }
+
+    /// The writer over files already opened.
+    fn with<const D: usize>(
+        dir: &Path,
+        sim: &Simulation<D>,
+        series: BufWriter<File>,
+        probes: Option<BufWriter<File>>,
+        pvd: Vec<(f64, String)>,
+        frames: usize,
+    ) -> Self {
         let formats = &sim.deck.output.formats;
-        Ok(Self {
+        Self {
             dir: dir.to_path_buf(),
             csv: formats.contains(&Format::Csv),
             vtk: formats.contains(&Format::Vtk),
-            pvd: Vec::new(),
+            pvd,
             series,
             probes,
-            frames: 0,
-        })
+            frames,
+        }
     }
 
     /// Reopens the output of a run resumed from a checkpoint: series.csv keeps the rows of the
@@ -115,10 +132,7 @@ impl OutputWriter {
         sim: &Simulation<D>,
         driver: &crate::checkpoint::DriverState,
     ) -> Result<Self, Error> {
-        let frames_dir = dir.join("frames");
-        std::fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
-        let run_toml = dir.join("run.toml");
-        std::fs::write(&run_toml, sim.deck.to_run_toml()).map_err(|e| Error::io(&run_toml, e))?;
+        prepare(dir, sim)?;
         let frames = driver.frames;
         let series = reopen(&dir.join("series.csv"), SERIES_HEADER, |f| {
             f.parse::<usize>().is_ok_and(|k| k < frames)
@@ -132,16 +146,14 @@ impl OutputWriter {
                 f.parse::<f64>().is_ok_and(|s| s < t)
             })?)
         };
-        let formats = &sim.deck.output.formats;
-        Ok(Self {
-            dir: dir.to_path_buf(),
-            csv: formats.contains(&Format::Csv),
-            vtk: formats.contains(&Format::Vtk),
-            pvd: driver.pvd.clone(),
+        Ok(Self::with(
+            dir,
+            sim,
             series,
             probes,
+            driver.pvd.clone(),
             frames,
-        })
+        ))
     }
 
     /// Appends one row of probe samples (taken at time `time`).
@@ -226,7 +238,6 @@ fn write_csv<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
     }
     // rows in id order, wherever the last sort put each particle
     for (id, &p) in ps.places().iter().enumerate() {
-        let p = p as usize;
         write!(w, "{id}")?;
         for c in ps.x[p].iter().chain(ps.v[p].iter()) {
             write!(w, ",{c:.9e}")?;
@@ -259,7 +270,7 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
     let ps = &sim.particles;
     let n = ps.len();
     // points in id order, wherever the last sort put each particle
-    let at: Vec<usize> = ps.places().into_iter().map(|p| p as usize).collect();
+    let at = ps.places();
     // ParaView wants 3-component points and vectors: pad 2D with z = 0.
     let pad3 = |v: &crate::grid::Vector<D>| -> [f64; 3] {
         std::array::from_fn(|d| if d < D { v[d] } else { 0.0 })

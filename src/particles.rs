@@ -58,21 +58,17 @@ impl<const D: usize> Particles<D> {
     }
 
     /// Places of the particles in id order: `places()[k]` is where particle `k` is stored.
-    pub fn places(&self) -> Vec<u32> {
-        let mut at = vec![0u32; self.len()];
+    pub fn places(&self) -> Vec<usize> {
+        let mut at = vec![0; self.len()];
         for (p, &id) in self.id.iter().enumerate() {
-            at[id as usize] = p as u32;
+            at[id as usize] = p;
         }
         at
     }
 
     /// A copy of a per-particle field in id order.
     pub fn by_id<T: Copy>(&self, field: &[T]) -> Vec<T> {
-        let mut out = field.to_vec();
-        for (p, &id) in self.id.iter().enumerate() {
-            out[id as usize] = field[p];
-        }
-        out
+        self.places().iter().map(|&p| field[p]).collect()
     }
 
     /// Reorders every array so that the particle at place `order[k]` moves to place k.
