@@ -463,6 +463,47 @@ pub enum Model {
     /// Newtonian fluid: tau = 2 mu dev D.
     #[default]
     Newtonian,
+    /// Bingham fluid (yield stress, plastic viscosity), Papanastasiou-regularised.
+    Bingham,
+    /// Herschel-Bulkley fluid (yield stress, consistency, flow index), Papanastasiou-regularised.
+    HerschelBulkley,
+    /// Incompressible neo-Hookean solid (shear modulus).
+    NeoHookeanIncompressible,
+    /// Undrained clay: elastic-perfectly plastic von Mises (shear modulus, c_u).
+    VonMises,
+}
+
+impl Model {
+    /// The deck's name of the model.
+    pub fn name(self) -> &'static str {
+        match self {
+            Model::Newtonian => "newtonian",
+            Model::Bingham => "bingham",
+            Model::HerschelBulkley => "herschel_bulkley",
+            Model::NeoHookeanIncompressible => "neo_hookean_incompressible",
+            Model::VonMises => "von_mises",
+        }
+    }
+
+    /// The model's own keys: (key, required).
+    pub fn keys(self) -> &'static [(&'static str, bool)] {
+        match self {
+            Model::Newtonian => &[("viscosity", false)],
+            Model::Bingham => &[
+                ("viscosity", true),
+                ("yield_stress", true),
+                ("papanastasiou_exponent", true),
+            ],
+            Model::HerschelBulkley => &[
+                ("consistency", true),
+                ("flow_index", true),
+                ("yield_stress", true),
+                ("papanastasiou_exponent", true),
+            ],
+            Model::NeoHookeanIncompressible => &[("shear_modulus", true), ("viscosity", false)],
+            Model::VonMises => &[("shear_modulus", true), ("undrained_shear_strength", true)],
+        }
+    }
 }
 
 /// `[[materials]]`
@@ -476,20 +517,138 @@ pub struct MaterialDeck {
     pub model: Model,
     /// Density (kg/m3).
     pub density: f64,
-    /// Dynamic viscosity (Pa s), default 0.
+    /// Dynamic viscosity (Pa s), default 0: the Newtonian viscosity, Bingham's plastic
+    /// viscosity, a neo-Hookean solid's damping.
     #[serde(default)]
     pub viscosity: f64,
     /// Bulk modulus (Pa) of the equation of state; required by `scheme = "explicit"`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub bulk_modulus: Option<f64>,
+    /// Yield stress tau_y (Pa): `bingham`, `herschel_bulkley`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub yield_stress: Option<f64>,
+    /// Papanastasiou exponent m (s): `bingham`, `herschel_bulkley`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub papanastasiou_exponent: Option<f64>,
+    /// Consistency K (Pa s^n): `herschel_bulkley`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub consistency: Option<f64>,
+    /// Flow index n: `herschel_bulkley`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flow_index: Option<f64>,
+    /// Shear modulus G (Pa): `neo_hookean_incompressible`, `von_mises`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shear_modulus: Option<f64>,
+    /// Undrained shear strength c_u (Pa): `von_mises`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub undrained_shear_strength: Option<f64>,
 }
 
 impl MaterialDeck {
-    /// Speed of sound sqrt(K / rho), 0 without a bulk modulus.
-    pub fn sound_speed(&self) -> f64 {
-        self.bulk_modulus
-            .map(|k| (k / self.density).sqrt())
-            .unwrap_or(0.0)
+    /// The model's keys against those given: each given key must be the model's, each required
+    /// one given, each value in range.
+    fn check_model_keys(&self, k: &str, c: &Check) -> Result<(), DeckError> {
+        let model = self.model;
+        let own = model.keys();
+        let list = || {
+            own.iter()
+                .map(|(key, required)| {
+                    format!("{key}{}", if *required { "" } else { " (optional)" })
+                })
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let given: [(&str, Option<f64>); 7] = [
+            (
+                "viscosity",
+                (self.viscosity != 0.0).then_some(self.viscosity),
+            ),
+            ("yield_stress", self.yield_stress),
+            ("papanastasiou_exponent", self.papanastasiou_exponent),
+            ("consistency", self.consistency),
+            ("flow_index", self.flow_index),
+            ("shear_modulus", self.shear_modulus),
+            ("undrained_shear_strength", self.undrained_shear_strength),
+        ];
+        for (key, value) in given {
+            let Some(v) = value else { continue };
+            if !own.iter().any(|(o, _)| *o == key) {
+                return Err(c.err(
+                    format!("{k}.{key}"),
+                    format!(
+                        "is not a key of model = \"{}\" (its keys: {})",
+                        model.name(),
+                        list()
+                    ),
+                ));
+            }
+            let key = format!("{k}.{key}");
+            match key.rsplit('.').next() {
+                Some("yield_stress") => c.non_negative(&key, v)?,
+                Some("viscosity") => c.non_negative(&key, v)?,
+                _ => c.positive(&key, v)?,
+            }
+        }
+        for (key, _) in own.iter().filter(|(_, required)| *required) {
+            if given.iter().any(|(g, v)| g == key && v.is_some()) {
+                continue;
+            }
+            let why = if *key == "viscosity" {
+                "must be > 0: it is the plastic viscosity of model = \"bingham\"".to_string()
+            } else {
+                format!(
+                    "is required by model = \"{}\" (its keys: {})",
+                    model.name(),
+                    list()
+                )
+            };
+            let hint = match *key {
+                "papanastasiou_exponent" => {
+                    "; it sets how rigid the unyielded material is (a creep viscosity of about \
+                     yield_stress * m) and so the time step: try m such that yield_stress * m \
+                     is 100 to 1000 times the viscosity"
+                }
+                _ => "",
+            };
+            return Err(c.err(format!("{k}.{key}"), format!("{why}{hint}")));
+        }
+        Ok(())
+    }
+
+    /// One line for `pmpm check`: name, model, density and the model's parameters.
+    pub fn describe(&self) -> String {
+        let mut out = format!(
+            "\"{}\": {}, density {} kg/m3",
+            self.name,
+            self.model.name(),
+            self.density
+        );
+        let values = [
+            ("viscosity", Some(self.viscosity), "Pa s"),
+            ("yield stress", self.yield_stress, "Pa"),
+            ("papanastasiou exponent", self.papanastasiou_exponent, "s"),
+            ("consistency", self.consistency, "Pa s^n"),
+            ("flow index", self.flow_index, ""),
+            ("shear modulus", self.shear_modulus, "Pa"),
+            (
+                "undrained shear strength",
+                self.undrained_shear_strength,
+                "Pa",
+            ),
+            ("bulk modulus", self.bulk_modulus, "Pa"),
+        ];
+        for (name, v, unit) in values {
+            let Some(v) = v else { continue };
+            let key = name.replace(' ', "_");
+            let used = key == "bulk_modulus" || self.model.keys().iter().any(|(k, _)| *k == key);
+            if used {
+                out += &format!(
+                    ", {name} {v:e}{}{unit}",
+                    if unit.is_empty() { "" } else { " " }
+                );
+            }
+        }
+        out
     }
 }
 
@@ -1245,6 +1404,7 @@ impl Deck {
             }
             c.positive(&format!("{k}.density"), m.density)?;
             c.non_negative(&format!("{k}.viscosity"), m.viscosity)?;
+            m.check_model_keys(&k, &c)?;
             match m.bulk_modulus {
                 Some(b) => c.positive(&format!("{k}.bulk_modulus"), b)?,
                 None if explicit => {
@@ -1407,16 +1567,35 @@ impl Deck {
             }
         }
 
-        if let (true, Some(dt)) = (explicit, self.simulation.dt) {
-            let limit = self.explicit_dt_limit();
-            if dt > limit {
+        if let Some(dt) = self.simulation.dt {
+            let (wave, viscous) = self.dt_limits();
+            if dt > wave {
                 return Err(c.err(
                     "simulation.dt",
                     format!(
-                        "{dt} s is above the explicit stability limit h / c = {limit:.3e} s \
-                         (h = {}, fastest sound speed c = {:.4} m/s); lower dt or use cfl",
+                        "{dt} s is above the explicit stability limit h / c = {wave:.3e} s \
+                         (h = {}, fastest {} c = {:.4} m/s); lower dt or use cfl",
                         self.grid.cell_size,
-                        self.max_sound_speed()
+                        if explicit {
+                            "sound speed"
+                        } else {
+                            "shear wave speed sqrt(G / rho)"
+                        },
+                        self.max_wave_speed()
+                    ),
+                ));
+            }
+            if dt > viscous.0 {
+                let m = &self.materials[viscous.1];
+                return Err(c.err(
+                    "simulation.dt",
+                    format!(
+                        "{dt} s is above the viscous stability limit h^2 rho / (2 D mu) = \
+                         {:.3e} s of material \"{}\" (largest viscosity mu = {:.4e} Pa s); \
+                         lower dt or use cfl",
+                        viscous.0,
+                        m.name,
+                        crate::material::MaterialParams::new(m).law_max_viscosity()
                     ),
                 ));
             }
@@ -1424,30 +1603,39 @@ impl Deck {
         Ok(())
     }
 
-    /// Largest sound speed sqrt(K / rho) over the materials used by bodies.
-    pub fn max_sound_speed(&self) -> f64 {
+    /// Largest wave speed the scheme integrates explicitly, over the materials: the sound
+    /// speed sqrt((K + 4 G / 3) / rho) with `explicit`, the shear wave sqrt(G / rho) with the
+    /// projection.
+    pub fn max_wave_speed(&self) -> f64 {
+        let explicit = self.simulation.scheme == Scheme::Explicit;
         self.materials
             .iter()
-            .map(MaterialDeck::sound_speed)
+            .map(|m| crate::material::MaterialParams::new(m).wave_speed(explicit))
             .fold(0.0, f64::max)
     }
 
-    /// Explicit scheme's step limit at rest, h / c (Courant number 1), with the viscous limit.
-    pub fn explicit_dt_limit(&self) -> f64 {
+    /// Step limits at rest: h / c (Courant number 1, c from [`Deck::max_wave_speed`]), and the
+    /// explicit viscous update's with the material that sets it.
+    pub fn dt_limits(&self) -> (f64, (f64, usize)) {
         let h = self.grid.cell_size;
-        let c = self.max_sound_speed();
-        let mut limit = if c > 0.0 { h / c } else { f64::INFINITY };
-        for m in &self.materials {
-            if m.viscosity > 0.0 {
-                limit = limit.min(viscous_dt_limit(
-                    h,
-                    m.density,
-                    m.viscosity,
-                    self.simulation.dimension,
-                ));
-            }
-        }
-        limit
+        let c = self.max_wave_speed();
+        let wave = if c > 0.0 { h / c } else { f64::INFINITY };
+        let viscous = self
+            .materials
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let p = crate::material::MaterialParams::new(m);
+                (p.viscous_dt_limit(h, self.simulation.dimension), i)
+            })
+            .fold((f64::INFINITY, 0), |a, b| if b.0 < a.0 { b } else { a });
+        (wave, viscous)
+    }
+
+    /// The smaller of [`Deck::dt_limits`].
+    pub fn dt_limit(&self) -> f64 {
+        let (wave, viscous) = self.dt_limits();
+        wave.min(viscous.0)
     }
 
     /// The deck as run, every default filled in, with the program's version.
@@ -1460,9 +1648,4 @@ impl Deck {
             toml::to_string_pretty(&deck).unwrap_or_else(|e| format!("# not written: {e}\n"));
         format!("# The deck as run by pmpm, every default filled in.\n{body}")
     }
-}
-
-/// Explicit viscous diffusion limit h^2 rho / (2 D mu) of a forward-Euler viscous update.
-pub fn viscous_dt_limit(h: f64, density: f64, viscosity: f64, dim: usize) -> f64 {
-    h * h * density / (2.0 * dim as f64 * viscosity)
 }

@@ -556,13 +556,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         ));
     }
     for m in &deck.materials {
-        let k = m
-            .bulk_modulus
-            .map_or(String::new(), |k| format!(", bulk modulus {k:e} Pa"));
-        out += &format!(
-            "  material         \"{}\": {:?}, density {} kg/m3, viscosity {} Pa s{k}\n",
-            m.name, m.model, m.density, m.viscosity
-        );
+        out += &format!("  material         {}\n", m.describe());
     }
     out += &format!("  particles        {}\n", sim.particles.len());
     out += &format!(
@@ -593,12 +587,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             let height = (0..D)
                 .map(|d| (g[d] / gnorm.max(1e-300)).abs() * geo.cells[d] as f64 * geo.h)
                 .sum::<f64>();
-            let c = deck
-                .materials
-                .iter()
-                .filter(|m| s.scheme == Scheme::Explicit && m.bulk_modulus.is_some())
-                .map(|m| m.sound_speed())
-                .fold(0.0, f64::max);
+            let c = deck.max_wave_speed();
             let speed = (2.0 * gnorm * height).sqrt() + c;
             (speed > 0.0).then(|| s.end_time * speed / (cfl * geo.h))
         }
@@ -645,11 +634,25 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         }
     }
 
-    if s.scheme == Scheme::Explicit {
-        let limit = deck.explicit_dt_limit();
+    let (wave, viscous) = deck.dt_limits();
+    if wave.is_finite() {
         out += &format!(
-            "  explicit limit   h / c = {limit:.3e} s: about {:.0} steps or more to t = {}\n",
-            s.end_time / (limit * s.cfl.unwrap_or(1.0)),
+            "  wave limit       h / c = {wave:.3e} s ({}): about {:.0} steps or more to t = {}\n",
+            if s.scheme == Scheme::Explicit {
+                "c the sound speed"
+            } else {
+                "c the shear wave speed"
+            },
+            s.end_time / (wave * s.cfl.unwrap_or(1.0)),
+            s.end_time
+        );
+    }
+    if viscous.0.is_finite() {
+        out += &format!(
+            "  viscous limit    h^2 rho / (2 D mu) = {:.3e} s (material \"{}\"): about {:.0} steps or more to t = {}\n",
+            viscous.0,
+            deck.materials[viscous.1].name,
+            s.end_time / viscous.0,
             s.end_time
         );
     }

@@ -335,8 +335,9 @@ impl<const D: usize> Simulation<D> {
         }
     }
 
-    /// Largest stable step now: cfl h / max(|v| + c) (explicit) or cfl h / max |v| (projection),
-    /// bounded by cfl sqrt(h / |g|), the viscous limit and `max_dt`.
+    /// Largest stable step now: cfl h / max(|v| + c), with c the sound speed (explicit) or a
+    /// solid's shear wave speed (projection, 0 for a fluid), bounded by cfl sqrt(h / |g|), the
+    /// viscous limit and `max_dt`.
     pub fn stable_dt(&self, cfl: f64) -> f64 {
         let explicit = self.scheme == Scheme::Explicit;
         let mats = &self.materials;
@@ -344,14 +345,7 @@ impl<const D: usize> Simulation<D> {
         let speed =
             ps.v.par_iter()
                 .zip(ps.material.par_iter())
-                .map(|(v, &m)| {
-                    let c = if explicit {
-                        mats[m as usize].sound_speed()
-                    } else {
-                        0.0
-                    };
-                    v.norm() + c
-                })
+                .map(|(v, &m)| v.norm() + mats[m as usize].wave_speed(explicit))
                 .reduce(|| 0.0, f64::max);
         let h = self.grid.geo.h;
         let mut dt = if speed > 0.0 {
@@ -368,8 +362,8 @@ impl<const D: usize> Simulation<D> {
         if g > 0.0 {
             dt = dt.min(cfl * (h / g).sqrt());
         }
-        for m in mats.iter().filter(|m| m.viscosity > 0.0) {
-            dt = dt.min(crate::deck::viscous_dt_limit(h, m.density, m.viscosity, D));
+        for m in mats {
+            dt = dt.min(m.viscous_dt_limit(h, D));
         }
         if let Some(max) = self.deck.simulation.max_dt {
             dt = dt.min(max);

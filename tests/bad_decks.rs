@@ -45,7 +45,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown key, another name for a key",
             edit(&[("density = 1000.0", "rho = 1000.0")]),
-            "bad.toml:23:1: materials[0].rho: unknown key; did you mean `density`? (valid keys: name, model, density, viscosity, bulk_modulus)",
+            "bad.toml:23:1: materials[0].rho: unknown key; did you mean `density`? (valid keys: name, model, density, viscosity, bulk_modulus, yield_stress, papanastasiou_exponent, consistency, flow_index, shear_modulus, undrained_shear_strength)",
         ),
         (
             "unknown table",
@@ -207,6 +207,86 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "zero bulk_modulus",
             edit(&[("bulk_modulus = 4.0e4", "bulk_modulus = 0.0")]),
             "bad.toml: materials[0].bulk_modulus: must be > 0, got 0",
+        ),
+        // the models' own keys
+        (
+            "a key of another model",
+            edit(&[("density = 1000.0", "density = 1000.0\nshear_modulus = 1.0e5")]),
+            "bad.toml: materials[0].shear_modulus: is not a key of model = \"newtonian\" (its keys: viscosity (optional))",
+        ),
+        (
+            "bingham without its yield stress",
+            edit(&[("density = 1000.0", "model = \"bingham\"\ndensity = 1000.0\npapanastasiou_exponent = 100.0")]),
+            "bad.toml: materials[0].yield_stress: is required by model = \"bingham\" (its keys: viscosity, yield_stress, papanastasiou_exponent)",
+        ),
+        (
+            "bingham without its exponent",
+            edit(&[("density = 1000.0", "model = \"bingham\"\ndensity = 1000.0\nyield_stress = 10.0")]),
+            "bad.toml: materials[0].papanastasiou_exponent: is required by model = \"bingham\" (its keys: viscosity, yield_stress, papanastasiou_exponent); it sets how rigid the unyielded material is (a creep viscosity of about yield_stress * m) and so the time step: try m such that yield_stress * m is 100 to 1000 times the viscosity",
+        ),
+        (
+            "bingham without a plastic viscosity",
+            edit(&[
+                ("density = 1000.0", "model = \"bingham\"\ndensity = 1000.0\nyield_stress = 10.0\npapanastasiou_exponent = 100.0"),
+                ("viscosity = 1.0e-3\n", ""),
+            ]),
+            "bad.toml: materials[0].viscosity: must be > 0: it is the plastic viscosity of model = \"bingham\"",
+        ),
+        (
+            "herschel_bulkley with a viscosity",
+            edit(&[("density = 1000.0", "model = \"herschel_bulkley\"\ndensity = 1000.0")]),
+            "bad.toml: materials[0].viscosity: is not a key of model = \"herschel_bulkley\" (its keys: consistency, flow_index, yield_stress, papanastasiou_exponent)",
+        ),
+        (
+            "a negative flow index",
+            edit(&[
+                ("density = 1000.0", "model = \"herschel_bulkley\"\ndensity = 1000.0\nconsistency = 1.0\nflow_index = -0.5\nyield_stress = 1.0\npapanastasiou_exponent = 100.0"),
+                ("viscosity = 1.0e-3\n", ""),
+            ]),
+            "bad.toml: materials[0].flow_index: must be > 0, got -0.5",
+        ),
+        (
+            "von_mises without c_u",
+            edit(&[
+                ("density = 1000.0", "model = \"von_mises\"\ndensity = 1000.0\nshear_modulus = 1.0e5"),
+                ("viscosity = 1.0e-3\n", ""),
+            ]),
+            "bad.toml: materials[0].undrained_shear_strength: is required by model = \"von_mises\" (its keys: shear_modulus, undrained_shear_strength)",
+        ),
+        (
+            "a zero shear modulus",
+            edit(&[("density = 1000.0", "model = \"neo_hookean_incompressible\"\ndensity = 1000.0\nshear_modulus = 0.0")]),
+            "bad.toml: materials[0].shear_modulus: must be > 0, got 0",
+        ),
+        (
+            "fixed dt above a solid's pressure wave limit (explicit)",
+            edit(&[
+                ("density = 1000.0", "model = \"neo_hookean_incompressible\"\ndensity = 1000.0\nshear_modulus = 1.0e7"),
+                ("viscosity = 1.0e-3\n", ""),
+                ("bulk_modulus = 4.0e4", "bulk_modulus = 4.0e7"),
+                ("cfl = 0.4", "dt = 1.0e-3"),
+            ]),
+            "bad.toml: simulation.dt: 0.001 s is above the explicit stability limit h / c = 8.660e-5 s (h = 0.02, fastest sound speed c = 230.9401 m/s); lower dt or use cfl",
+        ),
+        (
+            "fixed dt above a solid's shear wave limit (projection)",
+            edit(&[
+                ("density = 1000.0", "model = \"neo_hookean_incompressible\"\ndensity = 1000.0\nshear_modulus = 1.0e7"),
+                ("viscosity = 1.0e-3\n", ""),
+                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("cfl = 0.4", "dt = 1.0e-3"),
+            ]),
+            "bad.toml: simulation.dt: 0.001 s is above the explicit stability limit h / c = 2.000e-4 s (h = 0.02, fastest shear wave speed sqrt(G / rho) c = 100.0000 m/s); lower dt or use cfl",
+        ),
+        (
+            "fixed dt above a Bingham fluid's viscous limit",
+            edit(&[
+                ("density = 1000.0", "model = \"bingham\"\ndensity = 1000.0\nyield_stress = 100.0\npapanastasiou_exponent = 1000.0"),
+                ("viscosity = 1.0e-3", "viscosity = 1.0"),
+                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("cfl = 0.4", "dt = 1.0e-3"),
+            ]),
+            "bad.toml: simulation.dt: 0.001 s is above the viscous stability limit h^2 rho / (2 D mu) = 1.000e-6 s of material \"water\" (largest viscosity mu = 1.0000e5 Pa s); lower dt or use cfl",
         ),
         (
             "zero output.interval",

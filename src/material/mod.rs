@@ -1,0 +1,359 @@
+//! Constitutive update at the particles (METHOD.md step 6): strain rate, deviatoric stress,
+//! deformation gradient, volume; and, for the explicit scheme, the equation of state.
+//!
+//! Every model gives only the deviatoric stress, behind [`Constitutive`]; the pressure is the
+//! scheme's. One file per model family; docs/materials.md has their equations.
+
+mod neo_hookean;
+mod viscoplastic;
+mod von_mises;
+
+pub use neo_hookean::NeoHookean;
+pub use viscoplastic::Viscoplastic;
+pub use von_mises::VonMises;
+
+use crate::deck::{Deck, MaterialDeck, Model};
+use crate::particles::{Matrix, Particles};
+use rayon::prelude::*;
+
+/// A constitutive model: the deviatoric stress of a particle from its velocity gradient and its
+/// state. The pressure is not the model's: the projection gives it, or the explicit scheme's
+/// equation of state p = K (1 - J).
+pub trait Constitutive {
+    /// Advances the model's state over `dt` and returns the new deviatoric Cauchy stress. `l` is
+    /// the velocity gradient, `f` the deformation gradient already advanced by it (a model may
+    /// adjust it), `j` the volume ratio, `tau` the stress of the step before.
+    fn stress<const D: usize>(
+        &self,
+        l: &Matrix<D>,
+        dt: f64,
+        f: &mut Matrix<D>,
+        j: f64,
+        tau: &Matrix<D>,
+    ) -> Matrix<D>;
+
+    /// Largest viscosity the model can show (Pa s): the explicit viscous update's step limit.
+    fn max_viscosity(&self) -> f64;
+
+    /// Elastic shear modulus (Pa), 0 for a fluid: the shear wave's step limit.
+    fn shear_modulus(&self) -> f64;
+}
+
+/// A Newtonian fluid, tau = 2 mu dev D.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Newtonian {
+    /// Dynamic viscosity mu (Pa s).
+    pub viscosity: f64,
+}
+
+impl Constitutive for Newtonian {
+    #[inline]
+    fn stress<const D: usize>(
+        &self,
+        l: &Matrix<D>,
+        _: f64,
+        _: &mut Matrix<D>,
+        _: f64,
+        _: &Matrix<D>,
+    ) -> Matrix<D> {
+        deviatoric_strain_rate(l) * (2.0 * self.viscosity)
+    }
+    fn max_viscosity(&self) -> f64 {
+        self.viscosity
+    }
+    fn shear_modulus(&self) -> f64 {
+        0.0
+    }
+}
+
+impl Constitutive for Viscoplastic {
+    #[inline]
+    fn stress<const D: usize>(
+        &self,
+        l: &Matrix<D>,
+        _: f64,
+        _: &mut Matrix<D>,
+        _: f64,
+        _: &Matrix<D>,
+    ) -> Matrix<D> {
+        Viscoplastic::stress(self, l)
+    }
+    fn max_viscosity(&self) -> f64 {
+        Viscoplastic::max_viscosity(self)
+    }
+    fn shear_modulus(&self) -> f64 {
+        0.0
+    }
+}
+
+/// The neo-Hookean solid with an optional viscous (Kelvin-Voigt) part 2 mu dev D, which damps
+/// its waves.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViscoElastic {
+    /// The elastic part.
+    pub elastic: NeoHookean,
+    /// mu (Pa s), 0 for none.
+    pub viscosity: f64,
+}
+
+impl Constitutive for ViscoElastic {
+    #[inline]
+    fn stress<const D: usize>(
+        &self,
+        l: &Matrix<D>,
+        _: f64,
+        f: &mut Matrix<D>,
+        j: f64,
+        _: &Matrix<D>,
+    ) -> Matrix<D> {
+        let elastic = self.elastic.update(f, j);
+        if self.viscosity > 0.0 {
+            elastic + deviatoric_strain_rate(l) * (2.0 * self.viscosity)
+        } else {
+            elastic
+        }
+    }
+    fn max_viscosity(&self) -> f64 {
+        self.viscosity
+    }
+    fn shear_modulus(&self) -> f64 {
+        self.elastic.shear_modulus
+    }
+}
+
+impl Constitutive for VonMises {
+    #[inline]
+    fn stress<const D: usize>(
+        &self,
+        l: &Matrix<D>,
+        dt: f64,
+        _: &mut Matrix<D>,
+        _: f64,
+        tau: &Matrix<D>,
+    ) -> Matrix<D> {
+        self.update(tau, l, dt)
+    }
+    fn max_viscosity(&self) -> f64 {
+        0.0
+    }
+    fn shear_modulus(&self) -> f64 {
+        self.shear_modulus
+    }
+}
+
+/// The models of the deck, one variant each (an enum, so that the particle loop dispatches
+/// with a match that inlines, not through a pointer).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Law {
+    /// `newtonian`
+    Newtonian(Newtonian),
+    /// `bingham`, `herschel_bulkley`
+    Viscoplastic(Viscoplastic),
+    /// `neo_hookean_incompressible`
+    NeoHookean(ViscoElastic),
+    /// `von_mises`
+    VonMises(VonMises),
+}
+
+impl Constitutive for Law {
+    #[inline]
+    fn stress<const D: usize>(
+        &self,
+        l: &Matrix<D>,
+        dt: f64,
+        f: &mut Matrix<D>,
+        j: f64,
+        tau: &Matrix<D>,
+    ) -> Matrix<D> {
+        match self {
+            Law::Newtonian(m) => m.stress(l, dt, f, j, tau),
+            Law::Viscoplastic(m) => Constitutive::stress(m, l, dt, f, j, tau),
+            Law::NeoHookean(m) => m.stress(l, dt, f, j, tau),
+            Law::VonMises(m) => m.stress(l, dt, f, j, tau),
+        }
+    }
+    fn max_viscosity(&self) -> f64 {
+        match self {
+            Law::Newtonian(m) => m.max_viscosity(),
+            Law::Viscoplastic(m) => Constitutive::max_viscosity(m),
+            Law::NeoHookean(m) => m.max_viscosity(),
+            Law::VonMises(m) => m.max_viscosity(),
+        }
+    }
+    fn shear_modulus(&self) -> f64 {
+        match self {
+            Law::Newtonian(m) => m.shear_modulus(),
+            Law::Viscoplastic(m) => Constitutive::shear_modulus(m),
+            Law::NeoHookean(m) => m.shear_modulus(),
+            Law::VonMises(m) => m.shear_modulus(),
+        }
+    }
+}
+
+/// Parameters of one material, as the step needs them.
+#[derive(Debug, Clone, Copy)]
+pub struct MaterialParams {
+    /// Constitutive model, as the deck names it.
+    pub model: Model,
+    /// Reference density (kg/m3).
+    pub density: f64,
+    /// Bulk modulus of the equation of state (Pa), 0 if none.
+    pub bulk_modulus: f64,
+    /// The deviatoric model.
+    pub law: Law,
+}
+
+impl MaterialParams {
+    /// The deck's materials, in order.
+    pub fn from_deck(deck: &Deck) -> Vec<Self> {
+        deck.materials.iter().map(Self::new).collect()
+    }
+
+    /// One validated `[[materials]]` entry.
+    pub fn new(m: &MaterialDeck) -> Self {
+        let law = match m.model {
+            Model::Newtonian => Law::Newtonian(Newtonian {
+                viscosity: m.viscosity,
+            }),
+            Model::Bingham | Model::HerschelBulkley => Law::Viscoplastic(Viscoplastic {
+                consistency: if m.model == Model::Bingham {
+                    m.viscosity
+                } else {
+                    m.consistency.unwrap_or(0.0)
+                },
+                flow_index: m.flow_index.unwrap_or(1.0),
+                yield_stress: m.yield_stress.unwrap_or(0.0),
+                exponent: m.papanastasiou_exponent.unwrap_or(0.0),
+            }),
+            Model::NeoHookeanIncompressible => Law::NeoHookean(ViscoElastic {
+                elastic: NeoHookean {
+                    shear_modulus: m.shear_modulus.unwrap_or(0.0),
+                },
+                viscosity: m.viscosity,
+            }),
+            Model::VonMises => Law::VonMises(VonMises {
+                shear_modulus: m.shear_modulus.unwrap_or(0.0),
+                strength: m.undrained_shear_strength.unwrap_or(0.0),
+            }),
+        };
+        MaterialParams {
+            model: m.model,
+            density: m.density,
+            bulk_modulus: m.bulk_modulus.unwrap_or(0.0),
+            law,
+        }
+    }
+
+    /// Fastest wave the scheme integrates explicitly: the pressure wave sqrt((K + 4 G / 3) /
+    /// rho) with the equation of state, the shear wave sqrt(G / rho) with the projection (which
+    /// takes the volumetric part implicitly).
+    pub fn wave_speed(&self, equation_of_state: bool) -> f64 {
+        let g = self.law.shear_modulus();
+        if equation_of_state {
+            ((self.bulk_modulus + 4.0 / 3.0 * g) / self.density).sqrt()
+        } else {
+            (g / self.density).sqrt()
+        }
+    }
+
+    /// Largest viscosity of the model (Pa s).
+    pub fn law_max_viscosity(&self) -> f64 {
+        self.law.max_viscosity()
+    }
+
+    /// Step limit of the explicit viscous update, h^2 rho / (2 D mu_max); infinite without
+    /// viscosity.
+    pub fn viscous_dt_limit(&self, h: f64, dim: usize) -> f64 {
+        let mu = self.law.max_viscosity();
+        if mu > 0.0 {
+            h * h * self.density / (2.0 * dim as f64 * mu)
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// dev(sym L): the deviatoric strain rate.
+#[inline]
+pub fn deviatoric_strain_rate<const D: usize>(l: &Matrix<D>) -> Matrix<D> {
+    deviator(&((l + l.transpose()) * 0.5))
+}
+
+/// a - tr(a) / D I.
+#[inline]
+pub fn deviator<const D: usize>(a: &Matrix<D>) -> Matrix<D> {
+    a - Matrix::<D>::identity() * (a.trace() / D as f64)
+}
+
+/// Determinant of a 2x2 or 3x3 matrix (nalgebra's needs extra bounds for a generic D).
+#[inline]
+pub fn det<const D: usize>(m: &Matrix<D>) -> f64 {
+    match D {
+        1 => m[(0, 0)],
+        2 => m[(0, 0)] * m[(1, 1)] - m[(0, 1)] * m[(1, 0)],
+        3 => {
+            m[(0, 0)] * (m[(1, 1)] * m[(2, 2)] - m[(1, 2)] * m[(2, 1)])
+                - m[(0, 1)] * (m[(1, 0)] * m[(2, 2)] - m[(1, 2)] * m[(2, 0)])
+                + m[(0, 2)] * (m[(1, 0)] * m[(2, 1)] - m[(1, 1)] * m[(2, 0)])
+        }
+        _ => unreachable!("pmpm is 2D or 3D"),
+    }
+}
+
+/// Updates F, J and the deviatoric stress of every particle from its velocity gradient; with
+/// `equation_of_state`, also p = K (1 - J) (the explicit, weakly compressible scheme).
+pub fn update<const D: usize>(
+    ps: &mut Particles<D>,
+    materials: &[MaterialParams],
+    dt: f64,
+    equation_of_state: bool,
+) {
+    let material = &ps.material;
+    let grad_v = &ps.velocity_gradient;
+    (
+        ps.deformation.par_iter_mut(),
+        ps.jacobian.par_iter_mut(),
+        ps.tau.par_iter_mut(),
+        ps.pressure.par_iter_mut(),
+    )
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(p, (f, j, tau, pressure))| {
+            let mat = &materials[material[p] as usize];
+            let l = &grad_v[p];
+            let inc = Matrix::<D>::identity() + l * dt;
+            *f = inc * *f;
+            // J tracked on its own: for a fluid F grows without bound in shear, and det(F)
+            // would lose the volume change in round-off.
+            *j *= det(&inc);
+            let stress = mat.law.stress(l, dt, f, *j, tau);
+            *tau = stress;
+            if equation_of_state {
+                *pressure = mat.bulk_modulus * (1.0 - *j);
+            }
+        });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn newtonian_stress_is_deviatoric_and_symmetric() {
+        let m = Newtonian { viscosity: 0.5 };
+        let l = Matrix::<3>::new(1.0, 2.0, 0.0, -1.0, 0.5, 3.0, 0.0, 0.0, 2.0);
+        let t = m.stress(&l, 0.1, &mut Matrix::identity(), 1.0, &Matrix::zeros());
+        assert!(t.trace().abs() < 1e-14);
+        assert!((t - t.transpose()).norm() < 1e-14);
+        // shear component: 2 mu * (L01 + L10)/2
+        assert!((t[(0, 1)] - 0.5 * (2.0 - 1.0)).abs() < 1e-14);
+    }
+
+    #[test]
+    fn determinants() {
+        let a = Matrix::<2>::new(2.0, 1.0, 0.5, 3.0);
+        assert!((det(&a) - 5.5).abs() < 1e-14);
+        let b = Matrix::<3>::new(2.0, 0.0, 1.0, 1.0, 3.0, 0.0, 0.0, 1.0, 4.0);
+        assert!((det(&b) - 25.0).abs() < 1e-12);
+    }
+}
