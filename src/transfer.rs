@@ -331,24 +331,36 @@ fn g2p<const D: usize, const S: u8>(
         Transfer::Flip => s.flip_ratio,
         _ => 0.0,
     };
+    let apic = s.transfer == Transfer::Apic;
     (
         ps.x.par_iter(),
         ps.half_width.par_iter(),
         ps.v.par_iter_mut(),
+        ps.affine.par_iter_mut(),
         advect.par_iter_mut(),
     )
         .into_par_iter()
-        .for_each(|(x, &lp, v, adv)| {
+        .for_each(|(x, &lp, v, c, adv)| {
             let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
             let mut v_pic = Vector::<D>::zeros();
             let mut dv = Vector::<D>::zeros();
+            let mut b = Matrix::<D>::zeros();
             st.for_each(|nw| {
                 let i = geo.flat(&nw.node);
                 let vi = v_new[i];
                 v_pic += vi * nw.n;
                 dv += (vi - v_old[i]) * nw.n;
+                if apic {
+                    b += vi * nw.apic.transpose();
+                }
             });
             *v = blend(flip, v, &dv, &v_pic);
+            if apic {
+                // the remap that follows carries the particle's new affine field, not the last
+                // step's (with the old one the strain rate lags a step behind, which grows
+                // an elastic solid's waves)
+                *c = b;
+            }
             *adv = v_pic;
         });
 }
