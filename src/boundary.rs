@@ -1,4 +1,5 @@
-//! Wall conditions on grid velocities (METHOD.md eq. 3 and 6): slip, no-slip, open, moving.
+//! Wall conditions on grid velocities (METHOD.md eq. 3 and 6): slip, no-slip, open, moving; and
+//! the nodes of rigid bodies ([`crate::rigid`]), which take the body's velocity.
 //!
 //! A face's condition holds on its wall nodes and on the ghost nodes behind it, so that the
 //! wide shape functions (GIMP, B-splines) see the wall too.
@@ -21,6 +22,8 @@ pub struct Boundary<const D: usize> {
     node_wall: Vec<Vector<D>>,
     /// Node positions of the pairs (only with `fields`).
     node_x: Vec<Vector<D>>,
+    /// Rigid bodies moving through the material: their nodes take their velocity.
+    pub rigid: crate::rigid::RigidBodies<D>,
 }
 
 impl<const D: usize> Boundary<D> {
@@ -75,6 +78,7 @@ impl<const D: usize> Boundary<D> {
             nodes,
             fields,
             node_x,
+            rigid: crate::rigid::RigidBodies::new(deck),
         };
         b.set_time(0.0, geo);
         b
@@ -83,6 +87,7 @@ impl<const D: usize> Boundary<D> {
     /// Evaluates the wall velocities given by expressions at time `t`: at every wall node, and
     /// at each face's centre for the particles that [`Boundary::confine`] puts back.
     pub fn set_time(&mut self, t: f64, geo: &GridGeometry<D>) {
+        self.rigid.set_time(t, geo);
         if self.node_wall.is_empty() {
             return;
         }
@@ -164,6 +169,8 @@ impl<const D: usize> Boundary<D> {
                 v[i][axis] = wall[axis];
             }
         }
+        // a rigid body's velocity, whole: its nodes are not on a face with one normal
+        self.rigid.apply(v);
     }
 
     /// Imposes the face conditions on node velocities.
@@ -177,5 +184,6 @@ impl<const D: usize> Boundary<D> {
                 BoundaryKind::Open | BoundaryKind::Periodic => {}
             }
         }
+        self.rigid.apply(v);
     }
 }

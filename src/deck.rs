@@ -800,6 +800,20 @@ pub struct ProgramInfo {
     pub version: String,
 }
 
+/// `[[rigid_bodies]]`: a box that moves through the material at a constant velocity (a footing,
+/// a gate); its nodes take its velocity and the force on it is written to rigid_bodies.csv.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigidBodyDeck {
+    /// Name, for the columns of rigid_bodies.csv.
+    pub name: String,
+    /// Its shape at t = 0: `{ type = "box", min, max }`.
+    pub shape: ShapeDeck,
+    /// Velocity (m/s), constant; default at rest.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub velocity: Option<Vec<f64>>,
+}
+
 /// The whole deck.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -818,6 +832,9 @@ pub struct Deck {
     pub materials: Vec<MaterialDeck>,
     /// `[[bodies]]`
     pub bodies: Vec<BodyDeck>,
+    /// `[[rigid_bodies]]`: boxes moving at a prescribed velocity (pmpm).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rigid_bodies: Vec<RigidBodyDeck>,
     /// `[output]`
     #[serde(default)]
     pub output: OutputDeck,
@@ -928,7 +945,7 @@ fn quoted_list<S: AsRef<str>>(names: &[S]) -> String {
 }
 
 /// Keys that hold a list of tables, each entry written `[[key]]`.
-const TABLE_LISTS: [&str; 3] = ["materials", "bodies", "output.probes"];
+const TABLE_LISTS: [&str; 4] = ["materials", "bodies", "rigid_bodies", "output.probes"];
 
 /// serde's "invalid type: GOT, expected EXPECTED" in a user's words.
 fn type_message(key: &str, got: &str, expected: &str) -> String {
@@ -1533,6 +1550,45 @@ impl Deck {
                 b.velocity = VectorField::constant_from(&vec![0.0; dim]);
             }
             c.field(&format!("{k}.velocity"), &b.velocity, dim)?;
+        }
+
+        for (i, r) in self.rigid_bodies.iter().enumerate() {
+            let k = format!("rigid_bodies[{i}]");
+            if r.name.is_empty() || r.name.contains([',', '"', '\n']) {
+                return Err(c.err(
+                    format!("{k}.name"),
+                    "must be non-empty, without commas or quotes (it heads CSV columns)",
+                ));
+            }
+            if self.rigid_bodies[..i].iter().any(|q| q.name == r.name) {
+                return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", r.name)));
+            }
+            if r.shape.kind != ShapeKind::Box {
+                return Err(c.err(
+                    format!("{k}.shape.type"),
+                    "must be \"box\": a rigid body is an axis-aligned box",
+                ));
+            }
+            let (Some(mn), Some(mx)) = (&r.shape.min, &r.shape.max) else {
+                return Err(c.err(format!("{k}.shape"), "a box needs both min and max"));
+            };
+            c.vector(&format!("{k}.shape.min"), mn, dim)?;
+            c.vector(&format!("{k}.shape.max"), mx, dim)?;
+            if let Some(d) = (0..dim).find(|&d| mx[d] <= mn[d]) {
+                return Err(c.err(
+                    format!("{k}.shape.max"),
+                    format!("must exceed min along {}: {} <= {}", AXES[d], mx[d], mn[d]),
+                ));
+            }
+            if r.shape.center.is_some() || r.shape.radius.is_some() {
+                return Err(c.err(
+                    format!("{k}.shape"),
+                    "a box takes min and max, not center or radius",
+                ));
+            }
+            if let Some(v) = &r.velocity {
+                c.vector(&format!("{k}.velocity"), v, dim)?;
+            }
         }
 
         let o = &mut self.output;

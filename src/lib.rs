@@ -32,6 +32,7 @@ pub mod output;
 pub mod particles;
 pub mod plot;
 pub mod pressure;
+pub mod rigid;
 pub mod run;
 pub mod scheme;
 pub mod shape;

@@ -20,6 +20,8 @@ pub struct OutputWriter {
     pub pvd: Vec<(f64, String)>,
     series: BufWriter<File>,
     probes: Option<BufWriter<File>>,
+    /// rigid_bodies.csv, when the deck has rigid bodies.
+    rigid: Option<BufWriter<File>>,
     /// Frames written so far.
     pub frames: usize,
 }
@@ -53,6 +55,22 @@ fn prepare<const D: usize>(dir: &Path, sim: &Simulation<D>) -> Result<(), Error>
     std::fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
     let run_toml = dir.join("run.toml");
     std::fs::write(&run_toml, sim.deck.to_run_toml()).map_err(|e| Error::io(&run_toml, e))
+}
+
+/// The header of rigid_bodies.csv: time, then per body its displacement and the force the
+/// material exerts on it.
+fn rigid_header<const D: usize>(sim: &Simulation<D>) -> String {
+    let mut head = String::from("time");
+    let axes = ["x", "y", "z"];
+    for b in &sim.deck.rigid_bodies {
+        for a in &axes[..D] {
+            head += &format!(",{}_u{a}", b.name);
+        }
+        for a in &axes[..D] {
+            head += &format!(",{}_f{a}", b.name);
+        }
+    }
+    head
 }
 
 /// A new CSV file at `path` holding only `header`.
@@ -99,7 +117,12 @@ impl OutputWriter {
         } else {
             Some(fresh(&dir.join("probes.csv"), &probes_header(sim))?)
         };
-        Ok(Self::with(dir, sim, series, probes, Vec::new(), 0))
+        let rigid = if sim.deck.rigid_bodies.is_empty() {
+            None
+        } else {
+            Some(fresh(&dir.join("rigid_bodies.csv"), &rigid_header(sim))?)
+        };
+        Ok(Self::with(dir, sim, series, probes, rigid, Vec::new(), 0))
     }
 
     /// The writer over files already opened.
@@ -108,6 +131,7 @@ impl OutputWriter {
         sim: &Simulation<D>,
         series: BufWriter<File>,
         probes: Option<BufWriter<File>>,
+        rigid: Option<BufWriter<File>>,
         pvd: Vec<(f64, String)>,
         frames: usize,
     ) -> Self {
@@ -119,6 +143,7 @@ impl OutputWriter {
             pvd,
             series,
             probes,
+            rigid,
             frames,
         }
     }
@@ -146,14 +171,47 @@ impl OutputWriter {
                 f.parse::<f64>().is_ok_and(|s| s < t)
             })?)
         };
+        // rigid-body rows are stamped with the time at the end of their step
+        let rigid = if sim.deck.rigid_bodies.is_empty() {
+            None
+        } else {
+            Some(reopen(
+                &dir.join("rigid_bodies.csv"),
+                &rigid_header(sim),
+                |f| f.parse::<f64>().is_ok_and(|s| s <= t),
+            )?)
+        };
         Ok(Self::with(
             dir,
             sim,
             series,
             probes,
+            rigid,
             driver.pvd.clone(),
             frames,
         ))
+    }
+
+    /// Appends one row of rigid-body displacements and forces (the last step's, stamped with
+    /// its end time).
+    pub fn rigid_row<const D: usize>(&mut self, sim: &Simulation<D>) -> Result<(), Error> {
+        if let Some(w) = &mut self.rigid {
+            let r = &sim.boundary.rigid;
+            let res = (|| {
+                write!(w, "{:.9e}", sim.time)?;
+                for b in 0..r.len() {
+                    for u in r.displacement(b, sim.time).iter() {
+                        write!(w, ",{u:.9e}")?;
+                    }
+                    for f in r.force(b).iter() {
+                        write!(w, ",{f:.9e}")?;
+                    }
+                }
+                writeln!(w)
+            })();
+            res.map_err(|e| Error::io(self.dir.join("rigid_bodies.csv"), e))?;
+        }
+        Ok(())
     }
 
     /// Appends one row of probe samples (taken at time `time`).
@@ -211,6 +269,10 @@ impl OutputWriter {
             w.flush()
                 .map_err(|e| Error::io(self.dir.join("probes.csv"), e))?;
         }
+        if let Some(w) = &mut self.rigid {
+            w.flush()
+                .map_err(|e| Error::io(self.dir.join("rigid_bodies.csv"), e))?;
+        }
         self.frames += 1;
         Ok(())
     }
@@ -223,6 +285,10 @@ impl OutputWriter {
         if let Some(w) = &mut self.probes {
             w.flush()
                 .map_err(|e| Error::io(self.dir.join("probes.csv"), e))?;
+        }
+        if let Some(w) = &mut self.rigid {
+            w.flush()
+                .map_err(|e| Error::io(self.dir.join("rigid_bodies.csv"), e))?;
         }
         Ok(())
     }

@@ -193,6 +193,11 @@ fn run_dim<const D: usize>(
         if let Err(e) = out.probe_row(t0, &sim) {
             break Err(e);
         }
+        if stepped.is_ok() {
+            if let Err(e) = out.rigid_row(&sim) {
+                break Err(e);
+            }
+        }
         if let Err(e) = stepped {
             progress.clear();
             let resume = resume_command(file, &checkpoint_path, dir, deck);
@@ -647,12 +652,13 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             s.end_time
         );
     }
-    if viscous.0.is_finite() {
+    // the viscous limit, where it binds (a yield-stress fluid's regularisation sets it)
+    if viscous.0 < wave {
         out += &format!(
             "  viscous limit    h^2 rho / (2 D mu) = {:.3e} s (material \"{}\"): about {:.0} steps or more to t = {}\n",
             viscous.0,
             deck.materials[viscous.1].name,
-            s.end_time / viscous.0,
+            (s.end_time / viscous.0).ceil(),
             s.end_time
         );
     }

@@ -169,6 +169,7 @@ impl<const D: usize> Simulation<D> {
         self.timers.lap(Phase::Sort);
         // 1. particles -> grid: mass, momentum, internal and body forces (and probe samples)
         self.particles_to_grid();
+        self.boundary.rigid.begin_step(&self.grid, dt);
         self.timers.lap(Phase::P2g);
         // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure).
         //    The projection takes v^n on the walls from the wall conditions: P2G extrapolates
@@ -183,6 +184,7 @@ impl<const D: usize> Simulation<D> {
             Scheme::Explicit => {
                 // 3. boundary conditions on v*; pressure came from the equation of state in
                 //    the particle stress
+                self.boundary.rigid.end_step(&self.grid, dt, None);
                 self.boundary.apply(&mut self.grid.velocity_new);
                 self.pressure_iterations = 0;
                 self.timers.lap(Phase::Predictor);
@@ -212,7 +214,15 @@ impl<const D: usize> Simulation<D> {
                         ))
                     })?;
                 self.pressure_iterations = stats.iterations;
-                // the corrector changed the wall nodes' normal velocity: re-impose it
+                // the corrector changed the wall nodes' normal velocity: re-impose it (the
+                // rigid bodies' force first, with the new pressure)
+                if !self.boundary.rigid.is_empty() {
+                    self.boundary.rigid.end_step(
+                        &self.grid,
+                        dt,
+                        Some((&self.particles, self.settings.shape)),
+                    );
+                }
                 self.boundary.apply(&mut self.grid.velocity_new);
             }
         }

@@ -50,7 +50,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown table",
             edit(&[("[output]", "[outputs]")]),
-            "bad.toml:32:2: outputs: unknown key; did you mean `output`? (valid keys: pmpm, simulation, grid, pressure, materials, bodies, output)",
+            "bad.toml:32:2: outputs: unknown key; did you mean `output`? (valid keys: pmpm, simulation, grid, pressure, materials, bodies, rigid_bodies, output)",
         ),
         // unknown values: the nearest allowed value, and the allowed values
         (
@@ -287,6 +287,17 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
                 ("cfl = 0.4", "dt = 1.0e-3"),
             ]),
             "bad.toml: simulation.dt: 0.001 s is above the viscous stability limit h^2 rho / (2 D mu) = 1.000e-6 s of material \"water\" (largest viscosity mu = 1.0000e5 Pa s); lower dt or use cfl",
+        ),
+        // rigid bodies
+        (
+            "a rigid body that is not a box",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"ball\"\nshape = {{ type = \"sphere\", center = [0.2, 0.15], radius = 0.02 }}\n"),
+            "bad.toml: rigid_bodies[0].shape.type: must be \"box\": a rigid body is an axis-aligned box",
+        ),
+        (
+            "a rigid body's velocity of the wrong size",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"gate\"\nshape = {{ type = \"box\", min = [0.1, 0.0], max = [0.12, 0.2] }}\nvelocity = [0.0, 1.0, 0.0]\n"),
+            "bad.toml: rigid_bodies[0].velocity: must have 2 components (dimension = 2), got 3",
         ),
         (
             "zero output.interval",

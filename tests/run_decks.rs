@@ -371,7 +371,8 @@ fn check_summarises_the_run_and_warns() {
     for line in [
         "  bodies[0]        25 particles of \"water\" (1 per cell per direction)",
         "  bodies[1]        100 particles of \"water\" (2 per cell per direction)",
-        "  material         \"water\": Newtonian, density 1000 kg/m3, viscosity 0.001 Pa s, bulk modulus 4e4 Pa",
+        "  material         \"water\": newtonian, density 1000 kg/m3, viscosity 1e-3 Pa s, bulk modulus 4e4 Pa",
+        "  wave limit       h / c = 3.162e-3 s (c the sound speed): about 40 steps or more to t = 0.05",
         "  particles        125",
         "warning: bodies[0].particles_per_cell = 1: fewer than 2 particles per cell per direction",
         "warning: bodies[0] and bodies[1] overlap: 50 particles of bodies[1] lie inside bodies[0]",

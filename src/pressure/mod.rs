@@ -65,6 +65,8 @@ pub struct Projection<const D: usize> {
     quadrature: Quadrature,
     bubble_cells: usize,
     raw_fraction: Vec<f64>,
+    /// Volume fractions with the rigid bodies' cover, for the classification only.
+    covered: Vec<f64>,
     flood_fill: free_surface::FloodFill,
     gauss: GaussPoints<D>,
     pressure_gradient: Vec<Vector<D>>,
@@ -124,6 +126,7 @@ impl<const D: usize> Projection<D> {
             quadrature: pd.quadrature,
             bubble_cells: pd.bubble_cells,
             raw_fraction: Vec::new(),
+            covered: Vec::new(),
             flood_fill: Default::default(),
             gauss: GaussPoints::default(),
             pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
@@ -208,11 +211,19 @@ impl<const D: usize> Projection<D> {
                 &mut self.volume_fraction,
             );
         }
+        // a rigid body is read as a wall: the cells it covers count as full
+        let fraction = if boundary.rigid.is_empty() {
+            &self.volume_fraction
+        } else {
+            self.covered.clone_from(&self.volume_fraction);
+            boundary.rigid.cover(geo, &mut self.covered);
+            &self.covered
+        };
         free_surface::classify(
             geo,
             &grid.mass,
             mass_epsilon,
-            &self.volume_fraction,
+            fraction,
             self.volume_fraction_tolerance,
             &self.open,
             &mut self.kinds,

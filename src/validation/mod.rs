@@ -9,6 +9,7 @@
 
 mod cavity;
 mod dam_break;
+mod footing;
 mod hydrostatic;
 mod lobovsky;
 mod periodic;
@@ -198,6 +199,11 @@ const CASES: &[(&str, &str, CaseFn)] = &[
         "taylor_green",
         "Taylor-Green vortex decay and convergence",
         periodic::taylor_green,
+    ),
+    (
+        "strip_footing",
+        "strip footing on undrained clay against Prandtl's (2 + pi) c_u, both schemes",
+        footing::run,
     ),
 ];
 
@@ -458,7 +464,8 @@ fn deck_text(name: &str) -> &'static str {
         "cavity_re1000",
         "poiseuille",
         "couette",
-        "taylor_green"
+        "taylor_green",
+        "strip_footing"
     )
 }
 

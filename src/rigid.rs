@@ -1,0 +1,322 @@
+//! Rigid bodies moving at a prescribed velocity through the material: a footing pushed into
+//! clay, a penetrometer, a gate lifted from a dam. Each is an axis-aligned box; its grid
+//! nodes (those inside the box as it is now, and those less than a cell ahead of the faces it
+//! moves towards) take its velocity, as no-slip wall nodes take a wall's, and the force the
+//! material exerts on it is measured from the momentum that imposing that velocity adds.
+//!
+//! The force: on a body's nodes the grid momentum without the body would be, at the step's
+//! end, P = sum_i (m_i v_i^n + dt f_i) (the predictor of P2G's velocity and forces, the
+//! explicit scheme's pressure in f), plus with the projection dt f^p_i, the pressure's force.
+//! The body sets every one of its nodes to its own velocity V, so the impulse it gives the
+//! material over the step is I = sum_i m_i V - P - dt sum_i f^p_i, and the force on the body is
+//! -I / dt: the material's stress, pressure, weight and inertia at the body's nodes.
+
+use crate::deck::{Deck, ShapeFunction};
+use crate::grid::{Grid, GridGeometry, Vector};
+use crate::particles::Particles;
+use crate::shape::{Stencil, PAD};
+
+/// The deck's rigid bodies and the nodes each holds now.
+#[derive(Debug, Clone, Default)]
+pub struct RigidBodies<const D: usize> {
+    /// Lower corner at t = 0.
+    lo: Vec<Vector<D>>,
+    /// Upper corner at t = 0.
+    hi: Vec<Vector<D>>,
+    /// Velocity (m/s).
+    velocity: Vec<Vector<D>>,
+    /// Time of the positions below.
+    time: f64,
+    /// (node, body) pairs of the nodes inside each body now.
+    nodes: Vec<(usize, usize)>,
+    /// Per node, the body that holds it (`usize::MAX`: none).
+    owner: Vec<usize>,
+    /// Per body, its nodes' range in cells from the origin (lower, upper), to skip the
+    /// particles far from it.
+    reach: Vec<(Vector<D>, Vector<D>)>,
+    /// Per body, the momentum its nodes would have at the step's end without it.
+    free_momentum: Vec<Vector<D>>,
+    /// Per body, the force the material exerted on it over the last step (N; N/m in 2D).
+    force: Vec<Vector<D>>,
+}
+
+impl<const D: usize> RigidBodies<D> {
+    /// The bodies of a validated deck.
+    pub fn new(deck: &Deck) -> Self {
+        let v = |x: &[f64]| Vector::<D>::from_column_slice(x);
+        let n = deck.rigid_bodies.len();
+        Self {
+            lo: deck
+                .rigid_bodies
+                .iter()
+                .map(|b| v(&b.shape.bounds().0))
+                .collect(),
+            hi: deck
+                .rigid_bodies
+                .iter()
+                .map(|b| v(&b.shape.bounds().1))
+                .collect(),
+            velocity: deck
+                .rigid_bodies
+                .iter()
+                .map(|b| b.velocity.as_deref().map_or_else(Vector::<D>::zeros, v))
+                .collect(),
+            time: f64::NAN,
+            nodes: Vec::new(),
+            owner: Vec::new(),
+            reach: vec![(Vector::<D>::zeros(), Vector::<D>::zeros()); n],
+            free_momentum: vec![Vector::<D>::zeros(); n],
+            force: vec![Vector::<D>::zeros(); n],
+        }
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.lo.is_empty()
+    }
+
+    /// Number of bodies.
+    pub fn len(&self) -> usize {
+        self.lo.len()
+    }
+
+    /// Displacement of body `b` at time `t`.
+    pub fn displacement(&self, b: usize, t: f64) -> Vector<D> {
+        self.velocity[b] * t
+    }
+
+    /// The force the material exerted on body `b` over the last step.
+    pub fn force(&self, b: usize) -> Vector<D> {
+        self.force[b]
+    }
+
+    /// Box of body `b` at the time of [`RigidBodies::set_time`].
+    fn bounds(&self, b: usize) -> (Vector<D>, Vector<D>) {
+        let d = self.velocity[b] * self.time;
+        (self.lo[b] + d, self.hi[b] + d)
+    }
+
+    /// Moves the bodies to time `t` and finds their nodes (a node on a body's face is the
+    /// body's; nodes beyond the walls stay the walls').
+    pub fn set_time(&mut self, t: f64, geo: &GridGeometry<D>) {
+        if self.is_empty() || t == self.time {
+            return;
+        }
+        self.time = t;
+        for &(i, _) in &self.nodes {
+            self.owner[i] = usize::MAX;
+        }
+        self.owner.resize(geo.node_count(), usize::MAX);
+        self.nodes.clear();
+        for b in 0..self.len() {
+            let (mut lo, mut hi) = self.bounds(b);
+            // ahead of a moving face, the nodes up to a cell from it (but not a whole cell)
+            // move with the body too: a node row stays where it is while the body passes, and
+            // material a body pushes would otherwise move away from the last row inside it
+            // and lose contact until the face reaches the next row
+            let eps = 1e-9;
+            for d in 0..D {
+                let v = self.velocity[b][d];
+                if v < 0.0 {
+                    lo[d] -= geo.h * (1.0 - 2.0 * eps);
+                } else if v > 0.0 {
+                    hi[d] += geo.h * (1.0 - 2.0 * eps);
+                }
+            }
+            let first: [usize; D] = std::array::from_fn(|d| {
+                let s = ((lo[d] - geo.origin[d]) / geo.h - eps).ceil().max(0.0);
+                PAD + (s as usize).min(geo.cells[d])
+            });
+            let last: [isize; D] = std::array::from_fn(|d| {
+                let s = ((hi[d] - geo.origin[d]) / geo.h + eps).floor();
+                PAD as isize + (s as isize).min(geo.cells[d] as isize)
+            });
+            if (0..D).any(|d| last[d] < first[d] as isize) {
+                continue;
+            }
+            self.reach[b] = (
+                Vector::<D>::from_fn(|d, _| first[d] as f64 - PAD as f64),
+                Vector::<D>::from_fn(|d, _| last[d] as f64 - PAD as f64),
+            );
+            let mut idx = first;
+            'nodes: loop {
+                let i = geo.flat(&idx);
+                self.nodes.push((i, b));
+                self.owner[i] = b;
+                for d in 0..D {
+                    if (idx[d] as isize) < last[d] {
+                        idx[d] += 1;
+                        continue 'nodes;
+                    }
+                    idx[d] = first[d];
+                }
+                break;
+            }
+        }
+    }
+
+    /// Sets the bodies' nodes to the bodies' velocities.
+    pub fn apply(&self, v: &mut [Vector<D>]) {
+        for &(i, b) in &self.nodes {
+            v[i] = self.velocity[b];
+        }
+    }
+
+    /// Adds to each cell's volume fraction the part of it a body covers, so that the
+    /// free-surface detection reads a body as it reads a wall: the material against it is
+    /// not at a free surface.
+    pub fn cover(&self, geo: &GridGeometry<D>, fraction: &mut [f64]) {
+        for b in 0..self.len() {
+            let (lo, hi) = self.bounds(b);
+            let cl = geo.to_cells(&lo);
+            let ch = geo.to_cells(&hi);
+            let first: [usize; D] = std::array::from_fn(|d| {
+                PAD + (cl[d].floor().max(0.0) as usize).min(geo.cells[d] - 1)
+            });
+            let last: [usize; D] = std::array::from_fn(|d| {
+                PAD + ((ch[d].ceil() - 1.0).max(0.0) as usize).min(geo.cells[d] - 1)
+            });
+            if (0..D).any(|d| ch[d] <= 0.0 || cl[d] >= geo.cells[d] as f64) {
+                continue;
+            }
+            let mut idx = first;
+            'cells: loop {
+                let mut part = 1.0;
+                for d in 0..D {
+                    let c0 = idx[d] as f64 - PAD as f64;
+                    part *= (ch[d].min(c0 + 1.0) - cl[d].max(c0)).clamp(0.0, 1.0);
+                }
+                fraction[geo.flat(&idx)] += part;
+                for d in 0..D {
+                    if idx[d] < last[d] {
+                        idx[d] += 1;
+                        continue 'cells;
+                    }
+                    idx[d] = first[d];
+                }
+                break;
+            }
+        }
+    }
+
+    /// After P2G: the momentum the bodies' nodes would reach over `dt` without them (no
+    /// damping: damping is not a force the body feels).
+    pub fn begin_step(&mut self, grid: &Grid<D>, dt: f64) {
+        self.free_momentum.fill(Vector::<D>::zeros());
+        for &(i, b) in &self.nodes {
+            self.free_momentum[b] += grid.velocity[i] * grid.mass[i] + grid.force[i] * dt;
+        }
+    }
+
+    /// Before the last wall conditions of the step: the force on each body. With the
+    /// projection (`pressure`: the particles, with their new pressure, and the shape
+    /// functions), the pressure's force on the bodies' nodes is added in the weak form
+    /// sum_p V_p p_p grad N_ip, as the explicit scheme's stress carries it: the corrector's
+    /// form sum_p V_p N_ip grad p_p leaves out the boundary term p n, which on a body's face is
+    /// the very pressure it bears.
+    pub fn end_step(
+        &mut self,
+        grid: &Grid<D>,
+        dt: f64,
+        pressure: Option<(&Particles<D>, ShapeFunction)>,
+    ) {
+        for (b, f) in self.force.iter_mut().enumerate() {
+            *f = -self.free_momentum[b];
+        }
+        for &(i, b) in &self.nodes {
+            self.force[b] += self.velocity[b] * grid.mass[i];
+        }
+        for f in &mut self.force {
+            *f /= -dt;
+        }
+        let Some((ps, shape)) = pressure else { return };
+        let geo = &grid.geo;
+        // serial: the particles near the bodies are few, and a fixed order keeps the sum's
+        // bits the same on any number of threads
+        for p in 0..ps.len() {
+            let xc = geo.to_cells(&ps.x[p]);
+            let near = (0..self.len()).any(|b| {
+                let (lo, hi) = &self.reach[b];
+                (0..D).all(|d| xc[d] > lo[d] - 2.0 && xc[d] < hi[d] + 2.0)
+            });
+            if !near {
+                continue;
+            }
+            let pv = ps.pressure[p] * ps.volume(p);
+            Stencil::<D>::new(shape, &xc, geo.h, ps.half_width[p]).for_each(|nw| {
+                let b = self.owner[geo.flat(&nw.node)];
+                if b != usize::MAX {
+                    self.force[b] += nw.grad * pv;
+                }
+            });
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn geo() -> GridGeometry<2> {
+        GridGeometry::new(Vector::<2>::zeros(), 0.1, [10, 10])
+    }
+
+    fn bodies(lo: [f64; 2], hi: [f64; 2], v: [f64; 2]) -> RigidBodies<2> {
+        RigidBodies {
+            lo: vec![Vector::<2>::from(lo)],
+            hi: vec![Vector::<2>::from(hi)],
+            velocity: vec![Vector::<2>::from(v)],
+            time: f64::NAN,
+            nodes: Vec::new(),
+            owner: Vec::new(),
+            reach: vec![(Vector::<2>::zeros(), Vector::<2>::zeros())],
+            free_momentum: vec![Vector::<2>::zeros()],
+            force: vec![Vector::<2>::zeros()],
+        }
+    }
+
+    #[test]
+    fn a_box_holds_the_nodes_inside_it_as_it_moves() {
+        let g = geo();
+        let mut r = bodies([0.0, 0.8], [0.3, 1.2], [0.0, -1.0]);
+        r.set_time(0.0, &g);
+        // x nodes 0..=3; y nodes 8..=10 (the grid's top is 1.0), and none ahead: row 7 is a
+        // whole cell below the face
+        assert_eq!(r.nodes.len(), 4 * 3);
+        r.set_time(0.05, &g);
+        // face at 0.75: row 7 (0.7) is less than a cell ahead of it
+        assert_eq!(r.nodes.len(), 4 * 4);
+        r.set_time(0.1, &g);
+        // face at 0.7: rows 7..=10, row 6 a whole cell ahead
+        assert_eq!(r.nodes.len(), 4 * 4);
+        for &(i, _) in &r.nodes {
+            let x = g.node_position(&g.multi(i));
+            assert!(x[0] <= 0.3 + 1e-12 && x[1] >= 0.65 - 1e-12);
+        }
+        // at rest, only the nodes inside
+        let mut r = bodies([0.0, 0.75], [0.3, 1.0], [0.0, 0.0]);
+        r.set_time(0.0, &g);
+        assert_eq!(r.nodes.len(), 4 * 3);
+    }
+
+    #[test]
+    fn the_cover_is_the_overlap_of_box_and_cell() {
+        let g = geo();
+        let r = {
+            let mut r = bodies([0.0, 0.75], [0.25, 1.0], [0.0, 0.0]);
+            r.set_time(0.0, &g);
+            r
+        };
+        let mut f = vec![0.0; g.node_count()];
+        r.cover(&g, &mut f);
+        let cell = |i: usize, j: usize| f[g.flat(&[i + PAD, j + PAD])];
+        assert!((cell(0, 9) - 1.0).abs() < 1e-12);
+        assert!((cell(0, 7) - 0.5).abs() < 1e-12);
+        assert!((cell(2, 7) - 0.25).abs() < 1e-12);
+        assert!((cell(2, 9) - 0.5).abs() < 1e-12);
+        assert_eq!(cell(3, 9), 0.0);
+        assert_eq!(cell(0, 6), 0.0);
+        let total: f64 = f.iter().sum();
+        assert!((total - 0.25 * 0.25 / 0.01).abs() < 1e-12);
+    }
+}
