@@ -9,6 +9,7 @@
 
 mod cavity;
 mod dam_break;
+mod elastic;
 mod hydrostatic;
 mod lobovsky;
 mod periodic;
@@ -198,6 +199,11 @@ const CASES: &[(&str, &str, CaseFn)] = &[
         "taylor_green",
         "Taylor-Green vortex decay and convergence",
         periodic::taylor_green,
+    ),
+    (
+        "elastic",
+        "elastic column under its own weight and a spinning block, both schemes",
+        elastic::run,
     ),
 ];
 
@@ -458,7 +464,11 @@ fn deck_text(name: &str) -> &'static str {
         "cavity_re1000",
         "poiseuille",
         "couette",
-        "taylor_green"
+        "taylor_green",
+        "elastic_column_projection",
+        "elastic_column_explicit",
+        "elastic_spin_projection",
+        "elastic_spin_explicit"
     )
 }
 
