@@ -97,6 +97,94 @@ pub fn classify<const D: usize>(
     });
 }
 
+/// The pressure a traction-free surface carries, p = n . tau . n, at every free-surface node
+/// (0 elsewhere). The boundary condition of a free surface is sigma n = 0 with
+/// sigma = -p I + tau; its normal part is p = n . tau . n. For a fluid tau is small there and
+/// p = 0 is the usual condition; a solid carries a deviatoric stress up to its surface (the free
+/// side of a column under its own weight has p = tau_xx = rho g (H - y) / 2), and p = 0 there
+/// would leave a layer of nodes with neither the pressure nor the volume constraint.
+///
+/// The outward normal is -grad(phi) of the volume fractions of the 2^D cells around the node
+/// (cells beyond a closed wall full, beyond an open face empty, as in [`classify`]); tau at the
+/// node is the particles' tau averaged with the weights V_p N_ip.
+#[allow(clippy::too_many_arguments)]
+pub fn surface_normal_stress<const D: usize>(
+    geo: &GridGeometry<D>,
+    shape: crate::deck::ShapeFunction,
+    bins: &CellBins,
+    x: &[crate::grid::Vector<D>],
+    half_width: &[f64],
+    volume: &[f64],
+    tau: &[crate::particles::Matrix<D>],
+    fraction: &[f64],
+    open: &[bool],
+    kinds: &[NodeKind],
+    out: &mut Vec<f64>,
+) {
+    use crate::grid::Vector;
+    use crate::particles::Matrix;
+    out.resize(geo.node_count(), 0.0);
+    out.par_iter_mut().enumerate().for_each(|(i, pn)| {
+        *pn = 0.0;
+        if kinds[i] != NodeKind::FreeSurface {
+            return;
+        }
+        let node = geo.multi(i);
+        let mut grad = Vector::<D>::zeros();
+        for corner in 0..(1usize << D) {
+            let mut inside = true;
+            let mut closed = true;
+            let mut cell = [0usize; D];
+            for d in 0..D {
+                let mut c = (node[d] + ((corner >> d) & 1)) as isize - 1;
+                if geo.periodic[d] {
+                    c = PAD as isize + (c - PAD as isize).rem_euclid(geo.cells[d] as isize);
+                }
+                if c < PAD as isize {
+                    inside = false;
+                    closed &= !open[2 * d];
+                } else if c >= (PAD + geo.cells[d]) as isize {
+                    inside = false;
+                    closed &= !open[2 * d + 1];
+                }
+                cell[d] = c.max(0) as usize;
+            }
+            let phi = if inside {
+                fraction[geo.flat(&cell)].min(1.0)
+            } else if closed {
+                1.0
+            } else {
+                0.0
+            };
+            for d in 0..D {
+                grad[d] += if (corner >> d) & 1 == 1 { phi } else { -phi };
+            }
+        }
+        let norm = grad.norm();
+        if norm == 0.0 {
+            return;
+        }
+        let n = -grad / norm;
+        let (mut t, mut w) = (Matrix::<D>::zeros(), 0.0);
+        geo.for_each_image(&node, |image| {
+            super::assemble::for_particles_near(geo, bins, shape, &image, |p| {
+                let xc = geo.to_cells(&x[p]);
+                let mut nw = volume[p];
+                for d in 0..D {
+                    nw *= shape.weight_1d(xc[d], half_width[p], image[d]);
+                }
+                if nw != 0.0 {
+                    t += tau[p] * nw;
+                    w += nw;
+                }
+            });
+        });
+        if w > 0.0 {
+            *pn = n.dot(&(t * n)) / w;
+        }
+    });
+}
+
 /// Work buffers of [`close_bubbles`], kept between steps.
 #[derive(Debug, Default)]
 pub struct FloodFill {
@@ -325,5 +413,77 @@ mod tests {
         assert_eq!(at(&out, 5, 3), 0.0);
         close_bubbles(&geo, &vf, 0.3, &[false; 4], 4, &mut ff, &mut out);
         assert_eq!(at(&out, 5, 3), 1.0);
+    }
+
+    #[test]
+    fn a_solid_surface_carries_its_normal_stress() {
+        // a block of 4 x 4 cells in a 8 x 8 box (closed walls), 2 x 2 particles per cell, all
+        // with the same deviatoric stress
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [8, 8]);
+        let mut x = Vec::new();
+        for cy in 0..4 {
+            for cx in 2..6 {
+                for (a, b) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
+                    x.push(Vector::<2>::new(cx as f64 + a, cy as f64 + b));
+                }
+            }
+        }
+        let n = x.len();
+        let volume = vec![0.25; n];
+        let tau = vec![crate::particles::Matrix::<2>::new(3.0, 0.5, 0.5, -3.0); n];
+        let mut bins = CellBins::default();
+        bins.sort(&geo, &x);
+        let mut vf = Vec::new();
+        volume_fractions(&geo, &bins, &volume, &mut vf);
+        let mass: Vec<f64> = (0..geo.node_count())
+            .map(|i| {
+                let m = geo.multi(i);
+                let (i, j) = (m[0] as isize - PAD as isize, m[1] as isize - PAD as isize);
+                if (2..=6).contains(&i) && (0..=4).contains(&j) {
+                    1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let open = [false; 4];
+        let mut kinds = Vec::new();
+        classify(&geo, &mass, 1e-9, &vf, 0.3, &open, &mut kinds);
+        let mut p = Vec::new();
+        let half = vec![0.0; n];
+        surface_normal_stress(
+            &geo,
+            crate::deck::ShapeFunction::Linear,
+            &bins,
+            &x,
+            &half,
+            &volume,
+            &tau,
+            &vf,
+            &open,
+            &kinds,
+            &mut p,
+        );
+        let at = |i: usize, j: usize| geo.flat(&[i + PAD, j + PAD]);
+        // the sides (normal -x, +x): tau_xx; the top (normal +y): tau_yy
+        for j in 1..=3 {
+            assert_eq!(kinds[at(2, j)], NodeKind::FreeSurface);
+            assert!(
+                (p[at(2, j)] - 3.0).abs() < 1e-12,
+                "left side {j}: {}",
+                p[at(2, j)]
+            );
+            assert!((p[at(6, j)] - 3.0).abs() < 1e-12, "right side {j}");
+        }
+        for i in 3..=5 {
+            assert!(
+                (p[at(i, 4)] + 3.0).abs() < 1e-12,
+                "top {i}: {}",
+                p[at(i, 4)]
+            );
+        }
+        // interior nodes carry none (their pressure is the solve's)
+        assert_eq!(kinds[at(4, 2)], NodeKind::Interior);
+        assert_eq!(p[at(4, 2)], 0.0);
     }
 }

@@ -53,7 +53,8 @@ pub struct Projection<const D: usize> {
     /// Solved pressure increment p^{n+1} - beta p^n per node (the Dirichlet values on the free
     /// surface, 0 on empty nodes).
     pub node_pressure: Vec<f64>,
-    /// Node pressure p^{n+1} of the last solve (0 off the fluid's interior nodes).
+    /// Node pressure p^{n+1} of the last solve (the free-surface value on free-surface nodes, 0
+    /// on empty ones).
     pub previous: Vec<f64>,
     /// V_p^0 V_p^0 / m_p = V_p / rho_p per particle (permuted with the particles).
     volume_over_density: Vec<f64>,
@@ -74,6 +75,11 @@ pub struct Projection<const D: usize> {
     pub stats: SolveStats,
     /// Whether the last system had no free-surface node (pressure fixed up to a constant).
     pub singular: bool,
+    /// A material is a solid (shear modulus > 0): the free surface carries p = n . tau . n
+    /// instead of 0 ([`free_surface::surface_normal_stress`]).
+    traction_free: bool,
+    /// p^{n+1} on the free-surface nodes when `traction_free` (0 elsewhere).
+    surface_pressure: Vec<f64>,
 }
 
 impl<const D: usize> Projection<D> {
@@ -135,6 +141,11 @@ impl<const D: usize> Projection<D> {
                 relative_residual: 0.0,
             },
             singular: false,
+            traction_free: deck
+                .materials
+                .iter()
+                .any(|m| crate::material::MaterialParams::new(m).wave_speed(false) > 0.0),
+            surface_pressure: Vec::new(),
         }
     }
 
@@ -246,16 +257,33 @@ impl<const D: usize> Projection<D> {
                 NodeKind::Empty => {}
             }
         }
+        // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is
+        self.surface_pressure.resize(n_nodes, 0.0);
+        if self.traction_free {
+            free_surface::surface_normal_stress(
+                geo,
+                shape,
+                &self.bins,
+                &ps.x,
+                &ps.half_width,
+                &ps.volume0,
+                &ps.tau,
+                &self.volume_fraction,
+                &self.open,
+                &self.kinds,
+                &mut self.surface_pressure,
+            );
+        }
         timers.lap(Phase::FreeSurface);
-        // the unknown is p^{n+1} - beta p^n; on the free surface p^{n+1} = 0
+        // the unknown is p^{n+1} - beta p^n
         {
-            let (kinds, prev) = (&self.kinds, &self.previous);
+            let (kinds, prev, surface) = (&self.kinds, &self.previous, &self.surface_pressure);
             self.node_pressure
                 .par_iter_mut()
                 .enumerate()
                 .for_each(|(i, dp)| {
                     *dp = match kinds[i] {
-                        NodeKind::FreeSurface => -beta * prev[i],
+                        NodeKind::FreeSurface => surface[i] - beta * prev[i],
                         _ => 0.0,
                     }
                 });
@@ -382,8 +410,9 @@ impl<const D: usize> Projection<D> {
                 dp[i as usize] = sol[r];
             }
             grid.geo.copy_to_images(dp);
-            // p^{n+1} = beta p^n + dp on the fluid's nodes, the memory of the next step
-            let kinds = &self.kinds;
+            // p^{n+1} = beta p^n + dp on the fluid's nodes, the memory of the next step (the
+            // free surface's own value there)
+            let (kinds, surface) = (&self.kinds, &self.surface_pressure);
             self.previous
                 .par_iter_mut()
                 .zip(dp.par_iter())
@@ -391,7 +420,8 @@ impl<const D: usize> Projection<D> {
                 .for_each(|(i, (p, &d))| {
                     *p = match kinds[i] {
                         NodeKind::Interior => beta * *p + d,
-                        _ => 0.0,
+                        NodeKind::FreeSurface => surface[i],
+                        NodeKind::Empty => 0.0,
                     }
                 });
         }

@@ -9,6 +9,7 @@
 
 mod cavity;
 mod dam_break;
+mod elastic;
 mod footing;
 mod hydrostatic;
 mod lobovsky;
@@ -204,6 +205,11 @@ const CASES: &[(&str, &str, CaseFn)] = &[
         "strip_footing",
         "strip footing on undrained clay against Prandtl's (2 + pi) c_u, both schemes",
         footing::run,
+    ),
+    (
+        "elastic",
+        "elastic column under its own weight and a spinning block, both schemes",
+        elastic::run,
     ),
 ];
 
@@ -465,7 +471,11 @@ fn deck_text(name: &str) -> &'static str {
         "poiseuille",
         "couette",
         "taylor_green",
-        "strip_footing"
+        "strip_footing",
+        "elastic_column_projection",
+        "elastic_column_explicit",
+        "elastic_spin_projection",
+        "elastic_spin_explicit"
     )
 }
 
