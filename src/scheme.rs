@@ -458,8 +458,12 @@ impl<const D: usize> Simulation<D> {
 }
 
 impl<const D: usize> Grid<D> {
-    /// Predictor on the nodes: v* = (v^n + dt f / m) / (1 + dt damping), zero on empty nodes.
-    /// The damping is implicit, so it is stable for any coefficient.
+    /// Predictor on the nodes: v* = v^n / (1 + dt damping) + dt f / m, zero on empty nodes.
+    /// The damping acts on the velocity the node has (implicitly, so it is stable for any
+    /// coefficient), not on the step's force: damping the force too, (v^n + dt f / m) /
+    /// (1 + dt damping), made a column at rest under the projection carry only
+    /// 1 / (1 + dt damping) of its weight (8% low at dt = 0.018 s, damping = 5 1/s), since the
+    /// projection balances v*, not a force.
     pub fn predict(&mut self, dt: f64, damping: f64, mass_epsilon: f64) {
         let scale = 1.0 / (1.0 + dt * damping);
         (
@@ -471,7 +475,7 @@ impl<const D: usize> Grid<D> {
             .into_par_iter()
             .for_each(|(vn, v, f, &m)| {
                 *vn = if m > mass_epsilon {
-                    (v + f * (dt / m)) * scale
+                    v * scale + f * (dt / m)
                 } else {
                     Vector::<D>::zeros()
                 };
