@@ -563,6 +563,14 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     for m in &deck.materials {
         out += &format!("  material         {}\n", m.describe());
     }
+    for r in &deck.rigid_bodies {
+        let (lo, hi) = r.shape.bounds();
+        let v = r.velocity.clone().unwrap_or_else(|| vec![0.0; D]);
+        out += &format!(
+            "  rigid body       \"{}\": box {lo:?} to {hi:?} m, velocity {v:?} m/s; its force in rigid_bodies.csv every step\n",
+            r.name
+        );
+    }
     out += &format!("  particles        {}\n", sim.particles.len());
     out += &format!(
         "  transfer         {:?}, shape functions {:?}\n",
