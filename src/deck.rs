@@ -418,6 +418,12 @@ pub struct PressureDeck {
     /// counts as filled (a gap the flow spread between particles, not air). 0 turns it off.
     #[serde(default = "default_bubble_cells")]
     pub bubble_cells: usize,
+    /// Volume correction (pmpm, experimental): the projection aims at div v = alpha (1 - J) / dt
+    /// instead of 0, with J the particles' volume ratio averaged over each cell, giving back the
+    /// fraction alpha of the volume the discrete projection let drift, per step. 0 (the
+    /// default) turns it off.
+    #[serde(default)]
+    pub volume_correction: f64,
 }
 
 fn default_tolerance() -> f64 {
@@ -452,6 +458,7 @@ impl Default for PressureDeck {
             rhs: PoissonRhs::default(),
             quadrature: Quadrature::default(),
             bubble_cells: default_bubble_cells(),
+            volume_correction: 0.0,
         }
     }
 }
@@ -1273,6 +1280,15 @@ impl Deck {
             ));
         }
         c.non_negative("simulation.damping", s.damping)?;
+        let vc = self.pressure.volume_correction;
+        if !(0.0..1.0).contains(&vc) {
+            return Err(c.err(
+                "pressure.volume_correction",
+                format!(
+                    "must be >= 0 and < 1 (a fraction of the drift given back per step), got {vc}"
+                ),
+            ));
+        }
 
         let g = &mut self.grid;
         if g.origin.is_empty() {

@@ -288,6 +288,11 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             ]),
             "bad.toml: simulation.dt: 0.001 s is above the viscous stability limit h^2 rho / (2 D mu) = 1.000e-6 s of material \"water\" (largest viscosity mu = 1.0000e5 Pa s); lower dt or use cfl",
         ),
+        (
+            "a volume correction of 1 or more",
+            format!("{SMALL_2D}\n[pressure]\nvolume_correction = 1.5\n"),
+            "bad.toml: pressure.volume_correction: must be >= 0 and < 1 (a fraction of the drift given back per step), got 1.5",
+        ),
         // rigid bodies
         (
             "a rigid body that is not a box",

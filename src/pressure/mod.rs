@@ -65,6 +65,10 @@ pub struct Projection<const D: usize> {
     free_surface: FreeSurface,
     quadrature: Quadrature,
     bubble_cells: usize,
+    /// alpha of `pressure.volume_correction`.
+    volume_correction: f64,
+    /// Per cell, the particles' volume ratio J averaged with the weights V_p^0.
+    cell_jacobian: Vec<f64>,
     raw_fraction: Vec<f64>,
     /// Volume fractions with the rigid bodies' cover, for the classification only.
     covered: Vec<f64>,
@@ -131,6 +135,8 @@ impl<const D: usize> Projection<D> {
             free_surface: pd.free_surface,
             quadrature: pd.quadrature,
             bubble_cells: pd.bubble_cells,
+            volume_correction: pd.volume_correction,
+            cell_jacobian: Vec::new(),
             raw_fraction: Vec::new(),
             covered: Vec::new(),
             flood_fill: Default::default(),
@@ -313,18 +319,59 @@ impl<const D: usize> Projection<D> {
                 shape,
             );
         }
-        let (qx, qhw, qdiv, qw) = if cell {
+        let (qx, qhw, qdiv, qw, qcell) = if cell {
             let g = &mut self.gauss;
-            (&g.x, &g.half_width, &mut g.divergence, &mut g.velocity)
+            (
+                &g.x,
+                &g.half_width,
+                &mut g.divergence,
+                &mut g.velocity,
+                Some(&g.cell[..]),
+            )
         } else {
             (
                 &ps.x,
                 &ps.half_width,
                 &mut self.divergence,
                 &mut self.velocity_star,
+                None,
             )
         };
         velocity_at_points(geo, shape, v_star, v_free, qx, qhw, qdiv, qw);
+        if self.volume_correction > 0.0 {
+            // the discrete projection keeps the grid velocity divergence free in the weak
+            // sense, not each particle's: the particles' J drifts, and a solid under a steady
+            // load creeps with it. Aim at div v = alpha (1 - J) / dt, which gives back the
+            // fraction alpha of the drift per step.
+            let rate = self.volume_correction / dt;
+            let (bins, v0, jac) = (&self.bins, &ps.volume0, &ps.jacobian);
+            if let Some(cells) = qcell {
+                self.cell_jacobian.resize(n_nodes, 1.0);
+                self.cell_jacobian
+                    .par_iter_mut()
+                    .enumerate()
+                    .for_each(|(c, j)| {
+                        let (mut sv, mut sj) = (0.0, 0.0);
+                        for &p in bins.particles(c) {
+                            sv += v0[p as usize];
+                            sj += v0[p as usize] * jac[p as usize];
+                        }
+                        *j = if sv > 0.0 { sj / sv } else { 1.0 };
+                    });
+                let cj = &self.cell_jacobian;
+                qdiv.par_iter_mut()
+                    .zip(cells.par_iter())
+                    .for_each(|(div, c)| {
+                        let idx: [usize; D] =
+                            std::array::from_fn(|d| c[d] as usize + crate::shape::PAD);
+                        *div -= rate * (1.0 - cj[geo.flat(&idx)]);
+                    });
+            } else {
+                qdiv.par_iter_mut()
+                    .zip(jac.par_iter())
+                    .for_each(|(div, j)| *div -= rate * (1.0 - j));
+            }
+        }
         if flux {
             boundary.apply(&mut grid.velocity_new);
         }
