@@ -7,6 +7,7 @@
 //! same cases in a few minutes; where a coarse case cannot be expected to meet the full bound the
 //! row says "report only (quick)", and the full-mode bounds are never changed.
 
+pub mod bingham;
 mod cavity;
 mod dam_break;
 mod hydrostatic;
@@ -198,6 +199,11 @@ const CASES: &[(&str, &str, CaseFn)] = &[
         "taylor_green",
         "Taylor-Green vortex decay and convergence",
         periodic::taylor_green,
+    ),
+    (
+        "bingham_poiseuille",
+        "Bingham plane Poiseuille flow: plug and profile (Bird, Dai & Yarusso 1983)",
+        bingham::poiseuille,
     ),
 ];
 
@@ -458,7 +464,8 @@ fn deck_text(name: &str) -> &'static str {
         "cavity_re1000",
         "poiseuille",
         "couette",
-        "taylor_green"
+        "taylor_green",
+        "bingham_poiseuille"
     )
 }
 
