@@ -7,6 +7,7 @@
 //! same cases in a few minutes; where a coarse case cannot be expected to meet the full bound the
 //! row says "report only (quick)", and the full-mode bounds are never changed.
 
+pub mod bingham;
 mod cavity;
 mod dam_break;
 mod elastic;
@@ -200,6 +201,11 @@ const CASES: &[(&str, &str, CaseFn)] = &[
         "taylor_green",
         "Taylor-Green vortex decay and convergence",
         periodic::taylor_green,
+    ),
+    (
+        "bingham_poiseuille",
+        "Bingham plane Poiseuille flow: plug and profile (Bird, Dai & Yarusso 1983)",
+        bingham::poiseuille,
     ),
     (
         "strip_footing",
@@ -475,7 +481,8 @@ fn deck_text(name: &str) -> &'static str {
         "elastic_column_projection",
         "elastic_column_explicit",
         "elastic_spin_projection",
-        "elastic_spin_explicit"
+        "elastic_spin_explicit",
+        "bingham_poiseuille"
     )
 }
 
