@@ -331,7 +331,15 @@ fn g2p<const D: usize, const S: u8>(
         Transfer::Flip => s.flip_ratio,
         _ => 0.0,
     };
-    let apic = s.transfer == Transfer::Apic;
+    // With B-splines the remap that follows carries the particle's new affine matrix, from
+    // v^{n+1}: with the last step's, the strain rate lags a step behind and an elastic solid's
+    // waves grow (a footing pushed into clay threw particles out of its heave at t = 1.7 s).
+    // B-spline APIC weights vanish with N_ip, so a barely reached node's huge v^{n+1} does not
+    // enter; linear and GIMP weights do not vanish (the gradient), and there the new matrix
+    // threw a dam break's splash out of the grid, so they keep the last step's (see
+    // `gradient_and_move`).
+    let fresh = s.transfer == Transfer::Apic
+        && matches!(shape, ShapeFunction::Bspline2 | ShapeFunction::Bspline3);
     (
         ps.x.par_iter(),
         ps.half_width.par_iter(),
@@ -350,15 +358,12 @@ fn g2p<const D: usize, const S: u8>(
                 let vi = v_new[i];
                 v_pic += vi * nw.n;
                 dv += (vi - v_old[i]) * nw.n;
-                if apic {
+                if fresh {
                     b += vi * nw.apic.transpose();
                 }
             });
             *v = blend(flip, v, &dv, &v_pic);
-            if apic {
-                // the remap that follows carries the particle's new affine field, not the last
-                // step's (with the old one the strain rate lags a step behind, which grows
-                // an elastic solid's waves)
+            if fresh {
                 *c = b;
             }
             *adv = v_pic;
