@@ -41,6 +41,50 @@ pub fn volume_fractions<const D: usize>(
     });
 }
 
+/// One of the 2^D cells around a node: in the grid, or beyond a closed or an open face.
+enum Corner {
+    /// A cell of the grid (flat index; periodic directions wrapped).
+    Cell(usize),
+    /// Beyond a wall: read as full.
+    Closed,
+    /// Beyond an open face: read as empty.
+    Open,
+}
+
+/// The cell `node - 1 + e` around `node`, e the bits of `corner` (bit d along axis d).
+#[inline]
+fn corner_cell<const D: usize>(
+    geo: &GridGeometry<D>,
+    node: &[usize; D],
+    corner: usize,
+    open: &[bool],
+) -> Corner {
+    let mut inside = true;
+    let mut closed = true;
+    let mut cell = [0usize; D];
+    for d in 0..D {
+        let mut c = (node[d] + ((corner >> d) & 1)) as isize - 1;
+        if geo.periodic[d] {
+            c = PAD as isize + (c - PAD as isize).rem_euclid(geo.cells[d] as isize);
+        }
+        if c < PAD as isize {
+            inside = false;
+            closed &= !open[2 * d];
+        } else if c >= (PAD + geo.cells[d]) as isize {
+            inside = false;
+            closed &= !open[2 * d + 1];
+        }
+        cell[d] = c.max(0) as usize;
+    }
+    if inside {
+        Corner::Cell(geo.flat(&cell))
+    } else if closed {
+        Corner::Closed
+    } else {
+        Corner::Open
+    }
+}
+
 /// Classifies every node from its mass and the volume fractions of the 2^D cells around it.
 /// `open[f]` tells whether face f (x_min, x_max, y_min, ...) is open.
 pub fn classify<const D: usize>(
@@ -61,28 +105,10 @@ pub fn classify<const D: usize>(
         let node = geo.multi(i);
         let mut filled = true;
         for corner in 0..(1usize << D) {
-            let mut inside = true;
-            let mut closed = true;
-            let mut cell = [0usize; D];
-            for d in 0..D {
-                // cell index node - 1 + e, with e the corner's bit d
-                let mut c = (node[d] + ((corner >> d) & 1)) as isize - 1;
-                if geo.periodic[d] {
-                    c = PAD as isize + (c - PAD as isize).rem_euclid(geo.cells[d] as isize);
-                }
-                if c < PAD as isize {
-                    inside = false;
-                    closed &= !open[2 * d];
-                } else if c >= (PAD + geo.cells[d]) as isize {
-                    inside = false;
-                    closed &= !open[2 * d + 1];
-                }
-                cell[d] = c.max(0) as usize;
-            }
-            let full = if inside {
-                fraction[geo.flat(&cell)] > tolerance
-            } else {
-                closed
+            let full = match corner_cell(geo, &node, corner, open) {
+                Corner::Cell(c) => fraction[c] > tolerance,
+                Corner::Closed => true,
+                Corner::Open => false,
             };
             if !full {
                 filled = false;
@@ -132,29 +158,10 @@ pub fn surface_normal_stress<const D: usize>(
         let node = geo.multi(i);
         let mut grad = Vector::<D>::zeros();
         for corner in 0..(1usize << D) {
-            let mut inside = true;
-            let mut closed = true;
-            let mut cell = [0usize; D];
-            for d in 0..D {
-                let mut c = (node[d] + ((corner >> d) & 1)) as isize - 1;
-                if geo.periodic[d] {
-                    c = PAD as isize + (c - PAD as isize).rem_euclid(geo.cells[d] as isize);
-                }
-                if c < PAD as isize {
-                    inside = false;
-                    closed &= !open[2 * d];
-                } else if c >= (PAD + geo.cells[d]) as isize {
-                    inside = false;
-                    closed &= !open[2 * d + 1];
-                }
-                cell[d] = c.max(0) as usize;
-            }
-            let phi = if inside {
-                fraction[geo.flat(&cell)].min(1.0)
-            } else if closed {
-                1.0
-            } else {
-                0.0
+            let phi = match corner_cell(geo, &node, corner, open) {
+                Corner::Cell(c) => fraction[c].min(1.0),
+                Corner::Closed => 1.0,
+                Corner::Open => 0.0,
             };
             for d in 0..D {
                 grad[d] += if (corner >> d) & 1 == 1 { phi } else { -phi };
