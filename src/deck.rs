@@ -589,11 +589,10 @@ impl MaterialDeck {
                     ),
                 ));
             }
-            let key = format!("{k}.{key}");
-            match key.rsplit('.').next() {
-                Some("yield_stress") => c.non_negative(&key, v)?,
-                Some("viscosity") => c.non_negative(&key, v)?,
-                _ => c.positive(&key, v)?,
+            let full = format!("{k}.{key}");
+            match key {
+                "yield_stress" | "viscosity" => c.non_negative(&full, v)?,
+                _ => c.positive(&full, v)?,
             }
         }
         for (key, _) in own.iter().filter(|(_, required)| *required) {
@@ -1667,7 +1666,9 @@ impl Deck {
                          lower dt or use cfl",
                         viscous.0,
                         m.name,
-                        crate::material::MaterialParams::new(m).law_max_viscosity()
+                        crate::material::Constitutive::max_viscosity(
+                            &crate::material::MaterialParams::new(m).law
+                        )
                     ),
                 ));
             }

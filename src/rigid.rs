@@ -220,6 +220,9 @@ impl<const D: usize> RigidBodies<D> {
         dt: f64,
         pressure: Option<(&Particles<D>, ShapeFunction)>,
     ) {
+        if self.is_empty() {
+            return;
+        }
         for (b, f) in self.force.iter_mut().enumerate() {
             *f = -self.free_momentum[b];
         }

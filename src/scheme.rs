@@ -216,13 +216,11 @@ impl<const D: usize> Simulation<D> {
                 self.pressure_iterations = stats.iterations;
                 // the corrector changed the wall nodes' normal velocity: re-impose it (the
                 // rigid bodies' force first, with the new pressure)
-                if !self.boundary.rigid.is_empty() {
-                    self.boundary.rigid.end_step(
-                        &self.grid,
-                        dt,
-                        Some((&self.particles, self.settings.shape)),
-                    );
-                }
+                self.boundary.rigid.end_step(
+                    &self.grid,
+                    dt,
+                    Some((&self.particles, self.settings.shape)),
+                );
                 self.boundary.apply(&mut self.grid.velocity_new);
             }
         }

@@ -66,26 +66,6 @@ impl Constitutive for Newtonian {
     }
 }
 
-impl Constitutive for Viscoplastic {
-    #[inline]
-    fn stress<const D: usize>(
-        &self,
-        l: &Matrix<D>,
-        _: f64,
-        _: &mut Matrix<D>,
-        _: f64,
-        _: &Matrix<D>,
-    ) -> Matrix<D> {
-        Viscoplastic::stress(self, l)
-    }
-    fn max_viscosity(&self) -> f64 {
-        Viscoplastic::max_viscosity(self)
-    }
-    fn shear_modulus(&self) -> f64 {
-        0.0
-    }
-}
-
 /// The neo-Hookean solid with an optional viscous (Kelvin-Voigt) part 2 mu dev D, which damps
 /// its waves.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -167,7 +147,7 @@ impl Constitutive for Law {
     ) -> Matrix<D> {
         match self {
             Law::Newtonian(m) => m.stress(l, dt, f, j, tau),
-            Law::Viscoplastic(m) => Constitutive::stress(m, l, dt, f, j, tau),
+            Law::Viscoplastic(m) => m.stress(l, dt, f, j, tau),
             Law::NeoHookean(m) => m.stress(l, dt, f, j, tau),
             Law::VonMises(m) => m.stress(l, dt, f, j, tau),
         }
@@ -175,7 +155,7 @@ impl Constitutive for Law {
     fn max_viscosity(&self) -> f64 {
         match self {
             Law::Newtonian(m) => m.max_viscosity(),
-            Law::Viscoplastic(m) => Constitutive::max_viscosity(m),
+            Law::Viscoplastic(m) => m.max_viscosity(),
             Law::NeoHookean(m) => m.max_viscosity(),
             Law::VonMises(m) => m.max_viscosity(),
         }
@@ -183,7 +163,7 @@ impl Constitutive for Law {
     fn shear_modulus(&self) -> f64 {
         match self {
             Law::Newtonian(m) => m.shear_modulus(),
-            Law::Viscoplastic(m) => Constitutive::shear_modulus(m),
+            Law::Viscoplastic(m) => m.shear_modulus(),
             Law::NeoHookean(m) => m.shear_modulus(),
             Law::VonMises(m) => m.shear_modulus(),
         }
@@ -254,11 +234,6 @@ impl MaterialParams {
         } else {
             (g / self.density).sqrt()
         }
-    }
-
-    /// Largest viscosity of the model (Pa s).
-    pub fn law_max_viscosity(&self) -> f64 {
-        self.law.max_viscosity()
     }
 
     /// Step limit of the explicit viscous update, h^2 rho / (2 D mu_max); infinite without

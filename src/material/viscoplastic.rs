@@ -8,7 +8,7 @@
 //! (Papanastasiou, J. Rheol. 31 (1987) 385). Bingham is n = 1 with K the plastic viscosity. The
 //! regularised fluid has no true plug: below the yield stress it creeps with viscosity about
 //! K + tau_y m, so m sets how rigid the unyielded zones are, and (with the explicit viscous
-//! update) how small the time step must be: [`Viscoplastic::max_viscosity`].
+//! update) how small the time step must be: its `max_viscosity`.
 
 use crate::particles::Matrix;
 
@@ -51,11 +51,28 @@ impl Viscoplastic {
         };
         power + self.yield_stress * yield_part
     }
+}
+
+impl super::Constitutive for Viscoplastic {
+    /// Deviatoric Cauchy stress from the strain rate alone (the fluid keeps no state).
+    #[inline]
+    fn stress<const D: usize>(
+        &self,
+        l: &Matrix<D>,
+        _: f64,
+        _: &mut Matrix<D>,
+        _: f64,
+        _: &Matrix<D>,
+    ) -> Matrix<D> {
+        let dev = super::deviatoric_strain_rate(l);
+        let gamma = (2.0 * dev.norm_squared()).sqrt();
+        dev * (2.0 * self.apparent_viscosity(gamma))
+    }
 
     /// Largest apparent viscosity (at rest, or at the shear-rate floor): what bounds the
     /// explicit viscous update's step. A shear-thickening fluid (n > 1) is bounded only by its
     /// shear rate; its bound here is the yield part alone.
-    pub fn max_viscosity(&self) -> f64 {
+    fn max_viscosity(&self) -> f64 {
         let power = if self.flow_index == 1.0 {
             self.consistency
         } else if self.flow_index < 1.0 {
@@ -66,18 +83,20 @@ impl Viscoplastic {
         power + self.yield_stress * self.exponent
     }
 
-    /// Deviatoric Cauchy stress from the strain rate.
-    #[inline]
-    pub fn stress<const D: usize>(&self, l: &Matrix<D>) -> Matrix<D> {
-        let dev = super::deviatoric_strain_rate(l);
-        let gamma = (2.0 * dev.norm_squared()).sqrt();
-        dev * (2.0 * self.apparent_viscosity(gamma))
+    fn shear_modulus(&self) -> f64 {
+        0.0
     }
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::Constitutive;
     use super::*;
+
+    /// The stress of a state-free fluid: only the velocity gradient matters.
+    fn stress(m: &Viscoplastic, l: &Matrix<2>) -> Matrix<2> {
+        m.stress(l, 0.0, &mut Matrix::identity(), 1.0, &Matrix::zeros())
+    }
 
     fn bingham() -> Viscoplastic {
         Viscoplastic {
@@ -94,7 +113,7 @@ mod tests {
         let b = bingham();
         for gamma in [0.1, 1.0, 50.0] {
             let l = Matrix::<2>::new(0.0, gamma, 0.0, 0.0);
-            let t = b.stress(&l);
+            let t = stress(&b, &l);
             let exact = 10.0 * (1.0 - (-1000.0 * gamma).exp()) + 2.0 * gamma;
             assert!((t[(0, 1)] - exact).abs() < 1e-12 * exact, "{gamma}");
             assert!(t.trace().abs() < 1e-12);
