@@ -678,8 +678,9 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             s.end_time
         );
     }
-    // the viscous limit, where it binds (a yield-stress fluid's regularisation sets it)
-    if viscous.0 < wave {
+    // the viscous limit, where it binds: below the wave limit and asking for more steps than
+    // the flow does (a yield-stress fluid's regularisation sets it; plain water never does)
+    if viscous.0 < wave && s.end_time / viscous.0 > steps.unwrap_or(0.0) {
         out += &format!(
             "  viscous limit    h^2 rho / (2 D mu) = {:.3e} s (material \"{}\"): about {:.0} steps or more to t = {}\n",
             viscous.0,

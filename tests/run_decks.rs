@@ -150,6 +150,25 @@ fn the_shipped_examples_are_valid() {
     assert!(n >= 3);
 }
 
+/// `pmpm check` names the viscous step limit only where it binds: a yield-stress fluid's
+/// regularised viscosity, not water's under the projection.
+#[test]
+fn check_names_the_viscous_limit_only_where_it_binds() {
+    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+    let check = |name: &str| {
+        let o = pmpm(&["check", examples.join(name).to_str().unwrap()]);
+        assert!(o.status.success());
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let water = check("dam_break_2d.toml");
+    assert!(!water.contains("viscous limit"), "{water}");
+    let mud = check("bingham_slump_2d.toml");
+    assert!(
+        mud.contains("  viscous limit    h^2 rho / (2 D mu) = "),
+        "{mud}"
+    );
+}
+
 #[test]
 fn runs_are_bitwise_repeatable_on_a_thread_count() {
     let projection = SMALL_2D
