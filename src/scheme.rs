@@ -262,11 +262,12 @@ impl<const D: usize> Simulation<D> {
         self.boundary
             .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
         self.timers.lap(Phase::G2p);
-        // 5. strain rate (with volumetric_averaging = "nodal" its volumetric part averaged at
-        //    the nodes, against locking), deviatoric stress, F, J (and p = K (1 - J) for the
-        //    explicit scheme)
+        // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme);
+        //    with volumetric_averaging = "nodal", against locking, the strain rate's volumetric
+        //    part before and the pressure after are averaged at the nodes
+        let (geo, shape) = (&self.grid.geo, self.settings.shape);
         if let Some(averaging) = &mut self.averaging {
-            averaging.apply(&mut self.particles, &self.grid.geo, self.settings.shape);
+            averaging.average_strain_rate(&mut self.particles, geo, shape);
         }
         material::update(
             &mut self.particles,
@@ -274,6 +275,9 @@ impl<const D: usize> Simulation<D> {
             dt,
             self.scheme == Scheme::Explicit,
         );
+        if let Some(averaging) = &mut self.averaging {
+            averaging.average_pressure(&mut self.particles, geo, shape);
+        }
         self.timers.lap(Phase::Constitutive);
         self.time += dt;
         self.steps += 1;

@@ -107,7 +107,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
         ));
         s.notes.push(format!("{label}: {} steps.", c.steps));
         if scheme == "explicit" {
-            s.notes.push("With the nodal averaging the explicit curve levels off (without it, it keeps rising: locking), but higher than the projection's. What is left is not locking: without averaging, a compressible clay (K = 2 G) gives q / c_u = 5.90 at s / B = 0.1 and h = B / 20 (a run outside this case), against 5.94 for K = 100 G with averaging. The bound stays.".into());
+            s.notes.push("With the nodal averaging the explicit curve levels off (without it, it keeps rising: locking), but higher than the projection's. What is left is not locking: without averaging, a compressible clay (K = 2 G) gives q / c_u = 5.90 at s / B = 0.1 and h = B / 20 (a run outside this case), against 5.97 for K = 100 G with averaging. The bound stays.".into());
         }
         // one point in ten keeps the figure light
         let pts = c.points.iter().step_by(10).copied().collect();
