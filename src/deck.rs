@@ -78,6 +78,19 @@ pub enum StressUpdate {
     Usl,
 }
 
+/// Anti-locking treatment of the explicit scheme's volume change (`crate::averaging`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum VolumetricAveraging {
+    /// Each particle's own velocity gradient: one volume constraint per particle, which locks
+    /// a nearly incompressible solid (K >> G).
+    #[default]
+    None,
+    /// The volumetric part of the velocity gradient averaged at the nodes (one constraint per
+    /// node); explicit scheme only.
+    Nodal,
+}
+
 /// Shape functions of the background grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -233,6 +246,10 @@ pub struct SimulationDeck {
     /// Strain rate from remapped node velocities (`musl`, default) or from v^{n+1} (`usl`).
     #[serde(default)]
     pub stress_update: StressUpdate,
+    /// Volumetric strain rate of the explicit scheme: each particle's own (`none`, default) or
+    /// averaged at the nodes (`nodal`), against volumetric locking.
+    #[serde(default)]
+    pub volumetric_averaging: VolumetricAveraging,
     /// Steps between sorts of the particles by cell (default 20; 0: never sort). Sorted
     /// particles visit the grid nodes in order in the transfers, which keeps them in cache.
     #[serde(default = "default_sort_interval")]
@@ -926,6 +943,7 @@ fn allowed_values(key: &str) -> Option<Vec<String>> {
         "transfer" => variants::<Transfer>(),
         "shape_function" => variants::<ShapeFunction>(),
         "stress_update" => variants::<StressUpdate>(),
+        "volumetric_averaging" => variants::<VolumetricAveraging>(),
         "solver" => variants::<Solver>(),
         "preconditioner" => variants::<Preconditioner>(),
         "free_surface" => variants::<FreeSurface>(),
@@ -1279,6 +1297,12 @@ impl Deck {
             ));
         }
         c.non_negative("simulation.damping", s.damping)?;
+        if s.volumetric_averaging != VolumetricAveraging::None && s.scheme != Scheme::Explicit {
+            return Err(c.err(
+                "simulation.volumetric_averaging",
+                "is for scheme = \"explicit\" (against the locking of its equation of state); the projection's pressure already keeps one volume constraint per node: remove the key or set it to \"none\"",
+            ));
+        }
         let vc = self.pressure.volume_correction;
         if !(0.0..1.0).contains(&vc) {
             return Err(c.err(

@@ -15,12 +15,14 @@
 //! boundary conditions on v*                      boundary
 //! [projection: free surface, Poisson, corrector] pressure
 //! grid -> particles (PIC/FLIP/APIC), move        transfer
+//! [explicit: nodal averaging of tr L]            averaging
 //! strain rate, stress, F, J                      material
 //! ```
 #![warn(missing_docs)]
 // Loops over the D axes index several arrays at once and read like the equations.
 #![allow(clippy::needless_range_loop)]
 
+pub mod averaging;
 pub mod boundary;
 pub mod checkpoint;
 pub mod deck;

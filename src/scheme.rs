@@ -4,8 +4,9 @@
 //! state p = K (1 - J) inside the particle stress, `projection` (METHOD.md) from a Poisson solve
 //! between the predictor and the corrector.
 
+use crate::averaging::NodalAveraging;
 use crate::boundary::Boundary;
-use crate::deck::{Deck, Scheme, StressUpdate};
+use crate::deck::{Deck, Scheme, StressUpdate, VolumetricAveraging};
 use crate::error::Error;
 use crate::grid::CellBins;
 use crate::grid::{Grid, GridGeometry, Vector};
@@ -59,6 +60,8 @@ pub struct Simulation<const D: usize> {
     body_force: Option<(crate::field::CompiledField, Vec<Vector<D>>)>,
     /// The pressure projection (scheme = "projection").
     pub projection: Option<Projection<D>>,
+    /// The nodal averaging of the volumetric strain rate (`volumetric_averaging = "nodal"`).
+    averaging: Option<NodalAveraging<D>>,
     scratch: P2gScratch<D>,
     /// Per-particle velocity that moves it this step (interpolated v^{n+1}).
     advect: Vec<Vector<D>>,
@@ -130,6 +133,8 @@ impl<const D: usize> Simulation<D> {
             .collect();
         let projection = (deck.simulation.scheme == Scheme::Projection)
             .then(|| Projection::new(deck, &particles, &boundary));
+        let averaging = (deck.simulation.volumetric_averaging == VolumetricAveraging::Nodal)
+            .then(|| NodalAveraging::new(rayon::current_num_threads(), geo.node_count()));
         let body_force = (!gravity.is_constant()).then(|| {
             let f = particles.x.iter().map(|x| gravity.eval(x, 0.0)).collect();
             (gravity, f)
@@ -137,6 +142,7 @@ impl<const D: usize> Simulation<D> {
         Ok(Self {
             body_force,
             projection,
+            averaging,
             deck: deck.clone(),
             particles,
             grid: Grid::new(geo),
@@ -256,13 +262,22 @@ impl<const D: usize> Simulation<D> {
         self.boundary
             .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
         self.timers.lap(Phase::G2p);
-        // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme)
+        // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme);
+        //    with volumetric_averaging = "nodal", against locking, the strain rate's volumetric
+        //    part before and the pressure after are averaged at the nodes
+        let (geo, shape) = (&self.grid.geo, self.settings.shape);
+        if let Some(averaging) = &mut self.averaging {
+            averaging.average_strain_rate(&mut self.particles, geo, shape);
+        }
         material::update(
             &mut self.particles,
             &self.materials,
             dt,
             self.scheme == Scheme::Explicit,
         );
+        if let Some(averaging) = &mut self.averaging {
+            averaging.average_pressure(&mut self.particles, geo, shape);
+        }
         self.timers.lap(Phase::Constitutive);
         self.time += dt;
         self.steps += 1;

@@ -53,26 +53,71 @@ impl<const D: usize> NodeSums<D> {
 /// One thread's node accumulators over the band of nodes its particles reach: node i is
 /// `sums[i - start]`. With the particles sorted by cell a thread's contiguous range of
 /// particles lies in a band of cells, so the bands of all threads together cover about the
-/// occupied part of the grid once, instead of the whole grid once per thread.
-#[derive(Debug, Clone, Default)]
-struct Band<const D: usize> {
-    start: usize,
-    sums: Vec<NodeSums<D>>,
+/// occupied part of the grid once, instead of the whole grid once per thread. `T` is what a
+/// node accumulates: [`NodeSums`] for P2G, a weight and a weighted value for the volumetric
+/// averaging (`crate::averaging`).
+#[derive(Debug, Clone)]
+pub(crate) struct Band<T> {
+    pub(crate) start: usize,
+    pub(crate) sums: Vec<T>,
 }
 
-impl<const D: usize> Band<D> {
+impl<T> Default for Band<T> {
+    fn default() -> Self {
+        Self {
+            start: 0,
+            sums: Vec::new(),
+        }
+    }
+}
+
+impl<T> Band<T> {
     /// The sums at node i, if the band holds it.
     #[inline]
-    fn at(&self, i: usize) -> Option<&NodeSums<D>> {
+    pub(crate) fn at(&self, i: usize) -> Option<&T> {
         self.sums.get(i.wrapping_sub(self.start))
     }
 }
 
-/// Reusable P2G buffers, one band per rayon thread. A band keeps its allocation from step to
-/// step and grows only when its particles spread over more nodes.
+/// Runs `scatter` on every band of `bands` (one per rayon thread) with that band's contiguous
+/// range of particles, after sizing the band to the nodes those particles reach and filling it
+/// with `zero`. A band keeps its allocation from call to call and grows only when its
+/// particles spread over more nodes.
+pub(crate) fn scatter_bands<const D: usize, T, F>(
+    bands: &mut [Band<T>],
+    zero: T,
+    geo: &GridGeometry<D>,
+    x: &[Vector<D>],
+    scatter: F,
+) where
+    T: Copy + Send + Sync,
+    F: Fn(&mut Band<T>, std::ops::Range<usize>) + Sync,
+{
+    let particles = x.len();
+    let per = particles.div_ceil(bands.len()).max(1);
+    // a stencil reaches at most PAD nodes either side of its particle's cell on each axis
+    let reach = crate::shape::PAD * geo.strides.iter().sum::<usize>();
+    let nodes = geo.node_count();
+    bands.par_iter_mut().enumerate().for_each(|(t, band)| {
+        let range = (t * per).min(particles)..((t + 1) * per).min(particles);
+        let (lo, hi) = x[range.clone()]
+            .iter()
+            .map(|x| geo.cell_of(x))
+            .fold((usize::MAX, 0), |(lo, hi), c| (lo.min(c), hi.max(c)));
+        band.sums.clear();
+        if lo <= hi {
+            band.start = lo.saturating_sub(reach);
+            band.sums
+                .resize((hi + reach + 1).min(nodes) - band.start, zero);
+        }
+        scatter(band, range)
+    });
+}
+
+/// Reusable P2G buffers, one band per rayon thread.
 #[derive(Debug, Clone)]
 pub struct P2gScratch<const D: usize> {
-    bands: Vec<Band<D>>,
+    bands: Vec<Band<NodeSums<D>>>,
 }
 
 impl<const D: usize> P2gScratch<D> {
@@ -83,31 +128,12 @@ impl<const D: usize> P2gScratch<D> {
         }
     }
 
-    /// Runs `scatter` on every thread's band with that thread's contiguous range of particles,
-    /// after sizing the band to the nodes those particles reach and zeroing it.
+    /// [`scatter_bands`] over these buffers.
     fn scatter<F>(&mut self, geo: &GridGeometry<D>, x: &[Vector<D>], scatter: F)
     where
-        F: Fn(&mut Band<D>, std::ops::Range<usize>) + Sync,
+        F: Fn(&mut Band<NodeSums<D>>, std::ops::Range<usize>) + Sync,
     {
-        let particles = x.len();
-        let per = particles.div_ceil(self.bands.len()).max(1);
-        // a stencil reaches at most PAD nodes either side of its particle's cell on each axis
-        let reach = crate::shape::PAD * geo.strides.iter().sum::<usize>();
-        let nodes = geo.node_count();
-        self.bands.par_iter_mut().enumerate().for_each(|(t, band)| {
-            let range = (t * per).min(particles)..((t + 1) * per).min(particles);
-            let (lo, hi) = x[range.clone()]
-                .iter()
-                .map(|x| geo.cell_of(x))
-                .fold((usize::MAX, 0), |(lo, hi), c| (lo.min(c), hi.max(c)));
-            band.sums.clear();
-            if lo <= hi {
-                band.start = lo.saturating_sub(reach);
-                band.sums
-                    .resize((hi + reach + 1).min(nodes) - band.start, NodeSums::ZERO);
-            }
-            scatter(band, range)
-        });
+        scatter_bands(&mut self.bands, NodeSums::ZERO, geo, x, scatter)
     }
 }
 
@@ -184,7 +210,7 @@ fn scatter_p2g<const D: usize, const S: u8>(
 }
 
 /// The ordered sum of the per-thread bands of [`particles_to_grid`], then v_i and p_i.
-fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bands: &[Band<D>], eps: f64) {
+fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bands: &[Band<NodeSums<D>>], eps: f64) {
     let geo = &grid.geo;
     (
         grid.mass.par_iter_mut(),

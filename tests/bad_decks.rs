@@ -40,7 +40,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown key",
             edit(&[("end_time = 0.05", "endtime = 0.05")]),
-            "bad.toml:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, sort_interval, damping, land_on_frames)",
+            "bad.toml:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames)",
         ),
         (
             "unknown key, another name for a key",
@@ -78,6 +78,22 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
                 "transfer = \"apic\"\nstress_update = \"mls\"",
             )]),
             "bad.toml:9:17: simulation.stress_update: unknown value \"mls\"; did you mean \"musl\"? (allowed: \"musl\", \"usl\")",
+        ),
+        (
+            "unknown volumetric_averaging",
+            edit(&[(
+                "transfer = \"apic\"",
+                "transfer = \"apic\"\nvolumetric_averaging = \"fbar\"",
+            )]),
+            "bad.toml:9:24: simulation.volumetric_averaging: unknown value \"fbar\" (allowed: \"none\", \"nodal\")",
+        ),
+        (
+            "volumetric_averaging with the projection",
+            edit(&[
+                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("transfer = \"apic\"", "transfer = \"apic\"\nvolumetric_averaging = \"nodal\""),
+            ]),
+            "bad.toml: simulation.volumetric_averaging: is for scheme = \"explicit\" (against the locking of its equation of state); the projection's pressure already keeps one volume constraint per node: remove the key or set it to \"none\"",
         ),
         (
             "unknown boundary kind",
@@ -509,7 +525,7 @@ fn the_deck_is_named_as_the_user_named_it() {
     assert_eq!(
         stderr.lines().next().unwrap_or(""),
         format!(
-            "error: {}:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, sort_interval, damping, land_on_frames)",
+            "error: {}:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames)",
             deck.display()
         )
     );

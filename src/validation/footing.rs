@@ -36,10 +36,14 @@ fn mean(points: &[(f64, f64)], lo: f64, hi: f64) -> f64 {
 
 fn push(scheme: &str, h: f64) -> Result<Curve, String> {
     let d = load_deck("strip_footing", |d| {
-        d.simulation.scheme = match scheme {
-            "explicit" => crate::deck::Scheme::Explicit,
-            _ => crate::deck::Scheme::Projection,
-        };
+        if scheme == "explicit" {
+            // K = 100 G locks each particle's volume: the volumetric strain rate is averaged
+            // at the nodes (src/averaging.rs)
+            d.simulation.scheme = crate::deck::Scheme::Explicit;
+            d.simulation.volumetric_averaging = crate::deck::VolumetricAveraging::Nodal;
+        } else {
+            d.simulation.scheme = crate::deck::Scheme::Projection;
+        }
         d.grid.cell_size = h;
     })?;
     let mut points = Vec::new();
@@ -66,7 +70,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
     let mut s = Section {
         title: "Strip footing on undrained clay (Prandtl)".into(),
         setup: format!(
-            "A rigid, rough strip footing of width B = 1 m on the surface of a weightless clay layer 2 m deep (von Mises, c_u = 10 kPa, G = 1 MPa, rho = 1800 kg/m3), pushed down at 0.05 m/s (rho v^2 / c_u = 5e-4: quasi-static) to a settlement of 0.1 B. Half model, 3 m wide: the slip wall x = 0 is the footing's centre line; slip wall x = 3 m, no-slip base, open top. The footing is a `[[rigid_bodies]]` box; its force is the momentum its nodes need (`src/rigid.rs`). APIC, quadratic B-splines (`bspline2`), cfl 0.5, 2x2 particles per cell, h = {h} m = B / {:.0} (`validation/decks/strip_footing.toml`{}). Projection, and the explicit scheme with K = 100 G.",
+            "A rigid, rough strip footing of width B = 1 m on the surface of a weightless clay layer 2 m deep (von Mises, c_u = 10 kPa, G = 1 MPa, rho = 1800 kg/m3), pushed down at 0.05 m/s (rho v^2 / c_u = 5e-4: quasi-static) to a settlement of 0.1 B. Half model, 3 m wide: the slip wall x = 0 is the footing's centre line; slip wall x = 3 m, no-slip base, open top. The footing is a `[[rigid_bodies]]` box; its force is the momentum its nodes need (`src/rigid.rs`). APIC, quadratic B-splines (`bspline2`), cfl 0.5, 2x2 particles per cell, h = {h} m = B / {:.0} (`validation/decks/strip_footing.toml`{}). Projection, and the explicit scheme with K = 100 G and `volumetric_averaging = \"nodal\"`: the volumetric strain rate averaged at the nodes (`src/averaging.rs`), against the locking of the nearly incompressible clay (without it the explicit footing's load keeps rising, q / c_u = 7.08 at s / B = 0.1 at h = B / 20).",
             B / h,
             if quick { "; quick mode, the full case has h = B / 20" } else { "" }
         ),
@@ -79,12 +83,15 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
         vec![(0.0, NC), (0.1, NC)],
         colors::REF,
     )];
-    for (scheme, color) in [("projection", colors::PROJ), ("explicit", colors::EXPL)] {
+    for (scheme, label, color) in [
+        ("projection", "projection", colors::PROJ),
+        ("explicit", "explicit, nodal averaging", colors::EXPL),
+    ] {
         let c = push(scheme, h)?;
         let err = (c.at_10 - NC).abs() / NC;
         s.rows.push(Row::bounded(
             format!(
-                "{scheme}, h = B/{:.0}: |q/c_u - (2+pi)| / (2+pi) at s/B = 0.1 (q/c_u = {:.3})",
+                "{label}, h = B/{:.0}: |q/c_u - (2+pi)| / (2+pi) at s/B = 0.1 (q/c_u = {:.3})",
                 B / h,
                 c.at_10
             ),
@@ -95,13 +102,16 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
             quick,
         ));
         s.rows.push(Row::report(
-            format!("{scheme}, h = B/{:.0}: q/c_u at s/B = 0.05", B / h),
+            format!("{label}, h = B/{:.0}: q/c_u at s/B = 0.05", B / h),
             format!("{:.3}", c.at_5),
         ));
-        s.notes.push(format!("{scheme}: {} steps.", c.steps));
+        s.notes.push(format!("{label}: {} steps.", c.steps));
+        if scheme == "explicit" {
+            s.notes.push("With the nodal averaging the explicit curve levels off (without it, it keeps rising: locking), but higher than the projection's. What is left is not locking: without averaging, a compressible clay (K = 2 G) gives q / c_u = 5.90 at s / B = 0.1 and h = B / 20 (a run outside this case), against 5.97 for K = 100 G with averaging. The bound stays.".into());
+        }
         // one point in ten keeps the figure light
         let pts = c.points.iter().step_by(10).copied().collect();
-        series.push(Series::thin(scheme, pts, color));
+        series.push(Series::thin(label, pts, color));
     }
     save(
         &ctx.opts.out.join("strip_footing.png"),
