@@ -499,6 +499,26 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
             ));
         }
     }
+    // a nearly incompressible solid under the explicit scheme without the nodal averaging:
+    // one volume constraint per particle locks the grid (the strip footing's load 38% high at
+    // K = 100 G, and a thin layer on a no-slip floor held still)
+    if s.scheme == crate::deck::Scheme::Explicit
+        && s.volumetric_averaging == crate::deck::VolumetricAveraging::None
+    {
+        let stiff = deck
+            .materials
+            .iter()
+            .find_map(|m| match (m.shear_modulus, m.bulk_modulus) {
+                (Some(g), Some(k)) if g > 0.0 && k >= 10.0 * g => Some((m, k / g)),
+                _ => None,
+            });
+        if let Some((m, ratio)) = stiff {
+            w.push(format!(
+                "materials \"{}\": bulk_modulus / shear_modulus = {:.0} with the explicit scheme: such a nearly incompressible solid can lock (respond too stiffly); set simulation.volumetric_averaging = \"nodal\" (docs/materials.md), or use the projection scheme",
+                m.name, ratio
+            ));
+        }
+    }
     w
 }
 

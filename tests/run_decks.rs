@@ -150,6 +150,23 @@ fn the_shipped_examples_are_valid() {
     assert!(n >= 3);
 }
 
+/// `pmpm check` warns of a nearly incompressible solid under the explicit scheme without the
+/// nodal averaging, and not once the averaging is on.
+#[test]
+fn check_warns_of_volumetric_locking() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let check = |path: &Path| {
+        let o = pmpm(&["check", path.to_str().unwrap()]);
+        assert!(o.status.success());
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let warning = "warning: materials \"rubber\": bulk_modulus / shear_modulus = 100 with the explicit scheme: such a nearly incompressible solid can lock";
+    let without = check(&root.join("validation/decks/elastic_column_explicit.toml"));
+    assert!(without.contains(warning), "{without}");
+    let with = check(&root.join("examples/elastic_column_2d.toml"));
+    assert!(!with.contains("can lock"), "{with}");
+}
+
 /// `pmpm check` names the viscous step limit only where it binds: a yield-stress fluid's
 /// regularised viscosity, not water's under the projection.
 #[test]
