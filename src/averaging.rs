@@ -240,13 +240,7 @@ mod tests {
         mut l: impl FnMut(&mut dyn FnMut() -> f64) -> Matrix<D>,
     ) -> Particles<D> {
         let mut ps = Particles::<D>::default();
-        let mut seed = 987654321u64;
-        let mut rnd = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::test_random(987654321);
         for _ in 0..n {
             let x = Vector::<D>::from_fn(|d, _| {
                 geo.origin[d] + (0.5 + rnd() * (geo.cells[d] as f64 - 1.0)) * geo.h

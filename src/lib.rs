@@ -44,3 +44,16 @@ pub mod validation;
 
 pub use deck::Deck;
 pub use error::Error;
+
+/// A deterministic pseudo-random source for unit tests: uniform in [0, 1), from a 64-bit
+/// linear congruential generator (Knuth's MMIX constants) seeded with `seed`.
+#[cfg(test)]
+pub(crate) fn test_random(seed: u64) -> impl FnMut() -> f64 {
+    let mut s = seed;
+    move || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    }
+}

@@ -529,13 +529,7 @@ mod tests {
     /// A few hundred particles scattered (deterministically) in the interior of a grid.
     fn scatter<const D: usize>(geo: &GridGeometry<D>, n: usize) -> Particles<D> {
         let mut ps = Particles::<D>::default();
-        let mut seed = 12345u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::test_random(12345);
         for _ in 0..n {
             let x = Vector::<D>::from_fn(|d, _| {
                 geo.origin[d] + (1.0 + rnd() * (geo.cells[d] as f64 - 2.0)) * geo.h

@@ -666,15 +666,8 @@ mod tests {
     }
 
     fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
-        let mut s = seed;
-        (0..n)
-            .map(|_| {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-            })
-            .collect()
+        let mut rnd = crate::test_random(seed);
+        (0..n).map(|_| rnd() - 0.5).collect()
     }
 
     fn dot(a: &[f64], b: &[f64]) -> f64 {
