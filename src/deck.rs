@@ -392,6 +392,22 @@ pub enum PoissonRhs {
     Divergence,
 }
 
+/// Where the projection's pressure unknowns sit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PressureUnknowns {
+    /// One pressure per node, the velocity's own shape functions (METHOD.md): a free-surface
+    /// detection gives p = 0, and the projection's residual dt (L - D M^-1 G) p damps the
+    /// equal-order checkerboard.
+    #[default]
+    Nodes,
+    /// One pressure per cell that holds material, constant in the cell (the Q1-P0 pair,
+    /// `src/pressure/cell.rs`): each cell's weak divergence is zero after the correction, with
+    /// no stabilisation residual, so a solid at rest under a steady load stays at rest. No
+    /// free-surface detection (p = 0 holds weakly at the material's boundary).
+    Cells,
+}
+
 /// Quadrature of the Poisson matrix L and its right-hand side.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -441,6 +457,9 @@ pub struct PressureDeck {
     /// default) turns it off.
     #[serde(default)]
     pub volume_correction: f64,
+    /// Where the pressure unknowns sit: "nodes" (METHOD.md, the default) or "cells".
+    #[serde(default)]
+    pub unknowns: PressureUnknowns,
 }
 
 fn default_tolerance() -> f64 {
@@ -476,6 +495,7 @@ impl Default for PressureDeck {
             quadrature: Quadrature::default(),
             bubble_cells: default_bubble_cells(),
             volume_correction: 0.0,
+            unknowns: PressureUnknowns::default(),
         }
     }
 }
@@ -949,6 +969,7 @@ fn allowed_values(key: &str) -> Option<Vec<String>> {
         "free_surface" => variants::<FreeSurface>(),
         "rhs" => variants::<PoissonRhs>(),
         "quadrature" => variants::<Quadrature>(),
+        "unknowns" => variants::<PressureUnknowns>(),
         "model" => variants::<Model>(),
         "formats" => variants::<Format>(),
         "stress" => variants::<InitialStress>(),
@@ -1313,6 +1334,29 @@ impl Deck {
             ));
         }
 
+        if self.pressure.unknowns == PressureUnknowns::Cells {
+            let p = &self.pressure;
+            let why = "with pressure.unknowns = \"cells\"";
+            if p.beta != 0.0 {
+                return Err(c.err(
+                    "pressure.beta",
+                    format!("must be 0 {why} (the cell pressure is solved whole, not as an increment), got {}", p.beta),
+                ));
+            }
+            if vc != 0.0 {
+                return Err(c.err(
+                    "pressure.volume_correction",
+                    format!("must be 0 {why}: each cell's divergence is already held at zero"),
+                ));
+            }
+            if p.solver == Solver::Pcg && p.preconditioner != Preconditioner::Jacobi {
+                return Err(c.err(
+                    "pressure.preconditioner",
+                    format!("must be \"jacobi\" {why} (the multigrid and ic0 are built for the nodal Laplacian), or use solver = \"direct\""),
+                ));
+            }
+        }
+
         let g = &mut self.grid;
         if g.origin.is_empty() {
             g.origin = vec![0.0; dim];
@@ -1402,6 +1446,15 @@ impl Deck {
                     ),
                 ));
             }
+            if periodic(lo)
+                && self.simulation.scheme == Scheme::Projection
+                && self.pressure.unknowns == PressureUnknowns::Cells
+            {
+                return Err(c.err(
+                    format!("grid.boundary.{}", FACE_NAMES[2 * d]),
+                    "a periodic axis is not built for pressure.unknowns = \"cells\" yet: use \"nodes\"",
+                ));
+            }
             let n = (g.size[d] / g.cell_size).round() as usize;
             if periodic(lo) && n < 2 * crate::shape::PAD + 1 {
                 return Err(c.err(
@@ -1470,6 +1523,16 @@ impl Deck {
                     ))
                 }
                 None => {}
+            }
+            let solid = crate::material::MaterialParams::new(m).wave_speed(false) > 0.0;
+            if !explicit && self.pressure.unknowns == PressureUnknowns::Cells && !solid {
+                return Err(c.err(
+                    format!("{k}.model"),
+                    format!(
+                        "\"{}\" is a fluid, and pressure.unknowns = \"cells\" is for solids: one pressure per cell leaves velocity modes that only a shear stiffness holds (a water column at rest stirs up to 0.07 m/s in 2 s); use unknowns = \"nodes\"",
+                        m.name
+                    ),
+                ));
             }
         }
 

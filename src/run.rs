@@ -712,7 +712,16 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     if s.scheme == Scheme::Projection {
         let p = &deck.pressure;
         let lower = |x: String| x.to_lowercase();
-        out += &format!(
+        if p.unknowns == crate::deck::PressureUnknowns::Cells {
+            out += &format!(
+                "  pressure         one per cell (unknowns = \"cells\"): {} ({}), tolerance {:e}, at most {} iterations; each cell's weak divergence held at zero, no free-surface detection\n",
+                lower(format!("{:?}", p.solver)),
+                lower(format!("{:?}", p.preconditioner)),
+                p.tolerance,
+                p.max_iterations,
+            );
+        } else {
+            out += &format!(
             "  pressure         {} ({}), tolerance {:e}, at most {} iterations; rhs {}, beta = {}; free surface where a cell is below {} full\n",
             lower(format!("{:?}", p.solver)),
             lower(format!("{:?}", p.preconditioner)),
@@ -722,6 +731,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             p.beta,
             p.volume_fraction_tolerance
         );
+        }
     }
     let frames = (s.end_time / deck.output.interval.unwrap_or(s.end_time)).round() as usize + 1;
     let n = sim.particles.len() as f64;

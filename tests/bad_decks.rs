@@ -309,6 +309,61 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             format!("{SMALL_2D}\n[pressure]\nvolume_correction = 1.5\n"),
             "bad.toml: pressure.volume_correction: must be >= 0 and < 1 (a fraction of the drift given back per step), got 1.5",
         ),
+        // one pressure per cell
+        (
+            "cell pressure with a fluid",
+            edit(&[
+                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("[[bodies]]", "[pressure]\nunknowns = \"cells\"\n\n[[bodies]]"),
+            ]),
+            "bad.toml: materials[0].model: \"water\" is a fluid, and pressure.unknowns = \"cells\" is for solids: one pressure per cell leaves velocity modes that only a shear stiffness holds (a water column at rest stirs up to 0.07 m/s in 2 s); use unknowns = \"nodes\"",
+        ),
+        (
+            "cell pressure with the incremental form",
+            edit(&[
+                ("density = 1000.0", "model = \"neo_hookean_incompressible\"\ndensity = 1000.0\nshear_modulus = 1.0e5"),
+                ("viscosity = 1.0e-3\n", ""),
+                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("[[bodies]]", "[pressure]\nunknowns = \"cells\"\nbeta = 0.5\n\n[[bodies]]"),
+            ]),
+            "bad.toml: pressure.beta: must be 0 with pressure.unknowns = \"cells\" (the cell pressure is solved whole, not as an increment), got 0.5",
+        ),
+        (
+            "cell pressure with the volume correction",
+            edit(&[
+                ("density = 1000.0", "model = \"neo_hookean_incompressible\"\ndensity = 1000.0\nshear_modulus = 1.0e5"),
+                ("viscosity = 1.0e-3\n", ""),
+                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("[[bodies]]", "[pressure]\nunknowns = \"cells\"\nvolume_correction = 0.1\n\n[[bodies]]"),
+            ]),
+            "bad.toml: pressure.volume_correction: must be 0 with pressure.unknowns = \"cells\": each cell's divergence is already held at zero",
+        ),
+        (
+            "cell pressure with the multigrid",
+            edit(&[
+                ("density = 1000.0", "model = \"neo_hookean_incompressible\"\ndensity = 1000.0\nshear_modulus = 1.0e5"),
+                ("viscosity = 1.0e-3\n", ""),
+                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("[[bodies]]", "[pressure]\nunknowns = \"cells\"\npreconditioner = \"multigrid\"\n\n[[bodies]]"),
+            ]),
+            "bad.toml: pressure.preconditioner: must be \"jacobi\" with pressure.unknowns = \"cells\" (the multigrid and ic0 are built for the nodal Laplacian), or use solver = \"direct\"",
+        ),
+        (
+            "cell pressure on a periodic axis",
+            edit(&[
+                ("density = 1000.0", "model = \"neo_hookean_incompressible\"\ndensity = 1000.0\nshear_modulus = 1.0e5"),
+                ("viscosity = 1.0e-3\n", ""),
+                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("x_min = \"slip\"\nx_max = \"slip\"", "x_min = \"periodic\"\nx_max = \"periodic\""),
+                ("[[bodies]]", "[pressure]\nunknowns = \"cells\"\n\n[[bodies]]"),
+            ]),
+            "bad.toml: grid.boundary.x_min: a periodic axis is not built for pressure.unknowns = \"cells\" yet: use \"nodes\"",
+        ),
+        (
+            "an unknown place for the pressure",
+            format!("{SMALL_2D}\n[pressure]\nunknowns = \"faces\"\n"),
+            "bad.toml:41:12: pressure.unknowns: unknown value \"faces\"; did you mean \"nodes\"? (allowed: \"nodes\", \"cells\")",
+        ),
         // rigid bodies
         (
             "a rigid body that is not a box",

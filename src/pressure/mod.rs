@@ -11,13 +11,15 @@
 //! feeding the drift back into L and into the free-surface volume fractions would compound it.
 
 pub mod assemble;
+pub mod cell;
 pub mod free_surface;
 pub mod multigrid;
 pub mod solve;
 
 use crate::boundary::Boundary;
 use crate::deck::{
-    Deck, FreeSurface, PoissonRhs, Preconditioner, Quadrature, ShapeFunction, Solver,
+    Deck, FreeSurface, PoissonRhs, Preconditioner, PressureUnknowns, Quadrature, ShapeFunction,
+    Solver,
 };
 use crate::grid::{CellBins, Grid, Vector};
 use crate::particles::Particles;
@@ -84,6 +86,9 @@ pub struct Projection<const D: usize> {
     traction_free: bool,
     /// p^{n+1} on the free-surface nodes when `traction_free` (0 elsewhere).
     surface_pressure: Vec<f64>,
+    /// With `pressure.unknowns = "cells"`, the cell projection (then `previous` holds the
+    /// cell pressures, numbered like their cells' lower-corner nodes).
+    cells: Option<cell::CellProjection<D>>,
 }
 
 impl<const D: usize> Projection<D> {
@@ -152,6 +157,8 @@ impl<const D: usize> Projection<D> {
                 .iter()
                 .any(|m| crate::material::MaterialParams::new(m).wave_speed(false) > 0.0),
             surface_pressure: Vec::new(),
+            cells: (pd.unknowns == PressureUnknowns::Cells)
+                .then(|| cell::CellProjection::new(deck.simulation.shape_function)),
         }
     }
 
@@ -201,6 +208,25 @@ impl<const D: usize> Projection<D> {
         self.node_pressure.resize(n_nodes, 0.0);
         self.previous.resize(n_nodes, 0.0);
         self.bins.sort(&grid.geo, &ps.x);
+        if let Some(cells) = &mut self.cells {
+            timers.lap(Phase::FreeSurface);
+            self.stats = cells.project(
+                ps,
+                grid,
+                boundary,
+                &self.bins,
+                &mut self.solver,
+                self.tolerance,
+                self.max_iterations,
+                mass_epsilon,
+                dt,
+                shape,
+                &mut self.previous,
+            )?;
+            self.singular = false;
+            timers.lap(Phase::Solve);
+            return Ok(self.stats);
+        }
         if beta > 0.0 {
             // incremental form: v* -= beta (dt / m_i) sum_p V_p N_ip (grad p^n)_p
             self.particle_pressure(ps, &grid.geo, false);

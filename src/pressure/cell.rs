@@ -1,0 +1,384 @@
+//! The projection with one pressure per cell (`pressure.unknowns = "cells"`): the pressure is
+//! constant in each cell that holds material, the velocity stays on the nodes, and the
+//! corrected velocity is divergence free in each cell's weak sense, exactly (to the solver's
+//! tolerance), with no stabilisation. It is the Q1-P0 pair of finite elements (with linear
+//! shape functions; the wider kernels keep one pressure per cell too), the discrete form of
+//! the B-bar element of nearly incompressible elasticity, written here for the particles'
+//! quadrature.
+//!
+//! Why: the nodal projection of METHOD.md keeps a divergence dt (L - D M^-1 G) p after the
+//! correction. That residual is what damps the equal-order checkerboard, and it vanishes for
+//! a linear pressure, but under a steady pressure with curvature it drains volume every step:
+//! a solid at rest under its own weight creeps (docs/method.md, "Where the volume goes"). Here
+//! the constraint is D v^{n+1} = 0 with the same D on both sides of the solve, so a body at
+//! rest stays at rest.
+//!
+//! The discrete equations, with D_cj = sum_{p in c} V_p grad N_j(x_p) (a vector per cell c and
+//! node j) and m_j the lumped nodal mass:
+//!
+//! ```text
+//!   m_j v_j^{n+1} = m_j v*_j + dt sum_c p_c D_cj          (the pressure's weak force, corrector)
+//!   sum_j D_cj . v_j^{n+1} = 0      for every cell c with material          (the constraint)
+//!   =>  A p = -(1/dt) D v*,   A_cd = sum_j D_cj . P_j D_dj / m_j
+//! ```
+//!
+//! P_j keeps the components of node j the walls leave free (a wall's reaction takes the
+//! rest). A is symmetric positive semidefinite and is solved by the same conjugate gradient as
+//! the nodal form. No free-surface detection is needed: the weak force integrates p over the
+//! material only, so p = 0 (with the stress, zero traction) holds weakly at the free surface.
+//!
+//! The price is the pair's known pressure mode: a checkerboard of cell pressures that D^T does
+//! not see (it moves nothing, and the velocity is unique whatever it is). The pressure given to
+//! the particles is therefore read from nodal averages of the cell pressures (the classical
+//! smoothing of Q1-P0, which removes the checkerboard exactly on a regular grid).
+//!
+//! Written by hand rather than taken from a crate: it is the projection itself, on pmpm's grid
+//! and particle bins, like the nodal assembly beside it.
+
+use super::solve::{EllMatrix, LinearSolver, SolveError, SolveStats};
+use crate::boundary::Boundary;
+use crate::deck::ShapeFunction;
+use crate::grid::{CellBins, Grid, GridGeometry, Vector};
+use crate::particles::Particles;
+use crate::shape::Stencil;
+use rayon::prelude::*;
+
+/// Buffers of the cell projection, reused from step to step.
+#[derive(Default)]
+pub struct CellProjection<const D: usize> {
+    /// Nodes per direction a cell's particles reach (2 for linear shape functions, 4 for the
+    /// others), from the cell's lower corner less `reach`.
+    box_width: usize,
+    reach: usize,
+    /// Row of each cell (u32::MAX: no material, no unknown).
+    row_of: Vec<u32>,
+    cell_of_row: Vec<u32>,
+    /// Per row, D_cj for the box_width^D nodes of its box.
+    coupling: Vec<Vector<D>>,
+    /// Per row, sum_{p in c} V_p N_j(x_p) for the nodes of its box (the smoothing's weights).
+    weight: Vec<f64>,
+    /// Per node, 1 on the components the walls leave free, 0 on the others.
+    free: Vec<Vector<D>>,
+    zero: Vec<Vector<D>>,
+    matrix: EllMatrix,
+    rhs: Vec<f64>,
+    solution: Vec<f64>,
+    /// Per node, sum_c p_c w_cj and sum_c w_cj: the nodal average of the cell pressures.
+    node_pressure: Vec<f64>,
+}
+
+impl<const D: usize> CellProjection<D> {
+    /// Buffers for the given shape functions.
+    pub fn new(shape: ShapeFunction) -> Self {
+        let (box_width, reach) = match shape {
+            ShapeFunction::Linear => (2, 0),
+            // a particle in cell [a, a+1) reaches nodes a-1 .. a+2 (GIMP with lp <= 1/2,
+            // quadratic and cubic B-splines alike: `ShapeFunction::kernel_1d`)
+            ShapeFunction::Gimp | ShapeFunction::Bspline2 | ShapeFunction::Bspline3 => (4, 1),
+        };
+        Self {
+            box_width,
+            reach,
+            ..Default::default()
+        }
+    }
+
+    fn box_len(&self) -> usize {
+        self.box_width.pow(D as u32)
+    }
+
+    /// Offset (per direction, 0..box_width) of multi-index k in a box, flattened.
+    fn box_flat(&self, o: &[usize; D]) -> usize {
+        let mut k = 0;
+        for d in (0..D).rev() {
+            k = k * self.box_width + o[d];
+        }
+        k
+    }
+
+    /// One projection on v* (in `grid.velocity_new`): applies the wall conditions, assembles
+    /// and solves for the cell pressures, corrects the node velocities and gives the particles
+    /// their pressure. `cell_pressure` (one slot per cell, numbered like its lower-corner
+    /// node) holds the last step's pressures, the solver's first guess, and receives the new
+    /// ones. The caller re-applies the wall conditions.
+    #[allow(clippy::too_many_arguments)]
+    pub fn project(
+        &mut self,
+        ps: &mut Particles<D>,
+        grid: &mut Grid<D>,
+        boundary: &Boundary<D>,
+        bins: &CellBins,
+        solver: &mut LinearSolver,
+        tolerance: f64,
+        max_iterations: usize,
+        mass_epsilon: f64,
+        dt: f64,
+        shape: ShapeFunction,
+        cell_pressure: &mut Vec<f64>,
+    ) -> Result<SolveStats, SolveError> {
+        let geo = &grid.geo;
+        let n_nodes = geo.node_count();
+        cell_pressure.resize(n_nodes, 0.0);
+        // the components the walls leave free: (apply(1) - apply(0)) is 1 there, 0 where a
+        // wall (or a rigid body) prescribes the velocity
+        self.free.clear();
+        self.free.resize(n_nodes, Vector::<D>::from_element(1.0));
+        self.zero.clear();
+        self.zero.resize(n_nodes, Vector::<D>::zeros());
+        boundary.apply(&mut self.free);
+        boundary.apply(&mut self.zero);
+        self.free
+            .par_iter_mut()
+            .zip(self.zero.par_iter())
+            .for_each(|(f, z)| *f = Vector::<D>::from_fn(|d, _| f64::from(f[d] != z[d])));
+        boundary.apply(&mut grid.velocity_new);
+
+        // the unknowns: every cell that holds a particle
+        self.row_of.clear();
+        self.row_of.resize(n_nodes, u32::MAX);
+        self.cell_of_row.clear();
+        for c in 0..n_nodes {
+            if !bins.particles(c).is_empty() {
+                self.row_of[c] = self.cell_of_row.len() as u32;
+                self.cell_of_row.push(c as u32);
+            }
+        }
+        let rows = self.cell_of_row.len();
+        let bl = self.box_len();
+        let (bw, reach) = (self.box_width, self.reach);
+        self.coupling.clear();
+        self.coupling.resize(rows * bl, Vector::<D>::zeros());
+        self.weight.clear();
+        self.weight.resize(rows * bl, 0.0);
+        {
+            let mut coupling = std::mem::take(&mut self.coupling);
+            let mut weight = std::mem::take(&mut self.weight);
+            let this = &*self;
+            let (xs, hw, vol) = (&ps.x, &ps.half_width, &ps.volume0);
+            coupling
+                .par_chunks_mut(bl)
+                .zip(weight.par_chunks_mut(bl))
+                .zip(this.cell_of_row.par_iter())
+                .for_each(|((dc, wc), &c)| {
+                    let lo = geo.multi(c as usize).map(|i| i - reach);
+                    for &p in bins.particles(c as usize) {
+                        let p = p as usize;
+                        let st = Stencil::<D>::new(shape, &geo.to_cells(&xs[p]), geo.h, hw[p]);
+                        st.for_each(|nw| {
+                            let mut o = [0usize; D];
+                            for d in 0..D {
+                                o[d] = nw.node[d].wrapping_sub(lo[d]);
+                            }
+                            if o.iter().any(|&v| v >= bw) {
+                                // a weight of exactly zero at the kernel's edge
+                                debug_assert!(nw.n == 0.0 && nw.grad.norm() == 0.0);
+                                return;
+                            }
+                            let k = this.box_flat(&o);
+                            dc[k] += nw.grad * vol[p];
+                            wc[k] += nw.n * vol[p];
+                        });
+                    }
+                });
+            self.coupling = coupling;
+            self.weight = weight;
+        }
+
+        // right-hand side -(1/dt) D v* and the matrix rows
+        let span = 2 * bw - 1;
+        let width = span.pow(D as u32);
+        self.rhs.resize(rows, 0.0);
+        self.matrix.reshape(rows, width);
+        {
+            let mut rhs = std::mem::take(&mut self.rhs);
+            let mut matrix = std::mem::take(&mut self.matrix);
+            let this = &*self;
+            let (v_star, mass) = (&grid.velocity_new, &grid.mass);
+            rhs.par_iter_mut().enumerate().for_each(|(r, b)| {
+                let c = this.cell_of_row[r] as usize;
+                let lo = geo.multi(c).map(|i| i - reach);
+                let mut s = 0.0;
+                this.for_box(geo, &lo, |k, j| {
+                    s += this.coupling[r * bl + k].dot(&v_star[j])
+                });
+                *b = -s / dt;
+            });
+            let EllMatrix { cols, vals, .. } = &mut matrix;
+            cols.par_chunks_mut(width)
+                .zip(vals.par_chunks_mut(width))
+                .enumerate()
+                .for_each(|(r, (cols, vals))| {
+                    let c = this.cell_of_row[r] as usize;
+                    let cm = geo.multi(c);
+                    let dc = &this.coupling[r * bl..(r + 1) * bl];
+                    let mut delta = [0usize; D];
+                    for slot in 0..width {
+                        // delta runs over [-(bw-1), bw-1]^D, stored shifted by bw - 1
+                        let mut rest = slot;
+                        for d in 0..D {
+                            delta[d] = rest % span;
+                            rest /= span;
+                        }
+                        cols[slot] = r as u32;
+                        vals[slot] = 0.0;
+                        let mut other = [0usize; D];
+                        let mut inside = true;
+                        for d in 0..D {
+                            let o = (cm[d] + delta[d]).wrapping_sub(bw - 1);
+                            inside &= o < geo.nodes[d];
+                            other[d] = o;
+                        }
+                        if !inside {
+                            continue;
+                        }
+                        let row_d = this.row_of[geo.flat(&other)];
+                        if row_d == u32::MAX {
+                            continue;
+                        }
+                        let dd = &this.coupling[row_d as usize * bl..(row_d as usize + 1) * bl];
+                        // the nodes both boxes hold: k in c's box, k - (delta - (bw - 1)) in d's
+                        let lo = cm.map(|i| i - reach);
+                        let mut a = 0.0;
+                        this.for_box(geo, &lo, |k, j| {
+                            let m = mass[j];
+                            if m <= mass_epsilon {
+                                return;
+                            }
+                            let mut kd = [0usize; D];
+                            let mut rest = k;
+                            for d in 0..D {
+                                let o = rest % bw;
+                                rest /= bw;
+                                // offset of the node in d's box
+                                let od = (o + bw - 1).wrapping_sub(delta[d]);
+                                if od >= bw {
+                                    return;
+                                }
+                                kd[d] = od;
+                            }
+                            let g = dd[this.box_flat(&kd)].component_mul(&this.free[j]);
+                            a += dc[k].dot(&g) / m;
+                        });
+                        cols[slot] = row_d;
+                        vals[slot] = a;
+                    }
+                });
+            self.rhs = rhs;
+            self.matrix = matrix;
+        }
+
+        // solve, from the last step's pressures
+        self.solution.resize(rows, 0.0);
+        {
+            let (prev, cells) = (&*cell_pressure, &self.cell_of_row);
+            self.solution
+                .par_iter_mut()
+                .zip(cells.par_iter())
+                .for_each(|(x, &c)| *x = prev[c as usize]);
+        }
+        let stats = solver.solve(
+            &self.matrix,
+            &self.rhs,
+            &mut self.solution,
+            tolerance,
+            max_iterations,
+            false,
+        )?;
+        cell_pressure.par_iter_mut().for_each(|p| *p = 0.0);
+        for (r, &c) in self.cell_of_row.iter().enumerate() {
+            cell_pressure[c as usize] = self.solution[r];
+        }
+
+        // corrector: v_j += (dt / m_j) sum_c p_c D_cj, gathered per node from the cells whose
+        // boxes hold it; and the nodal average of the cell pressures
+        self.node_pressure.resize(n_nodes, 0.0);
+        {
+            let mut node_pressure = std::mem::take(&mut self.node_pressure);
+            let this = &*self;
+            let sol = &self.solution;
+            grid.velocity_new
+                .par_iter_mut()
+                .zip(node_pressure.par_iter_mut())
+                .zip(grid.mass.par_iter())
+                .enumerate()
+                .for_each(|(j, ((v, np), &m))| {
+                    *np = 0.0;
+                    if m <= mass_epsilon {
+                        return;
+                    }
+                    let node = geo.multi(j);
+                    let (mut f, mut sp, mut sw) = (Vector::<D>::zeros(), 0.0, 0.0);
+                    // cells c with c - reach <= j <= c - reach + bw - 1
+                    let mut o = [0usize; D];
+                    for _ in 0..this.box_len() {
+                        let mut cell = [0usize; D];
+                        let mut inside = true;
+                        for d in 0..D {
+                            // o[d] is j's offset in the cell's box
+                            let c = (node[d] + reach).wrapping_sub(o[d]);
+                            inside &= c < geo.nodes[d];
+                            cell[d] = c;
+                        }
+                        if inside {
+                            let r = this.row_of[geo.flat(&cell)];
+                            if r != u32::MAX {
+                                let k = r as usize * bl + this.box_flat(&o);
+                                let p = sol[r as usize];
+                                f += this.coupling[k] * p;
+                                sp += this.weight[k] * p;
+                                sw += this.weight[k];
+                            }
+                        }
+                        for d in 0..D {
+                            o[d] += 1;
+                            if o[d] < bw {
+                                break;
+                            }
+                            o[d] = 0;
+                        }
+                    }
+                    *v += f * (dt / m);
+                    if sw > 0.0 {
+                        *np = sp / sw;
+                    }
+                });
+            self.node_pressure = node_pressure;
+        }
+
+        // the particles' pressure from the smoothed nodal field
+        let np = &self.node_pressure;
+        (
+            ps.x.par_iter(),
+            ps.half_width.par_iter(),
+            ps.pressure.par_iter_mut(),
+        )
+            .into_par_iter()
+            .for_each(|(x, &lp, pp)| {
+                let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
+                let mut p = 0.0;
+                st.for_each(|nw| p += nw.n * np[geo.flat(&nw.node)]);
+                *pp = p;
+            });
+        Ok(stats)
+    }
+
+    /// Calls `f(k, j)` for each node of the box whose first node is `lo` (padded multi-index):
+    /// k its offset in the box (flattened), j its flat index; nodes past the grid are skipped.
+    fn for_box(&self, geo: &GridGeometry<D>, lo: &[usize; D], mut f: impl FnMut(usize, usize)) {
+        let bw = self.box_width;
+        let mut o = [0usize; D];
+        for k in 0..self.box_len() {
+            let node: [usize; D] = std::array::from_fn(|d| lo[d] + o[d]);
+            if (0..D).all(|d| node[d] < geo.nodes[d]) {
+                f(k, geo.flat(&node));
+            }
+            for d in 0..D {
+                o[d] += 1;
+                if o[d] < bw {
+                    break;
+                }
+                o[d] = 0;
+            }
+        }
+    }
+}
