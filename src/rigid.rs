@@ -209,17 +209,9 @@ impl<const D: usize> RigidBodies<D> {
     }
 
     /// Before the last wall conditions of the step: the force on each body. With the
-    /// projection (`pressure`: the particles, with their new pressure, and the shape
-    /// functions), the pressure's force on the bodies' nodes is added in the weak form
-    /// sum_p V_p p_p grad N_ip, as the explicit scheme's stress carries it: the corrector's
-    /// form sum_p V_p N_ip grad p_p leaves out the boundary term p n, which on a body's face is
-    /// the very pressure it bears.
-    pub fn end_step(
-        &mut self,
-        grid: &Grid<D>,
-        dt: f64,
-        pressure: Option<(&Particles<D>, ShapeFunction)>,
-    ) {
+    /// projection the pressure's force on the bodies' nodes is added in the weak form (see
+    /// [`PressureForce`]).
+    pub fn end_step(&mut self, grid: &Grid<D>, dt: f64, pressure: PressureForce<'_, D>) {
         if self.is_empty() {
             return;
         }
@@ -232,7 +224,16 @@ impl<const D: usize> RigidBodies<D> {
         for f in &mut self.force {
             *f /= -dt;
         }
-        let Some((ps, shape)) = pressure else { return };
+        let (ps, shape) = match pressure {
+            PressureForce::None => return,
+            PressureForce::Nodal(f) => {
+                for &(i, b) in &self.nodes {
+                    self.force[b] += f[i];
+                }
+                return;
+            }
+            PressureForce::Particles(ps, shape) => (ps, shape),
+        };
         let geo = &grid.geo;
         // serial: the particles near the bodies are few, and a fixed order keeps the sum's
         // bits the same on any number of threads
@@ -254,6 +255,20 @@ impl<const D: usize> RigidBodies<D> {
             });
         }
     }
+}
+
+/// How the projection's pressure reaches the rigid bodies' force.
+pub enum PressureForce<'a, const D: usize> {
+    /// The explicit scheme: the pressure is in the particle stress, already in the nodes'
+    /// force.
+    None,
+    /// The nodal projection: from the particles, with their new pressure, and the shape
+    /// functions, in the weak form sum_p V_p p_p grad N_ip, as the explicit scheme's stress
+    /// carries it (the corrector's form sum_p V_p N_ip grad p_p leaves out the boundary term
+    /// p n, which on a body's face is the very pressure it bears).
+    Particles(&'a Particles<D>, ShapeFunction),
+    /// The cell projection: the weak force sum_c p_c D_cj per node, the corrector's own.
+    Nodal(&'a [Vector<D>]),
 }
 
 #[cfg(test)]

@@ -190,7 +190,9 @@ impl<const D: usize> Simulation<D> {
             Scheme::Explicit => {
                 // 3. boundary conditions on v*; pressure came from the equation of state in
                 //    the particle stress
-                self.boundary.rigid.end_step(&self.grid, dt, None);
+                self.boundary
+                    .rigid
+                    .end_step(&self.grid, dt, crate::rigid::PressureForce::None);
                 self.boundary.apply(&mut self.grid.velocity_new);
                 self.pressure_iterations = 0;
                 self.timers.lap(Phase::Predictor);
@@ -222,11 +224,14 @@ impl<const D: usize> Simulation<D> {
                 self.pressure_iterations = stats.iterations;
                 // the corrector changed the wall nodes' normal velocity: re-impose it (the
                 // rigid bodies' force first, with the new pressure)
-                self.boundary.rigid.end_step(
-                    &self.grid,
-                    dt,
-                    Some((&self.particles, self.settings.shape)),
-                );
+                let projection = self.projection.as_ref().expect("set up for this scheme");
+                let pressure = match projection.cell_pressure_force() {
+                    Some(f) => crate::rigid::PressureForce::Nodal(f),
+                    None => {
+                        crate::rigid::PressureForce::Particles(&self.particles, self.settings.shape)
+                    }
+                };
+                self.boundary.rigid.end_step(&self.grid, dt, pressure);
                 self.boundary.apply(&mut self.grid.velocity_new);
             }
         }

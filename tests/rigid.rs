@@ -86,6 +86,45 @@ fn a_shelf_carries_the_weight_of_the_water_on_it() {
     }
 }
 
+/// The same shelf carrying an elastic block (neo-Hookean, G = 1e5 Pa) under the projection with
+/// one pressure per cell: the force reaches the shelf through the cells' own weak pressure
+/// force (`PressureForce::Nodal`), and the cells inside the shelf's reach, which touch no free
+/// node, are no unknowns. Measured: 784.80 N/m against 784.8.
+#[test]
+fn a_shelf_carries_an_elastic_block_with_cell_pressure() {
+    let weight = 1000.0 * 9.81 * 0.2 * 0.4;
+    let text = shelf("projection")
+        .replace(
+            "density = 1000.0\nbulk_modulus = 4.0e5",
+            "model = \"neo_hookean_incompressible\"\ndensity = 1000.0\nshear_modulus = 1.0e5",
+        )
+        .replace("stress = \"hydrostatic\"\n", "")
+        .replace(
+            "transfer = \"pic\"",
+            "transfer = \"pic\"\nstress_update = \"usl\"",
+        )
+        + "\n[pressure]\nunknowns = \"cells\"\n";
+    let d = deck(&text);
+    let f = in_pool(2, || {
+        let mut sim = Simulation::<2>::new(&d).unwrap();
+        let (mut sum, mut n) = ([0.0; 2], 0.0);
+        while sim.time < d.simulation.end_time {
+            let dt = sim.stable_dt(0.4);
+            sim.step(dt).unwrap();
+            if sim.time > 0.25 {
+                let f = sim.boundary.rigid.force(0);
+                sum[0] += f[0];
+                sum[1] += f[1];
+                n += 1.0;
+            }
+        }
+        [sum[0] / n, sum[1] / n]
+    });
+    println!("cells: force on the shelf {f:?} N/m, weight {weight} N/m");
+    assert!(f[0].abs() < 0.01 * weight, "{f:?}");
+    assert!((f[1] + weight).abs() < 0.02 * weight, "{f:?}");
+}
+
 #[test]
 fn rigid_bodies_csv_has_a_row_per_step() {
     let dir = scratch_dir("rigid-csv");

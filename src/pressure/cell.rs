@@ -63,8 +63,10 @@ pub struct CellProjection<const D: usize> {
     matrix: EllMatrix,
     rhs: Vec<f64>,
     solution: Vec<f64>,
-    /// Per node, sum_c p_c w_cj and sum_c w_cj: the nodal average of the cell pressures.
+    /// Per node, sum_c p_c w_cj / sum_c w_cj: the nodal average of the cell pressures.
     node_pressure: Vec<f64>,
+    /// Per node, the weak pressure force sum_c p_c D_cj of the last solve.
+    force: Vec<Vector<D>>,
 }
 
 impl<const D: usize> CellProjection<D> {
@@ -81,6 +83,11 @@ impl<const D: usize> CellProjection<D> {
             reach,
             ..Default::default()
         }
+    }
+
+    /// The weak pressure force sum_c p_c D_cj per node, of the last solve.
+    pub fn pressure_force(&self) -> &[Vector<D>] {
+        &self.force
     }
 
     fn box_len(&self) -> usize {
@@ -183,6 +190,41 @@ impl<const D: usize> CellProjection<D> {
             self.coupling = coupling;
             self.weight = weight;
         }
+
+        // a cell whose particles touch no free node (inside a rigid body or a no-slip wall's
+        // reach) has nothing to constrain: its row would be zero and its pressure arbitrary.
+        // Such cells are no unknowns.
+        {
+            let (free, mass) = (&self.free, &grid.mass);
+            let mut kept = 0usize;
+            for r in 0..rows {
+                let c = self.cell_of_row[r] as usize;
+                let lo = geo.multi(c).map(|i| i - reach);
+                let (mut masked, mut whole) = (0.0, 0.0);
+                self.for_box(geo, &lo, |k, j| {
+                    if mass[j] > mass_epsilon {
+                        let d = self.coupling[r * bl + k];
+                        masked += d.component_mul(&free[j]).norm_squared() / mass[j];
+                        whole += d.norm_squared() / mass[j];
+                    }
+                });
+                if masked > 1e-12 * whole {
+                    if kept != r {
+                        self.coupling.copy_within(r * bl..(r + 1) * bl, kept * bl);
+                        self.weight.copy_within(r * bl..(r + 1) * bl, kept * bl);
+                        self.cell_of_row[kept] = c as u32;
+                    }
+                    self.row_of[c] = kept as u32;
+                    kept += 1;
+                } else {
+                    self.row_of[c] = u32::MAX;
+                }
+            }
+            self.cell_of_row.truncate(kept);
+            self.coupling.truncate(kept * bl);
+            self.weight.truncate(kept * bl);
+        }
+        let rows = self.cell_of_row.len();
 
         // right-hand side -(1/dt) D v* and the matrix rows
         let span = 2 * bw - 1;
@@ -292,17 +334,21 @@ impl<const D: usize> CellProjection<D> {
         // corrector: v_j += (dt / m_j) sum_c p_c D_cj, gathered per node from the cells whose
         // boxes hold it; and the nodal average of the cell pressures
         self.node_pressure.resize(n_nodes, 0.0);
+        self.force.resize(n_nodes, Vector::<D>::zeros());
         {
             let mut node_pressure = std::mem::take(&mut self.node_pressure);
+            let mut force = std::mem::take(&mut self.force);
             let this = &*self;
             let sol = &self.solution;
             grid.velocity_new
                 .par_iter_mut()
                 .zip(node_pressure.par_iter_mut())
+                .zip(force.par_iter_mut())
                 .zip(grid.mass.par_iter())
                 .enumerate()
-                .for_each(|(j, ((v, np), &m))| {
+                .for_each(|(j, (((v, np), fj), &m))| {
                     *np = 0.0;
+                    *fj = Vector::<D>::zeros();
                     if m <= mass_epsilon {
                         return;
                     }
@@ -338,11 +384,13 @@ impl<const D: usize> CellProjection<D> {
                         }
                     }
                     *v += f * (dt / m);
+                    *fj = f;
                     if sw > 0.0 {
                         *np = sp / sw;
                     }
                 });
             self.node_pressure = node_pressure;
+            self.force = force;
         }
 
         // the particles' pressure from the smoothed nodal field

@@ -162,6 +162,12 @@ impl<const D: usize> Projection<D> {
         }
     }
 
+    /// With `pressure.unknowns = "cells"`, the last solve's weak pressure force
+    /// sum_c p_c D_cj per node.
+    pub fn cell_pressure_force(&self) -> Option<&[Vector<D>]> {
+        self.cells.as_ref().map(|c| c.pressure_force())
+    }
+
     /// V_p / rho_p per particle (for checkpoints).
     pub fn volume_over_density(&self) -> &[f64] {
         &self.volume_over_density
