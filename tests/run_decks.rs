@@ -167,6 +167,25 @@ fn check_warns_of_volumetric_locking() {
     assert!(!with.contains("can lock"), "{with}");
 }
 
+/// `pmpm check` suggests one pressure per cell for solids under the projection.
+#[test]
+fn check_suggests_cell_pressure_for_solids() {
+    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+    let check = |name: &str| {
+        let o = pmpm(&["check", examples.join(name).to_str().unwrap()]);
+        assert!(o.status.success());
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let warning =
+        "warning: every material is a solid and the projection's pressure sits on the nodes";
+    let nodes = check("spinning_block_2d.toml");
+    assert!(nodes.contains(warning), "{nodes}");
+    for deck in ["elastic_column_2d_projection.toml", "dam_break_2d.toml"] {
+        let out = check(deck);
+        assert!(!out.contains(warning), "{deck}: {out}");
+    }
+}
+
 /// `pmpm check` names the viscous step limit only where it binds: a yield-stress fluid's
 /// regularised viscosity, not water's under the projection.
 #[test]
