@@ -1532,7 +1532,7 @@ impl Deck {
                 }
                 None => {}
             }
-            let solid = crate::material::MaterialParams::new(m).wave_speed(false) > 0.0;
+            let solid = crate::material::MaterialParams::is_solid(m);
             if !explicit && self.pressure.unknowns == PressureUnknowns::Cells && !solid {
                 return Err(c.err(
                     format!("{k}.model"),

@@ -521,12 +521,12 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     }
     // solids only, under the projection with the nodal pressure: its stabilisation residual
     // lets a loaded solid creep (the elastic column 75% past its settlement and sinking)
-    let solid = |m: &crate::deck::MaterialDeck| {
-        crate::material::MaterialParams::new(m).wave_speed(false) > 0.0
-    };
     if s.scheme == crate::deck::Scheme::Projection
         && deck.pressure.unknowns == crate::deck::PressureUnknowns::Nodes
-        && deck.materials.iter().all(solid)
+        && deck
+            .materials
+            .iter()
+            .all(crate::material::MaterialParams::is_solid)
     {
         w.push("every material is a solid and the projection's pressure sits on the nodes: a solid under a steady load creeps with it (docs/method.md, \"One pressure per cell\"); set pressure.unknowns = \"cells\" with simulation.stress_update = \"usl\"".into());
     }

@@ -189,6 +189,11 @@ impl MaterialParams {
         deck.materials.iter().map(Self::new).collect()
     }
 
+    /// Whether a `[[materials]]` entry is a solid: it has a shear modulus, so a shear wave.
+    pub fn is_solid(m: &MaterialDeck) -> bool {
+        Self::new(m).wave_speed(false) > 0.0
+    }
+
     /// One validated `[[materials]]` entry.
     pub fn new(m: &MaterialDeck) -> Self {
         let law = match m.model {

@@ -32,6 +32,11 @@
 //! the particles is therefore read from nodal averages of the cell pressures (the classical
 //! smoothing of Q1-P0, which removes the checkerboard exactly on a regular grid).
 //!
+//! Two conditions come with it. The strain rate must be taken from v^{n+1} itself
+//! (`stress_update = "usl"`, validated): the musl remap smooths it and the volume drifts
+//! again. And a cell whose particles touch no free node (inside a rigid body's reach) is no
+//! unknown: its row would be zero and its pressure arbitrary.
+//!
 //! Written by hand rather than taken from a crate: it is the projection itself, on pmpm's grid
 //! and particle bins, like the nodal assembly beside it.
 

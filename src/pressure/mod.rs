@@ -155,7 +155,7 @@ impl<const D: usize> Projection<D> {
             traction_free: deck
                 .materials
                 .iter()
-                .any(|m| crate::material::MaterialParams::new(m).wave_speed(false) > 0.0),
+                .any(crate::material::MaterialParams::is_solid),
             surface_pressure: Vec::new(),
             cells: (pd.unknowns == PressureUnknowns::Cells)
                 .then(|| cell::CellProjection::new(deck.simulation.shape_function)),
