@@ -50,9 +50,13 @@ shape = {{ type = "box", min = [0.0, 0.0], max = [0.4, 0.1] }}
 
 /// Mean force on the shelf over the run's second half.
 fn shelf_force(scheme: &str) -> [f64; 2] {
-    let d = deck(&shelf(scheme));
+    mean_force(&deck(&shelf(scheme)))
+}
+
+/// Mean force on the first rigid body over the second half of the run of `d`.
+fn mean_force(d: &pmpm::Deck) -> [f64; 2] {
     in_pool(2, || {
-        let mut sim = Simulation::<2>::new(&d).unwrap();
+        let mut sim = Simulation::<2>::new(d).unwrap();
         let (mut sum, mut n) = ([0.0; 2], 0.0);
         while sim.time < d.simulation.end_time {
             let dt = sim.stable_dt(0.4);
@@ -104,22 +108,7 @@ fn a_shelf_carries_an_elastic_block_with_cell_pressure() {
             "transfer = \"pic\"\nstress_update = \"usl\"",
         )
         + "\n[pressure]\nunknowns = \"cells\"\n";
-    let d = deck(&text);
-    let f = in_pool(2, || {
-        let mut sim = Simulation::<2>::new(&d).unwrap();
-        let (mut sum, mut n) = ([0.0; 2], 0.0);
-        while sim.time < d.simulation.end_time {
-            let dt = sim.stable_dt(0.4);
-            sim.step(dt).unwrap();
-            if sim.time > 0.25 {
-                let f = sim.boundary.rigid.force(0);
-                sum[0] += f[0];
-                sum[1] += f[1];
-                n += 1.0;
-            }
-        }
-        [sum[0] / n, sum[1] / n]
-    });
+    let f = mean_force(&deck(&text));
     println!("cells: force on the shelf {f:?} N/m, weight {weight} N/m");
     assert!(f[0].abs() < 0.01 * weight, "{f:?}");
     assert!((f[1] + weight).abs() < 0.02 * weight, "{f:?}");
