@@ -178,9 +178,26 @@ fn check_suggests_cell_pressure_for_solids() {
     };
     let warning =
         "warning: every material is a solid and the projection's pressure sits on the nodes";
-    let nodes = check("spinning_block_2d.toml");
+    // the spinning-block example with the nodal pressure
+    let dir = scratch_dir("check-cells");
+    let deck = dir.join("spin_nodes.toml");
+    let text = std::fs::read_to_string(examples.join("spinning_block_2d.toml"))
+        .unwrap()
+        .replace("unknowns = \"cells\"", "unknowns = \"nodes\"");
+    assert!(
+        text.contains("unknowns = \"nodes\""),
+        "the edit found its line"
+    );
+    std::fs::write(&deck, text).unwrap();
+    let o = pmpm(&["check", deck.to_str().unwrap()]);
+    assert!(o.status.success());
+    let nodes = String::from_utf8_lossy(&o.stdout).into_owned();
     assert!(nodes.contains(warning), "{nodes}");
-    for deck in ["elastic_column_2d_projection.toml", "dam_break_2d.toml"] {
+    for deck in [
+        "elastic_column_2d_projection.toml",
+        "spinning_block_2d.toml",
+        "dam_break_2d.toml",
+    ] {
         let out = check(deck);
         assert!(!out.contains(warning), "{deck}: {out}");
     }
