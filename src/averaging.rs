@@ -211,7 +211,7 @@ fn divide(sum: f64, weight: f64) -> f64 {
     }
 }
 
-/// sum_i N_i(x) node_i: a node field at a particle at `x` (half-width `lp`), shape function `S`.
+/// [`crate::transfer::interpolate`] with the shape `S` of [`crate::with_shape!`].
 #[inline]
 fn interpolate<const D: usize, const S: u8>(
     geo: &GridGeometry<D>,
@@ -219,10 +219,7 @@ fn interpolate<const D: usize, const S: u8>(
     x: &crate::grid::Vector<D>,
     lp: f64,
 ) -> f64 {
-    let st = Stencil::<D>::new(ShapeFunction::from_code(S), &geo.to_cells(x), geo.h, lp);
-    let mut v = 0.0;
-    st.for_each(|nw| v += nw.n * node[geo.flat(&nw.node)]);
-    v
+    crate::transfer::interpolate(ShapeFunction::from_code(S), geo, node, x, lp)
 }
 
 #[cfg(test)]

@@ -79,6 +79,22 @@ impl<T> Band<T> {
     }
 }
 
+/// sum_i N_i(x) node_i: a node field at a particle at `x` (half-width `lp`). Where a caller
+/// monomorphises on the shape (`with_shape!`), a constant `shape` folds away once inlined.
+#[inline]
+pub(crate) fn interpolate<const D: usize>(
+    shape: ShapeFunction,
+    geo: &GridGeometry<D>,
+    node: &[f64],
+    x: &Vector<D>,
+    lp: f64,
+) -> f64 {
+    let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
+    let mut v = 0.0;
+    st.for_each(|nw| v += nw.n * node[geo.flat(&nw.node)]);
+    v
+}
+
 /// Runs `scatter` on every band of `bands` (one per rayon thread) with that band's contiguous
 /// range of particles, after sizing the band to the nodes those particles reach and filling it
 /// with `zero`. A band keeps its allocation from call to call and grows only when its

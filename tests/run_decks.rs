@@ -150,53 +150,51 @@ fn the_shipped_examples_are_valid() {
     assert!(n >= 3);
 }
 
+/// What `pmpm check` prints for the deck at `path` (relative to the repository), which it
+/// accepts.
+fn check(path: &str) -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
+    let o = pmpm(&["check", path.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
 /// `pmpm check` warns of a nearly incompressible solid under the explicit scheme without the
 /// nodal averaging, and not once the averaging is on.
 #[test]
 fn check_warns_of_volumetric_locking() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let check = |path: &Path| {
-        let o = pmpm(&["check", path.to_str().unwrap()]);
-        assert!(o.status.success());
-        String::from_utf8_lossy(&o.stdout).into_owned()
-    };
     let warning = "warning: materials \"rubber\": bulk_modulus / shear_modulus = 100 with the explicit scheme: such a nearly incompressible solid can lock";
-    let without = check(&root.join("validation/decks/elastic_column_explicit.toml"));
+    let without = check("validation/decks/elastic_column_explicit.toml");
     assert!(without.contains(warning), "{without}");
-    let with = check(&root.join("examples/elastic_column_2d.toml"));
+    let with = check("examples/elastic_column_2d.toml");
     assert!(!with.contains("can lock"), "{with}");
 }
 
 /// `pmpm check` suggests one pressure per cell for solids under the projection.
 #[test]
 fn check_suggests_cell_pressure_for_solids() {
-    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
-    let check = |name: &str| {
-        let o = pmpm(&["check", examples.join(name).to_str().unwrap()]);
-        assert!(o.status.success());
-        String::from_utf8_lossy(&o.stdout).into_owned()
-    };
     let warning =
         "warning: every material is a solid and the projection's pressure sits on the nodes";
     // the spinning-block example with the nodal pressure
     let dir = scratch_dir("check-cells");
     let deck = dir.join("spin_nodes.toml");
-    let text = std::fs::read_to_string(examples.join("spinning_block_2d.toml"))
-        .unwrap()
-        .replace("unknowns = \"cells\"", "unknowns = \"nodes\"");
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/spinning_block_2d.toml"),
+    )
+    .unwrap()
+    .replace("unknowns = \"cells\"", "unknowns = \"nodes\"");
     assert!(
         text.contains("unknowns = \"nodes\""),
         "the edit found its line"
     );
     std::fs::write(&deck, text).unwrap();
-    let o = pmpm(&["check", deck.to_str().unwrap()]);
-    assert!(o.status.success());
-    let nodes = String::from_utf8_lossy(&o.stdout).into_owned();
+    // (an absolute path: joined to the repository's, it stays itself)
+    let nodes = check(deck.to_str().unwrap());
     assert!(nodes.contains(warning), "{nodes}");
     for deck in [
-        "elastic_column_2d_projection.toml",
-        "spinning_block_2d.toml",
-        "dam_break_2d.toml",
+        "examples/elastic_column_2d_projection.toml",
+        "examples/spinning_block_2d.toml",
+        "examples/dam_break_2d.toml",
     ] {
         let out = check(deck);
         assert!(!out.contains(warning), "{deck}: {out}");
@@ -207,15 +205,9 @@ fn check_suggests_cell_pressure_for_solids() {
 /// regularised viscosity, not water's under the projection.
 #[test]
 fn check_names_the_viscous_limit_only_where_it_binds() {
-    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
-    let check = |name: &str| {
-        let o = pmpm(&["check", examples.join(name).to_str().unwrap()]);
-        assert!(o.status.success());
-        String::from_utf8_lossy(&o.stdout).into_owned()
-    };
-    let water = check("dam_break_2d.toml");
+    let water = check("examples/dam_break_2d.toml");
     assert!(!water.contains("viscous limit"), "{water}");
-    let mud = check("bingham_slump_2d.toml");
+    let mud = check("examples/bingham_slump_2d.toml");
     assert!(
         mud.contains("  viscous limit    h^2 rho / (2 D mu) = "),
         "{mud}"

@@ -206,7 +206,7 @@ impl<const D: usize> CellProjection<D> {
                 let c = self.cell_of_row[r] as usize;
                 let lo = geo.multi(c).map(|i| i - reach);
                 let (mut masked, mut whole) = (0.0, 0.0);
-                self.for_box(geo, &lo, |k, j| {
+                self.for_box(geo, &lo, |k, j, _| {
                     if mass[j] > mass_epsilon {
                         let d = self.coupling[r * bl + k];
                         masked += d.component_mul(&free[j]).norm_squared() / mass[j];
@@ -245,7 +245,7 @@ impl<const D: usize> CellProjection<D> {
                 let c = this.cell_of_row[r] as usize;
                 let lo = geo.multi(c).map(|i| i - reach);
                 let mut s = 0.0;
-                this.for_box(geo, &lo, |k, j| {
+                this.for_box(geo, &lo, |k, j, _| {
                     s += this.coupling[r * bl + k].dot(&v_star[j])
                 });
                 *b = -s / dt;
@@ -258,14 +258,8 @@ impl<const D: usize> CellProjection<D> {
                     let c = this.cell_of_row[r] as usize;
                     let cm = geo.multi(c);
                     let dc = &this.coupling[r * bl..(r + 1) * bl];
-                    let mut delta = [0usize; D];
-                    for slot in 0..width {
-                        // delta runs over [-(bw-1), bw-1]^D, stored shifted by bw - 1
-                        let mut rest = slot;
-                        for d in 0..D {
-                            delta[d] = rest % span;
-                            rest /= span;
-                        }
+                    // delta runs over [-(bw-1), bw-1]^D, stored shifted by bw - 1
+                    for_each_offset::<D>(span, |slot, delta| {
                         cols[slot] = r as u32;
                         vals[slot] = 0.0;
                         let mut other = [0usize; D];
@@ -276,28 +270,25 @@ impl<const D: usize> CellProjection<D> {
                             other[d] = o;
                         }
                         if !inside {
-                            continue;
+                            return;
                         }
                         let row_d = this.row_of[geo.flat(&other)];
                         if row_d == u32::MAX {
-                            continue;
+                            return;
                         }
                         let dd = &this.coupling[row_d as usize * bl..(row_d as usize + 1) * bl];
                         // the nodes both boxes hold: k in c's box, k - (delta - (bw - 1)) in d's
                         let lo = cm.map(|i| i - reach);
                         let mut a = 0.0;
-                        this.for_box(geo, &lo, |k, j| {
+                        this.for_box(geo, &lo, |k, j, o| {
                             let m = mass[j];
                             if m <= mass_epsilon {
                                 return;
                             }
                             let mut kd = [0usize; D];
-                            let mut rest = k;
                             for d in 0..D {
-                                let o = rest % bw;
-                                rest /= bw;
                                 // offset of the node in d's box
-                                let od = (o + bw - 1).wrapping_sub(delta[d]);
+                                let od = (o[d] + bw - 1).wrapping_sub(delta[d]);
                                 if od >= bw {
                                     return;
                                 }
@@ -308,7 +299,7 @@ impl<const D: usize> CellProjection<D> {
                         });
                         cols[slot] = row_d;
                         vals[slot] = a;
-                    }
+                    });
                 });
             self.rhs = rhs;
             self.matrix = matrix;
@@ -359,13 +350,12 @@ impl<const D: usize> CellProjection<D> {
                     }
                     let node = geo.multi(j);
                     let (mut f, mut sp, mut sw) = (Vector::<D>::zeros(), 0.0, 0.0);
-                    // cells c with c - reach <= j <= c - reach + bw - 1
-                    let mut o = [0usize; D];
-                    for _ in 0..this.box_len() {
+                    // cells c with c - reach <= j <= c - reach + bw - 1; o is j's offset in c's
+                    // box
+                    for_each_offset::<D>(bw, |kb, o| {
                         let mut cell = [0usize; D];
                         let mut inside = true;
                         for d in 0..D {
-                            // o[d] is j's offset in the cell's box
                             let c = (node[d] + reach).wrapping_sub(o[d]);
                             inside &= c < geo.nodes[d];
                             cell[d] = c;
@@ -373,21 +363,14 @@ impl<const D: usize> CellProjection<D> {
                         if inside {
                             let r = this.row_of[geo.flat(&cell)];
                             if r != u32::MAX {
-                                let k = r as usize * bl + this.box_flat(&o);
+                                let k = r as usize * bl + kb;
                                 let p = sol[r as usize];
                                 f += this.coupling[k] * p;
                                 sp += this.weight[k] * p;
                                 sw += this.weight[k];
                             }
                         }
-                        for d in 0..D {
-                            o[d] += 1;
-                            if o[d] < bw {
-                                break;
-                            }
-                            o[d] = 0;
-                        }
-                    }
+                    });
                     *v += f * (dt / m);
                     *fj = f;
                     if sw > 0.0 {
@@ -406,32 +389,40 @@ impl<const D: usize> CellProjection<D> {
             ps.pressure.par_iter_mut(),
         )
             .into_par_iter()
-            .for_each(|(x, &lp, pp)| {
-                let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
-                let mut p = 0.0;
-                st.for_each(|nw| p += nw.n * np[geo.flat(&nw.node)]);
-                *pp = p;
-            });
+            .for_each(|(x, &lp, pp)| *pp = crate::transfer::interpolate(shape, geo, np, x, lp));
         Ok(stats)
     }
 
-    /// Calls `f(k, j)` for each node of the box whose first node is `lo` (padded multi-index):
-    /// k its offset in the box (flattened), j its flat index; nodes past the grid are skipped.
-    fn for_box(&self, geo: &GridGeometry<D>, lo: &[usize; D], mut f: impl FnMut(usize, usize)) {
-        let bw = self.box_width;
-        let mut o = [0usize; D];
-        for k in 0..self.box_len() {
+    /// Calls `f(k, j, o)` for each node of the box whose first node is `lo` (padded
+    /// multi-index): o its offset in the box, k that offset flattened, j its flat index; nodes
+    /// past the grid are skipped.
+    fn for_box(
+        &self,
+        geo: &GridGeometry<D>,
+        lo: &[usize; D],
+        mut f: impl FnMut(usize, usize, &[usize; D]),
+    ) {
+        for_each_offset::<D>(self.box_width, |k, o| {
             let node: [usize; D] = std::array::from_fn(|d| lo[d] + o[d]);
             if (0..D).all(|d| node[d] < geo.nodes[d]) {
-                f(k, geo.flat(&node));
+                f(k, geo.flat(&node), o);
             }
-            for d in 0..D {
-                o[d] += 1;
-                if o[d] < bw {
-                    break;
-                }
-                o[d] = 0;
+        });
+    }
+}
+
+/// Calls `f(k, o)` for each multi-index o in [0, width)^D, the first direction fastest, k its
+/// flattened index (the numbering of [`CellProjection::box_flat`]).
+fn for_each_offset<const D: usize>(width: usize, mut f: impl FnMut(usize, &[usize; D])) {
+    let mut o = [0usize; D];
+    for k in 0..width.pow(D as u32) {
+        f(k, &o);
+        for d in 0..D {
+            o[d] += 1;
+            if o[d] < width {
+                break;
             }
+            o[d] = 0;
         }
     }
 }
