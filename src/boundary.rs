@@ -169,7 +169,8 @@ impl<const D: usize> Boundary<D> {
                 v[i][axis] = wall[axis];
             }
         }
-        // a rigid body's velocity, whole: its nodes are not on a face with one normal
+        // a rigid body's velocity, the components its nodes hold: a node inside it is on no
+        // face with one normal
         self.rigid.apply(v);
     }
 

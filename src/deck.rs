@@ -855,6 +855,23 @@ pub struct RigidBodyDeck {
     /// Velocity (m/s), constant; default at rest.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub velocity: Option<Vec<f64>>,
+    /// Contact on the faces that do not lead the motion (a footing's sides).
+    #[serde(default)]
+    pub sides: RigidSides,
+}
+
+/// How a rigid body holds the material on its faces that do not lead its motion: the faces
+/// whose outward normal does not point along its velocity (a footing's vertical sides and its
+/// top; every face of a body at rest).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum RigidSides {
+    /// Their nodes take the body's whole velocity (no slip), as the leading faces' do.
+    #[default]
+    Rough,
+    /// Their nodes take only the velocity's component along the face's normal: the material
+    /// slides along them, as along a slip wall. The leading faces stay rough.
+    Smooth,
 }
 
 /// The whole deck.

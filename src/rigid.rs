@@ -3,15 +3,18 @@
 //! nodes (those inside the box as it is now, and those less than a cell ahead of the faces it
 //! moves towards) take its velocity, as no-slip wall nodes take a wall's, and the force the
 //! material exerts on it is measured from the momentum that imposing that velocity adds.
+//! With smooth sides ([`RigidSides::Smooth`]) the nodes on the faces that do not lead the
+//! motion take only the velocity's normal component, as slip wall nodes do.
 //!
 //! The force: on a body's nodes the grid momentum without the body would be, at the step's
 //! end, P = sum_i (m_i v_i^n + dt f_i) (the predictor of P2G's velocity and forces, the
 //! explicit scheme's pressure in f), plus with the projection dt f^p_i, the pressure's force.
 //! The body sets every one of its nodes to its own velocity V, so the impulse it gives the
 //! material over the step is I = sum_i m_i V - P - dt sum_i f^p_i, and the force on the body is
-//! -I / dt: the material's stress, pressure, weight and inertia at the body's nodes.
+//! -I / dt: the material's stress, pressure, weight and inertia at the body's nodes. Where a
+//! node holds only some components, the sums run over those.
 
-use crate::deck::{Deck, ShapeFunction};
+use crate::deck::{Deck, RigidSides, ShapeFunction};
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::Particles;
 use crate::shape::{Stencil, PAD};
@@ -27,10 +30,13 @@ pub struct RigidBodies<const D: usize> {
     velocity: Vec<Vector<D>>,
     /// Time of the positions below.
     time: f64,
-    /// (node, body) pairs of the nodes inside each body now.
-    nodes: Vec<(usize, usize)>,
-    /// Per node, the body that holds it (`usize::MAX`: none).
-    owner: Vec<usize>,
+    /// Whether the faces that do not lead the motion are smooth.
+    smooth: Vec<bool>,
+    /// (node, body, held) triples of the nodes inside each body now; `held` has bit d set
+    /// where the body sets the velocity's component d.
+    nodes: Vec<(usize, usize, u8)>,
+    /// Per node, the body that holds it (`usize::MAX`: none) and the components it holds.
+    owner: Vec<(usize, u8)>,
     /// Per body, its nodes' range in cells from the origin (lower, upper), to skip the
     /// particles far from it.
     reach: Vec<(Vector<D>, Vector<D>)>,
@@ -60,6 +66,11 @@ impl<const D: usize> RigidBodies<D> {
                 .rigid_bodies
                 .iter()
                 .map(|b| b.velocity.as_deref().map_or_else(Vector::<D>::zeros, v))
+                .collect(),
+            smooth: deck
+                .rigid_bodies
+                .iter()
+                .map(|b| b.sides == RigidSides::Smooth)
                 .collect(),
             time: f64::NAN,
             nodes: Vec::new(),
@@ -103,13 +114,15 @@ impl<const D: usize> RigidBodies<D> {
             return;
         }
         self.time = t;
-        for &(i, _) in &self.nodes {
-            self.owner[i] = usize::MAX;
+        for &(i, _, _) in &self.nodes {
+            self.owner[i] = (usize::MAX, 0);
         }
-        self.owner.resize(geo.node_count(), usize::MAX);
+        self.owner.resize(geo.node_count(), (usize::MAX, 0));
         self.nodes.clear();
+        let all = (1u8 << D) - 1;
         for b in 0..self.len() {
-            let (mut lo, mut hi) = self.bounds(b);
+            let (face_lo, face_hi) = self.bounds(b);
+            let (mut lo, mut hi) = (face_lo, face_hi);
             // ahead of a moving face, the nodes up to a cell from it (but not a whole cell)
             // move with the body too: a node row stays where it is while the body passes, and
             // material a body pushes would otherwise move away from the last row inside it
@@ -138,11 +151,38 @@ impl<const D: usize> RigidBodies<D> {
                 Vector::<D>::from_fn(|d, _| first[d] as f64 - PAD as f64),
                 Vector::<D>::from_fn(|d, _| last[d] as f64 - PAD as f64),
             );
+            // the components a node holds: all, unless the sides are smooth and the node is on
+            // a face that does not lead (and on or ahead of none that does); then the normal
+            // components of the faces it is on
+            let v = self.velocity[b];
+            let held = |idx: &[usize; D]| -> u8 {
+                if !self.smooth[b] {
+                    return all;
+                }
+                let mut normals = 0u8;
+                for d in 0..D {
+                    let x = geo.origin[d] + (idx[d] as f64 - PAD as f64) * geo.h;
+                    let on_lo = (x - face_lo[d]) / geo.h < eps;
+                    let on_hi = (face_hi[d] - x) / geo.h < eps;
+                    if (on_lo && v[d] < 0.0) || (on_hi && v[d] > 0.0) {
+                        return all;
+                    }
+                    if on_lo || on_hi {
+                        normals |= 1 << d;
+                    }
+                }
+                if normals == 0 {
+                    all
+                } else {
+                    normals
+                }
+            };
             let mut idx = first;
             'nodes: loop {
                 let i = geo.flat(&idx);
-                self.nodes.push((i, b));
-                self.owner[i] = b;
+                let h = held(&idx);
+                self.nodes.push((i, b, h));
+                self.owner[i] = (b, h);
                 for d in 0..D {
                     if (idx[d] as isize) < last[d] {
                         idx[d] += 1;
@@ -155,10 +195,14 @@ impl<const D: usize> RigidBodies<D> {
         }
     }
 
-    /// Sets the bodies' nodes to the bodies' velocities.
+    /// Sets the bodies' nodes to the bodies' velocities (the components they hold).
     pub fn apply(&self, v: &mut [Vector<D>]) {
-        for &(i, b) in &self.nodes {
-            v[i] = self.velocity[b];
+        for &(i, b, h) in &self.nodes {
+            for d in 0..D {
+                if h & (1 << d) != 0 {
+                    v[i][d] = self.velocity[b][d];
+                }
+            }
         }
     }
 
@@ -203,8 +247,9 @@ impl<const D: usize> RigidBodies<D> {
     /// damping: damping is not a force the body feels).
     pub fn begin_step(&mut self, grid: &Grid<D>, dt: f64) {
         self.free_momentum.fill(Vector::<D>::zeros());
-        for &(i, b) in &self.nodes {
-            self.free_momentum[b] += grid.velocity[i] * grid.mass[i] + grid.force[i] * dt;
+        for &(i, b, h) in &self.nodes {
+            let p = grid.velocity[i] * grid.mass[i] + grid.force[i] * dt;
+            self.free_momentum[b] += masked(p, h);
         }
     }
 
@@ -218,8 +263,8 @@ impl<const D: usize> RigidBodies<D> {
         for (b, f) in self.force.iter_mut().enumerate() {
             *f = -self.free_momentum[b];
         }
-        for &(i, b) in &self.nodes {
-            self.force[b] += self.velocity[b] * grid.mass[i];
+        for &(i, b, h) in &self.nodes {
+            self.force[b] += masked(self.velocity[b] * grid.mass[i], h);
         }
         for f in &mut self.force {
             *f /= -dt;
@@ -227,8 +272,8 @@ impl<const D: usize> RigidBodies<D> {
         let (ps, shape) = match pressure {
             PressureForce::None => return,
             PressureForce::Nodal(f) => {
-                for &(i, b) in &self.nodes {
-                    self.force[b] += f[i];
+                for &(i, b, h) in &self.nodes {
+                    self.force[b] += masked(f[i], h);
                 }
                 return;
             }
@@ -248,13 +293,18 @@ impl<const D: usize> RigidBodies<D> {
             }
             let pv = ps.pressure[p] * ps.volume(p);
             Stencil::<D>::new(shape, &xc, geo.h, ps.half_width[p]).for_each(|nw| {
-                let b = self.owner[geo.flat(&nw.node)];
+                let (b, h) = self.owner[geo.flat(&nw.node)];
                 if b != usize::MAX {
-                    self.force[b] += nw.grad * pv;
+                    self.force[b] += masked(nw.grad * pv, h);
                 }
             });
         }
     }
+}
+
+/// The components of `v` that `held` names (bit d: component d), the others zero.
+fn masked<const D: usize>(v: Vector<D>, held: u8) -> Vector<D> {
+    Vector::<D>::from_fn(|d, _| if held & (1 << d) != 0 { v[d] } else { 0.0 })
 }
 
 /// How the projection's pressure reaches the rigid bodies' force.
@@ -284,6 +334,7 @@ mod tests {
             lo: vec![Vector::<2>::from(lo)],
             hi: vec![Vector::<2>::from(hi)],
             velocity: vec![Vector::<2>::from(v)],
+            smooth: vec![false],
             time: f64::NAN,
             nodes: Vec::new(),
             owner: Vec::new(),
@@ -307,7 +358,7 @@ mod tests {
         r.set_time(0.1, &g);
         // face at 0.7: rows 7..=10, row 6 a whole cell ahead
         assert_eq!(r.nodes.len(), 4 * 4);
-        for &(i, _) in &r.nodes {
+        for &(i, _, _) in &r.nodes {
             let x = g.node_position(&g.multi(i));
             assert!(x[0] <= 0.3 + 1e-12 && x[1] >= 0.65 - 1e-12);
         }
@@ -315,6 +366,43 @@ mod tests {
         let mut r = bodies([0.0, 0.75], [0.3, 1.0], [0.0, 0.0]);
         r.set_time(0.0, &g);
         assert_eq!(r.nodes.len(), 4 * 3);
+    }
+
+    #[test]
+    fn smooth_sides_hold_only_the_normal_velocity() {
+        let g = geo();
+        let mut r = bodies([0.0, 0.75], [0.3, 1.0], [0.0, -1.0]);
+        r.smooth = vec![true];
+        r.set_time(0.0, &g);
+        let node = |x: f64, y: f64| {
+            g.flat(&[
+                PAD + (x / 0.1).round() as usize,
+                PAD + (y / 0.1).round() as usize,
+            ])
+        };
+        let held = |x: f64, y: f64| r.nodes.iter().find(|n| n.0 == node(x, y)).map(|n| n.2);
+        // inside, and on the leading face (the base at 0.75 leads: row 0.7 is ahead of it,
+        // rows 0.8 up are inside): the whole velocity
+        assert_eq!(held(0.1, 0.9), Some(0b11));
+        assert_eq!(held(0.1, 0.7), Some(0b11));
+        // ahead of the leading face and on a side: the leading face wins
+        assert_eq!(held(0.3, 0.7), Some(0b11));
+        // on the sides x = 0 and x = 0.3, above the base: their normal, x, only
+        assert_eq!(held(0.3, 0.8), Some(0b01));
+        assert_eq!(held(0.0, 0.9), Some(0b01));
+        // on the trailing face (the top, y = 1.0): its normal, y
+        assert_eq!(held(0.1, 1.0), Some(0b10));
+        // the corner of a side and the top: both normals
+        assert_eq!(held(0.3, 1.0), Some(0b11));
+        assert_eq!(held(0.4, 0.9), None);
+        let mut v = vec![Vector::<2>::new(5.0, 5.0); g.node_count()];
+        r.apply(&mut v);
+        assert_eq!(v[node(0.3, 0.8)], Vector::<2>::new(0.0, 5.0));
+        assert_eq!(v[node(0.1, 0.7)], Vector::<2>::new(0.0, -1.0));
+        // rough (the default): every node the whole velocity
+        let mut r = bodies([0.0, 0.75], [0.3, 1.0], [0.0, -1.0]);
+        r.set_time(0.0, &g);
+        assert!(r.nodes.iter().all(|n| n.2 == 0b11));
     }
 
     #[test]
