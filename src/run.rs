@@ -615,8 +615,12 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     for r in &deck.rigid_bodies {
         let (lo, hi) = r.shape.bounds();
         let v = r.velocity.clone().unwrap_or_else(|| vec![0.0; D]);
+        let sides = match r.sides {
+            crate::deck::RigidSides::Rough => "rough",
+            crate::deck::RigidSides::Smooth => "smooth sides",
+        };
         out += &format!(
-            "  rigid body       \"{}\": box {lo:?} to {hi:?} m, velocity {v:?} m/s; its force in rigid_bodies.csv every step\n",
+            "  rigid body       \"{}\": box {lo:?} to {hi:?} m, velocity {v:?} m/s, {sides}; its force in rigid_bodies.csv every step\n",
             r.name
         );
     }
