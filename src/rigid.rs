@@ -1,9 +1,8 @@
 //! Rigid bodies moving at a prescribed velocity through the material: a footing pushed into
 //! clay, a penetrometer, a gate lifted from a dam. Each is an axis-aligned box; its grid
 //! nodes inside the box as it is now take its velocity, as no-slip wall nodes take a wall's,
-//! and the nodes less than half a cell ahead of the faces it moves towards (whose cells it has
-//! entered) take the velocity's component along the motion: they push the material the body
-//! is reaching. The force the material exerts on it is measured from the momentum that
+//! and the nodes less than a cell ahead of the faces it moves towards take the velocity's
+//! component along the motion: they push the material the body is reaching. The force the material exerts on it is measured from the momentum that
 //! imposing that velocity adds.
 //! With smooth sides ([`RigidSides::Smooth`]) the nodes on the faces that do not lead the
 //! motion take only the velocity's normal component, as slip wall nodes do.
@@ -125,16 +124,14 @@ impl<const D: usize> RigidBodies<D> {
         for b in 0..self.len() {
             let (face_lo, face_hi) = self.bounds(b);
             let (mut lo, mut hi) = (face_lo, face_hi);
-            // ahead of a moving face, the nodes whose cells (of width h, centred on the node)
-            // the face has entered, less than half a cell ahead of it, push the material with
-            // the body: a node row stays where it is while the body passes, and material a
-            // body pushes would otherwise move away from the last row inside it and lose
-            // contact until the face reaches the next row (a footing's load falls by 10 to 20%
-            // before each row). Holding the rows up to a whole cell ahead instead makes the
-            // body act up to 3h/2 ahead of its face: the footing's load at s/B = 0.1 comes out
-            // 1.4 to 2.7% higher (the notes of src/validation/footing.rs)
+            // ahead of a moving face, the nodes up to a cell from it (but not a whole cell)
+            // push the material with the body: a node row stays where it is while the body
+            // passes, and material a body pushes would otherwise move away from the last row
+            // inside it and lose contact until the face reaches the next row. Half a cell is
+            // not enough with the nodal pressure: a plate pushed into water then bears a third
+            // to a half of its hydrostatic load (the notes of src/validation/footing.rs)
             let eps = 1e-9;
-            let lead = geo.h * (0.5 - 2.0 * eps);
+            let lead = geo.h * (1.0 - 2.0 * eps);
             for d in 0..D {
                 let v = self.velocity[b][d];
                 if v < 0.0 {
@@ -363,11 +360,8 @@ mod tests {
         // x nodes 0..=3; y nodes 8..=10 (the grid's top is 1.0), and none ahead: row 7 is a
         // whole cell below the face
         assert_eq!(r.nodes.len(), 4 * 3);
-        r.set_time(0.03, &g);
-        // face at 0.77: row 7 (0.7) is more than half a cell ahead of it
-        assert_eq!(r.nodes.len(), 4 * 3);
-        r.set_time(0.07, &g);
-        // face at 0.73: row 7 is less than half a cell ahead (the face is in its cell)
+        r.set_time(0.05, &g);
+        // face at 0.75: row 7 (0.7) is less than a cell ahead of it
         assert_eq!(r.nodes.len(), 4 * 4);
         r.set_time(0.1, &g);
         // face at 0.7: rows 7..=10, row 6 a whole cell ahead
@@ -397,8 +391,8 @@ mod tests {
         let held = |x: f64, y: f64| r.nodes.iter().find(|n| n.0 == node(x, y)).map(|n| n.2);
         // inside: the whole velocity
         assert_eq!(held(0.1, 0.9), Some(0b11));
-        // ahead of the leading face (the base at 0.72 leads; row 0.7 is less than half a
-        // cell ahead of it), also below a side: its normal, y, the push
+        // ahead of the leading face (the base at 0.72 leads; row 0.7 is less than a cell
+        // ahead of it), also below a side: its normal, y, the push
         assert_eq!(held(0.1, 0.7), Some(0b10));
         assert_eq!(held(0.3, 0.7), Some(0b10));
         // on the sides x = 0 and x = 0.3, above the base: their normal, x, only

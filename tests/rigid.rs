@@ -198,34 +198,75 @@ fn rigid_bodies_csv_has_a_row_per_step() {
     assert!(rows.iter().all(|r| r[1] == 0.0 && r[2] == 0.0));
 }
 
-/// The shipped strip footing (`examples/strip_footing_2d.toml`: rigid footing of width
-/// B = 1 m, rough base, smooth sides, on weightless von Mises clay with c_u = 10 kPa; the
-/// projection with one pressure per cell; h = B/21): its bearing pressure at a settlement of
-/// 0.1 B against Prandtl's (2 + pi) c_u, within the 7% of issue 8. The force is a saw tooth of
-/// period h in the settlement (a new row of nodes taken hold of each cell), so q is averaged
-/// over one cell of settlement centred on s = 0.1 B. Measured: 5.442 (+5.8%), the same at
-/// h = B/41 (`pmpm validate --case strip_footing`).
+/// A plate 0.21 m wide (half model: 0.105 m, its face midway between node rows) pushed down
+/// into a pool 0.2 m deep and 0.8 m wide at 0.05 m/s, with the default nodal pressure. Slow
+/// enough to be quasi-static, so the water bears on the plate with the hydrostatic pressure at
+/// its base: rho g (d + rise) per unit width, the rise being the displaced volume spread over
+/// the free surface, d 0.105 / 0.295. The body's contact acts from its base down to the row of
+/// nodes it holds ahead of it, less than a cell below, so the force lies between the load at
+/// the nominal depth d and at d + h. Measured, mean over d in [0.02, 0.05] m: 54.9 N/m,
+/// between 49.1 and 63.0. Holding the rows only half a cell ahead lost contact: the plate
+/// bore a third to a half of its load.
 #[test]
-fn the_footing_bears_prandtls_load() {
-    let d = deck(include_str!("../examples/strip_footing_2d.toml"));
-    let h = d.grid.cell_size;
-    let (cu, half_width) = (1.0e4, 0.5);
-    let nc = 2.0 + std::f64::consts::PI;
-    let (sum, n) = in_pool(2, || {
+fn a_plate_pushed_into_water_bears_its_hydrostatic_load() {
+    let d = deck(
+        r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 1.0
+cfl = 0.4
+gravity = [0.0, -9.81]
+transfer = "apic"
+shape_function = "bspline2"
+
+[grid]
+origin = [0.0, 0.0]
+size = [0.4, 0.4]
+cell_size = 0.01
+
+[grid.boundary]
+x_min = "slip"
+x_max = "slip"
+y_min = "no_slip"
+y_max = "open"
+
+[[materials]]
+name = "water"
+density = 1000.0
+bulk_modulus = 4.0e5
+
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [0.4, 0.2] }
+particles_per_cell = 2
+stress = "hydrostatic"
+
+[[rigid_bodies]]
+name = "plate"
+shape = { type = "box", min = [0.0, 0.2], max = [0.105, 0.5] }
+velocity = [0.0, -0.05]
+sides = "smooth"
+"#,
+    );
+    let (w, h) = (0.105, 0.01);
+    let load = |depth: f64| 1000.0 * 9.81 * depth * (1.0 + w / (0.4 - w)) * w;
+    let (mut f, mut lo, mut hi, mut n) = (0.0, 0.0, 0.0, 0.0);
+    in_pool(2, || {
         let mut sim = Simulation::<2>::new(&d).unwrap();
-        let (mut sum, mut n) = (0.0, 0.0);
         while sim.time < d.simulation.end_time - 1e-12 {
-            let dt = sim.stable_dt(0.5).min(d.simulation.end_time - sim.time);
+            let dt = sim.stable_dt(0.4).min(d.simulation.end_time - sim.time);
             sim.step(dt).unwrap();
-            let s = -sim.boundary.rigid.displacement(0, sim.time)[1];
-            if (s - 0.1).abs() <= h / 2.0 {
-                sum += sim.boundary.rigid.force(0)[1] / half_width / cu;
+            let depth = -sim.boundary.rigid.displacement(0, sim.time)[1];
+            if (0.02..0.05).contains(&depth) {
+                f += sim.boundary.rigid.force(0)[1];
+                lo += load(depth);
+                hi += load(depth + h);
                 n += 1.0;
             }
         }
-        (sum, n)
     });
-    let q = sum / n;
-    println!("q / c_u = {q:.3} at s / B = 0.1 ({n} steps), against {nc:.3}");
-    assert!((q - nc).abs() / nc <= 0.07, "q / c_u = {q}");
+    let (f, lo, hi) = (f / n, lo / n, hi / n);
+    println!("force {f:.1} N/m; hydrostatic at d {lo:.1}, at d + h {hi:.1}");
+    assert!(f > lo && f < hi, "{f} not in [{lo}, {hi}]");
 }
