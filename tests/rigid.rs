@@ -209,46 +209,24 @@ fn rigid_bodies_csv_has_a_row_per_step() {
 /// bore a third to a half of its load.
 #[test]
 fn a_plate_pushed_into_water_bears_its_hydrostatic_load() {
-    let d = deck(
-        r#"
-[simulation]
-dimension = 2
-scheme = "projection"
-end_time = 1.0
-cfl = 0.4
-gravity = [0.0, -9.81]
-transfer = "apic"
-shape_function = "bspline2"
-
-[grid]
-origin = [0.0, 0.0]
-size = [0.4, 0.4]
-cell_size = 0.01
-
-[grid.boundary]
-x_min = "slip"
-x_max = "slip"
-y_min = "no_slip"
-y_max = "open"
-
-[[materials]]
-name = "water"
-density = 1000.0
-bulk_modulus = 4.0e5
-
-[[bodies]]
-material = "water"
-shape = { type = "box", min = [0.0, 0.0], max = [0.4, 0.2] }
-particles_per_cell = 2
-stress = "hydrostatic"
-
-[[rigid_bodies]]
-name = "plate"
-shape = { type = "box", min = [0.0, 0.2], max = [0.105, 0.5] }
-velocity = [0.0, -0.05]
-sides = "smooth"
-"#,
-    );
+    // the shelf's tank, finer, with APIC and B-splines, undamped, the water filling its floor
+    let text = shelf("projection")
+        .replace("end_time = 0.5", "end_time = 1.0")
+        .replace(
+            "transfer = \"pic\"\ndamping = 5.0",
+            "transfer = \"apic\"\nshape_function = \"bspline2\"",
+        )
+        .replace("cell_size = 0.02", "cell_size = 0.01")
+        .replace(
+            "min = [0.0, 0.1], max = [0.4, 0.3]",
+            "min = [0.0, 0.0], max = [0.4, 0.2]",
+        )
+        .replace(
+            "name = \"shelf\"\nshape = { type = \"box\", min = [0.0, 0.0], max = [0.4, 0.1] }",
+            "name = \"plate\"\nshape = { type = \"box\", min = [0.0, 0.2], max = [0.105, 0.5] }\nvelocity = [0.0, -0.05]\nsides = \"smooth\"",
+        );
+    assert!(text.contains("plate") && text.contains("bspline2") && !text.contains("damping"));
+    let d = deck(&text);
     let (w, h) = (0.105, 0.01);
     let load = |depth: f64| 1000.0 * 9.81 * depth * (1.0 + w / (0.4 - w)) * w;
     let (mut f, mut lo, mut hi, mut n) = (0.0, 0.0, 0.0, 0.0);
