@@ -129,7 +129,9 @@ impl<const D: usize> RigidBodies<D> {
             // passes, and material a body pushes would otherwise move away from the last row
             // inside it and lose contact until the face reaches the next row. Half a cell is
             // not enough with the nodal pressure: a plate pushed into water then bears a third
-            // to a half of its hydrostatic load (the notes of src/validation/footing.rs)
+            // to a half of its hydrostatic load (the water under it packs into a layer a cell
+            // below the face, the cell between reads as a free surface and takes p = 0; the
+            // notes of src/validation/footing.rs)
             let eps = 1e-9;
             let lead = geo.h * (1.0 - 2.0 * eps);
             for d in 0..D {
