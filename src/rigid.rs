@@ -2,8 +2,8 @@
 //! clay, a penetrometer, a gate lifted from a dam. Each is an axis-aligned box; its grid
 //! nodes inside the box as it is now take its velocity, as no-slip wall nodes take a wall's,
 //! and the nodes less than a cell ahead of the faces it moves towards take the velocity's
-//! component along the motion: they push the material the body is reaching. The force the material exerts on it is measured from the momentum that
-//! imposing that velocity adds.
+//! component along the motion: they push the material the body is reaching. The force the
+//! material exerts on it is measured from the momentum that imposing that velocity adds.
 //! With smooth sides ([`RigidSides::Smooth`]) the nodes on the faces that do not lead the
 //! motion take only the velocity's normal component, as slip wall nodes do.
 //!
@@ -164,8 +164,9 @@ impl<const D: usize> RigidBodies<D> {
             let v = self.velocity[b];
             let held = |idx: &[usize; D]| -> u8 {
                 let (mut normals, mut ahead, mut leading) = (0u8, 0u8, false);
+                let xn = geo.node_position(idx);
                 for d in 0..D {
-                    let x = geo.origin[d] + (idx[d] as f64 - PAD as f64) * geo.h;
+                    let x = xn[d];
                     if (x - face_lo[d]) / geo.h < -eps || (face_hi[d] - x) / geo.h < -eps {
                         ahead |= 1 << d;
                         continue;

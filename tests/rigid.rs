@@ -53,23 +53,31 @@ fn shelf_force(scheme: &str) -> [f64; 2] {
     mean_force(&deck(&shelf(scheme)))
 }
 
-/// Mean force on the first rigid body over the second half of the run of `d`.
-fn mean_force(d: &pmpm::Deck) -> [f64; 2] {
+/// Runs `d` to its end time on two threads at `cfl`, calling `each` after every step.
+fn run_steps(d: &pmpm::Deck, cfl: f64, mut each: impl FnMut(&Simulation<2>) + Send) {
+    let end = d.simulation.end_time;
     in_pool(2, || {
         let mut sim = Simulation::<2>::new(d).unwrap();
-        let (mut sum, mut n) = ([0.0; 2], 0.0);
-        while sim.time < d.simulation.end_time {
-            let dt = sim.stable_dt(0.4);
+        while sim.time < end - 1e-12 {
+            let dt = sim.stable_dt(cfl).min(end - sim.time);
             sim.step(dt).unwrap();
-            if sim.time > 0.25 {
-                let f = sim.boundary.rigid.force(0);
-                sum[0] += f[0];
-                sum[1] += f[1];
-                n += 1.0;
-            }
+            each(&sim);
         }
-        [sum[0] / n, sum[1] / n]
     })
+}
+
+/// Mean force on the first rigid body over the second half of the run of `d`.
+fn mean_force(d: &pmpm::Deck) -> [f64; 2] {
+    let (mut sum, mut n) = ([0.0; 2], 0.0);
+    run_steps(d, 0.4, |sim| {
+        if sim.time > 0.25 {
+            let f = sim.boundary.rigid.force(0);
+            sum[0] += f[0];
+            sum[1] += f[1];
+            n += 1.0;
+        }
+    });
+    [sum[0] / n, sum[1] / n]
 }
 
 #[test]
@@ -230,18 +238,13 @@ fn a_plate_pushed_into_water_bears_its_hydrostatic_load() {
     let (w, h) = (0.105, 0.01);
     let load = |depth: f64| 1000.0 * 9.81 * depth * (1.0 + w / (0.4 - w)) * w;
     let (mut f, mut lo, mut hi, mut n) = (0.0, 0.0, 0.0, 0.0);
-    in_pool(2, || {
-        let mut sim = Simulation::<2>::new(&d).unwrap();
-        while sim.time < d.simulation.end_time - 1e-12 {
-            let dt = sim.stable_dt(0.4).min(d.simulation.end_time - sim.time);
-            sim.step(dt).unwrap();
-            let depth = -sim.boundary.rigid.displacement(0, sim.time)[1];
-            if (0.02..0.05).contains(&depth) {
-                f += sim.boundary.rigid.force(0)[1];
-                lo += load(depth);
-                hi += load(depth + h);
-                n += 1.0;
-            }
+    run_steps(&d, 0.4, |sim| {
+        let depth = -sim.boundary.rigid.displacement(0, sim.time)[1];
+        if (0.02..0.05).contains(&depth) {
+            f += sim.boundary.rigid.force(0)[1];
+            lo += load(depth);
+            hi += load(depth + h);
+            n += 1.0;
         }
     });
     let (f, lo, hi) = (f / n, lo / n, hi / n);
@@ -312,21 +315,15 @@ fn a_clay_layer_dragged_by_a_rough_plate_carries_its_strength() {
     // 0.05 and 0.025 m/s
     for (scheme, speed, end_time) in [("projection", 0.05, 0.6), ("explicit", 0.0125, 1.2)] {
         let d = deck(&sheared_layer(scheme, speed, end_time));
-        let f = in_pool(2, || {
-            let mut sim = Simulation::<2>::new(&d).unwrap();
-            let (mut sum, mut n) = (0.0, 0.0);
-            while sim.time < end_time - 1e-12 {
-                let dt = sim.stable_dt(0.5).min(end_time - sim.time);
-                sim.step(dt).unwrap();
-                // the second half of the run, well past yield (at 0.04 s at 0.05 m/s)
-                if sim.time > end_time / 2.0 {
-                    sum += sim.boundary.rigid.force(0)[0];
-                    n += 1.0;
-                }
+        let (mut sum, mut n) = (0.0, 0.0);
+        run_steps(&d, 0.5, |sim| {
+            // the second half of the run, well past yield (at 0.04 s at 0.05 m/s)
+            if sim.time > end_time / 2.0 {
+                sum += sim.boundary.rigid.force(0)[0];
+                n += 1.0;
             }
-            sum / n
         });
-        let ratio = -f / (cu * length);
+        let ratio = -sum / n / (cu * length);
         println!("{scheme} at {speed} m/s: F / (c_u L) = {ratio:.4}");
         // 3%: the clay's strength at 8 cells across the layer, with the plate's rows at node
         // resolution
