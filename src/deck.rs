@@ -368,13 +368,31 @@ pub enum Preconditioner {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum FreeSurface {
-    /// From the cells' particle volume fraction.
+    /// A level set of the volume fraction, phi = h (1 - 2 f) with f the node's mean cell
+    /// fraction: every node inside the fluid (phi < 0) is an unknown, and p = 0 is imposed
+    /// where phi crosses zero between nodes, by a ghost-fluid value (Gibou et al. 2002).
     #[default]
+    LevelSet,
+    /// The paper's rule: p = 0 on every node next to a cell whose particle volume fraction is
+    /// at or below `volume_fraction_tolerance`.
     VolumeFraction,
     /// No free surface: the fluid fills its container, every cell counts as full (a cell the
     /// particles left empty takes the mean density), p = 0 only on open faces. For closed or
     /// periodic flows (lid-driven cavity, channels, vortices), where a gap the particles open
     /// is not air.
+    None,
+}
+
+/// How the projection keeps each particle's volume from drifting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum DensityCorrection {
+    /// After each step, a second Poisson solve on the particles' volume error moves the
+    /// particles (and deforms their F) so that each one's volume J V0 returns towards V0
+    /// (`src/pressure/density.rs`).
+    #[default]
+    Positions,
+    /// None: the paper's scheme.
     None,
 }
 
@@ -457,6 +475,9 @@ pub struct PressureDeck {
     /// default) turns it off.
     #[serde(default)]
     pub volume_correction: f64,
+    /// How each particle's volume is kept from drifting: "positions" (the default) or "none".
+    #[serde(default)]
+    pub density_correction: DensityCorrection,
     /// Where the pressure unknowns sit: "nodes" (METHOD.md, the default) or "cells".
     #[serde(default)]
     pub unknowns: PressureUnknowns,
@@ -495,6 +516,7 @@ impl Default for PressureDeck {
             quadrature: Quadrature::default(),
             bubble_cells: default_bubble_cells(),
             volume_correction: 0.0,
+            density_correction: DensityCorrection::default(),
             unknowns: PressureUnknowns::default(),
         }
     }
@@ -984,6 +1006,7 @@ fn allowed_values(key: &str) -> Option<Vec<String>> {
         "solver" => variants::<Solver>(),
         "preconditioner" => variants::<Preconditioner>(),
         "free_surface" => variants::<FreeSurface>(),
+        "density_correction" => variants::<DensityCorrection>(),
         "rhs" => variants::<PoissonRhs>(),
         "quadrature" => variants::<Quadrature>(),
         "unknowns" => variants::<PressureUnknowns>(),

@@ -108,6 +108,12 @@ impl<const D: usize> ParticleQuadrature<'_, D> {
 /// Assembles the rows of the interior nodes (`node_of_row`) into `a` and the right-hand side
 /// into `rhs`. `row_of[i]` is node i's row, or `u32::MAX` if it is not an unknown; the
 /// free-surface nodes hold the values `dirichlet[i]` (moved to the right-hand side).
+///
+/// With a level set `phi` (the ghost-fluid free surface), the value of a column j outside the
+/// fluid is the ghost value p_i + (d_j - p_i) / theta_ij that puts d_j where phi crosses zero
+/// between i and j ([`super::free_surface::theta`]): L_ij (1 - 1/theta) joins the diagonal
+/// and L_ij d_j / theta the right-hand side (Gibou, Fedkiw, Cheng & Kang 2002). The diagonal
+/// only grows (L_ij <= 0 for full-cell quadrature), so L stays symmetric positive definite.
 #[allow(clippy::too_many_arguments)]
 pub fn assemble<const D: usize>(
     geo: &GridGeometry<D>,
@@ -115,6 +121,7 @@ pub fn assemble<const D: usize>(
     bins: &CellBins,
     q: &ParticleQuadrature<D>,
     kinds: &[NodeKind],
+    phi: Option<&[f64]>,
     row_of: &[u32],
     node_of_row: &[u32],
     dirichlet: &[f64],
@@ -161,6 +168,8 @@ pub fn assemble<const D: usize>(
                 });
             });
             let mut known = 0.0;
+            let mut ghost_diagonal = 0.0;
+            let centre = (0..D).fold(0, |s, _| s * span + (w - 1));
             for (s, (col, val)) in cols.iter_mut().zip(vals.iter_mut()).enumerate() {
                 // node j from the slot
                 let mut rem = s;
@@ -186,7 +195,16 @@ pub fn assemble<const D: usize>(
                     *col = row_of[jf];
                     *val = acc[s];
                 } else {
-                    if valid && kinds[jf] == NodeKind::FreeSurface {
+                    let t = match phi {
+                        Some(phi) if valid && acc[s] < 0.0 => {
+                            super::free_surface::theta(phi[i as usize], phi[jf])
+                        }
+                        _ => 1.0,
+                    };
+                    if t < 1.0 {
+                        ghost_diagonal += acc[s] * (1.0 - 1.0 / t);
+                        known += acc[s] * dirichlet[jf] / t;
+                    } else if valid && kinds[jf] == NodeKind::FreeSurface {
                         known += acc[s] * dirichlet[jf];
                     }
                     // free-surface (p = 0) and empty columns drop out
@@ -194,6 +212,7 @@ pub fn assemble<const D: usize>(
                     *val = 0.0;
                 }
             }
+            vals[centre] += ghost_diagonal;
             *b = -source / dt - known;
         });
 }

@@ -6,6 +6,7 @@
 //! otherwise. Cells beyond a closed wall count as filled (the wall is not a free surface),
 //! cells beyond an open face as empty (the pressure there is the ambient one).
 
+use crate::deck::FreeSurface;
 use crate::grid::{CellBins, GridGeometry};
 use crate::shape::PAD;
 use rayon::prelude::*;
@@ -20,6 +21,130 @@ pub enum NodeKind {
     FreeSurface,
     /// Inside the fluid: an unknown of the Poisson equation.
     Interior,
+}
+
+/// The free surface of one solve: the cells' volume fractions, the level set and each node's
+/// role, with the settings that find them. The stage "detect the free surface" of the
+/// projection, and of the density correction.
+#[derive(Debug)]
+pub struct Surface {
+    method: FreeSurface,
+    tolerance: f64,
+    bubble_cells: usize,
+    /// Whether each face (x_min, x_max, y_min, ...) is open.
+    pub open: Vec<bool>,
+    /// Particle volume fraction of each cell (numbered like its lower-corner node), with
+    /// enclosed gaps closed.
+    pub fraction: Vec<f64>,
+    raw: Vec<f64>,
+    covered: Vec<f64>,
+    /// Share of each cell the rigid bodies cover (empty without rigid bodies).
+    solid: Vec<f64>,
+    /// Level set of the fluid at the nodes, negative inside (with `FreeSurface::LevelSet`).
+    pub phi: Vec<f64>,
+    /// Role of each node.
+    pub kinds: Vec<NodeKind>,
+    flood: FloodFill,
+}
+
+impl Surface {
+    /// The settings of `[pressure]`, and which faces are open.
+    pub fn new<const D: usize>(
+        pd: &crate::deck::PressureDeck,
+        boundary: &crate::boundary::Boundary<D>,
+    ) -> Self {
+        Self {
+            method: pd.free_surface,
+            tolerance: pd.volume_fraction_tolerance,
+            bubble_cells: pd.bubble_cells,
+            open: (0..2 * D).map(|f| boundary.is_open(f)).collect(),
+            fraction: Vec::new(),
+            raw: Vec::new(),
+            covered: Vec::new(),
+            solid: Vec::new(),
+            phi: Vec::new(),
+            kinds: Vec::new(),
+            flood: FloodFill::default(),
+        }
+    }
+
+    /// The level set, where the method has one.
+    pub fn level_set(&self) -> Option<&[f64]> {
+        (self.method == FreeSurface::LevelSet).then_some(&self.phi[..])
+    }
+
+    /// The share of each cell rigid bodies cover, where there are rigid bodies.
+    pub fn solid(&self) -> Option<&[f64]> {
+        (!self.solid.is_empty()).then_some(&self.solid[..])
+    }
+
+    /// Finds each node's role from the particles (binned in `bins`, volumes `volume`) and the
+    /// nodes' mass: volume fractions, enclosed gaps closed, rigid bodies read as walls, then
+    /// the level set and the ghost-fluid roles, or the paper's rule.
+    #[allow(clippy::too_many_arguments)]
+    pub fn detect<const D: usize>(
+        &mut self,
+        geo: &GridGeometry<D>,
+        bins: &CellBins,
+        volume: &[f64],
+        mass: &[f64],
+        mass_epsilon: f64,
+        rigid: &crate::rigid::RigidBodies<D>,
+    ) {
+        volume_fractions(geo, bins, volume, &mut self.fraction);
+        if self.method == FreeSurface::None {
+            // the fluid fills its container: every cell full (the cells past the walls are
+            // left to the classification, which reads the faces)
+            self.fraction.par_iter_mut().for_each(|f| *f = f.max(1.0));
+        } else if self.bubble_cells > 0 {
+            std::mem::swap(&mut self.fraction, &mut self.raw);
+            close_bubbles(
+                geo,
+                &self.raw,
+                self.tolerance,
+                &self.open,
+                self.bubble_cells,
+                &mut self.flood,
+                &mut self.fraction,
+            );
+        }
+        // a rigid body is read as a wall: the cells it covers count as full
+        self.solid.clear();
+        let fraction = if rigid.is_empty() {
+            &self.fraction
+        } else {
+            self.solid.resize(geo.node_count(), 0.0);
+            rigid.cover(geo, &mut self.solid);
+            self.covered.clone_from(&self.fraction);
+            for (c, s) in self.covered.iter_mut().zip(&self.solid) {
+                *c += s;
+            }
+            &self.covered
+        };
+        if self.method == FreeSurface::LevelSet {
+            level_set(geo, fraction, &self.open, &mut self.phi);
+            let solid = (!self.solid.is_empty()).then_some(&self.solid[..]);
+            classify_level_set(
+                geo,
+                mass,
+                mass_epsilon,
+                &self.phi,
+                solid,
+                &self.open,
+                &mut self.kinds,
+            );
+        } else {
+            classify(
+                geo,
+                mass,
+                mass_epsilon,
+                fraction,
+                self.tolerance,
+                &self.open,
+                &mut self.kinds,
+            );
+        }
+    }
 }
 
 /// Particle volume fraction of every cell: sum of the particles' volumes / h^D.
@@ -120,6 +245,182 @@ pub fn classify<const D: usize>(
         } else {
             NodeKind::FreeSurface
         };
+    });
+}
+
+/// Smallest share of a node-to-node segment the ghost-fluid condition gives the fluid side:
+/// nearer the surface than this, a node's equation is held as if the surface were this far
+/// (Gibou et al. 2002 bound the same ratio; without a bound the diagonal grows without limit).
+pub const THETA_MIN: f64 = 0.01;
+
+/// A node of the level set closer to the surface than this share of a cell counts as on it.
+const ON_SURFACE: f64 = 1e-9;
+
+/// Level set of the fluid at every node, phi_i = h (1 - 2 f_i), negative inside, from f_i the
+/// mean of min(fraction, 1) over the 2^D cells around the node (a cell beyond a closed wall
+/// the mirror image of the cell inside it, beyond an open face empty).
+///
+/// For a plane surface parallel to the grid, f_i falls linearly from 1 to 0 as the node goes
+/// from a cell inside the surface to a cell outside it, so phi is the signed distance to the
+/// surface within a cell of it; elsewhere it is a smoothed volume fraction whose zero lies
+/// where the fluid fills half of a node's cells.
+pub fn level_set<const D: usize>(
+    geo: &GridGeometry<D>,
+    fraction: &[f64],
+    open: &[bool],
+    phi: &mut Vec<f64>,
+) {
+    let corners = 1usize << D;
+    phi.resize(geo.node_count(), 0.0);
+    phi.par_iter_mut().enumerate().for_each(|(i, phi)| {
+        let node = geo.multi(i);
+        let mut f = 0.0;
+        for corner in 0..corners {
+            f += match mirrored_cell(geo, &node, corner, open) {
+                Some(c) => fraction[c].clamp(0.0, 1.0),
+                None => 0.0,
+            };
+        }
+        let f = f / corners as f64;
+        let p = 1.0 - 2.0 * f;
+        // a node on the surface to round-off is on it, so that a column at rest whose top
+        // lies on a node row holds p = 0 there exactly
+        *phi = geo.h * if p.abs() < ON_SURFACE { 0.0 } else { p };
+    });
+}
+
+/// The cell `node - 1 + e` around `node` (e the bits of `corner`), reflected back into the
+/// grid across a closed wall (a wall is a plane of symmetry of the fluid's shape: a surface
+/// meeting it at a node reads as meeting it there), wrapped across a periodic one; None beyond
+/// an open face (empty).
+#[inline]
+fn mirrored_cell<const D: usize>(
+    geo: &GridGeometry<D>,
+    node: &[usize; D],
+    corner: usize,
+    open: &[bool],
+) -> Option<usize> {
+    let mut cell = [0usize; D];
+    for d in 0..D {
+        let (lo, n) = (PAD as isize, geo.cells[d] as isize);
+        let mut c = (node[d] + ((corner >> d) & 1)) as isize - 1 - lo;
+        if geo.periodic[d] {
+            c = c.rem_euclid(n);
+        }
+        while c < 0 || c >= n {
+            if c < 0 {
+                if open[2 * d] {
+                    return None;
+                }
+                c = -1 - c;
+            } else {
+                if open[2 * d + 1] {
+                    return None;
+                }
+                c = 2 * n - 1 - c;
+            }
+        }
+        cell[d] = (c + lo) as usize;
+    }
+    Some(geo.flat(&cell))
+}
+
+/// Classifies the nodes from the level set: a node with mass inside the fluid (phi < 0) is an
+/// unknown; one with mass on or outside the surface is a free-surface node, whose pressure is
+/// the ghost value of [`ghost_values`]. `solid[c]` is the share of cell c a rigid body covers:
+/// a node all of whose cells are covered is not in the fluid's domain.
+pub fn classify_level_set<const D: usize>(
+    geo: &GridGeometry<D>,
+    mass: &[f64],
+    mass_epsilon: f64,
+    phi: &[f64],
+    solid: Option<&[f64]>,
+    open: &[bool],
+    kinds: &mut Vec<NodeKind>,
+) {
+    kinds.resize(geo.node_count(), NodeKind::Empty);
+    kinds.par_iter_mut().enumerate().for_each(|(i, kind)| {
+        *kind = if mass[i] <= mass_epsilon {
+            NodeKind::Empty
+        } else if phi[i] < 0.0 {
+            NodeKind::Interior
+        } else {
+            NodeKind::FreeSurface
+        };
+        if *kind == NodeKind::Interior {
+            if let Some(solid) = solid {
+                let node = geo.multi(i);
+                let buried =
+                    (0..(1usize << D)).all(|corner| match corner_cell(geo, &node, corner, open) {
+                        Corner::Cell(c) => solid[c] >= 1.0 - 1e-9,
+                        _ => true,
+                    });
+                if buried {
+                    *kind = NodeKind::Empty;
+                }
+            }
+        }
+    });
+}
+
+/// The ghost-fluid share theta of the segment from fluid node i (phi_i < 0) to node j that
+/// lies in the fluid: the linear crossing of phi, bounded below by [`THETA_MIN`]; 1 when j is
+/// not outside the fluid.
+#[inline]
+pub fn theta(phi_i: f64, phi_j: f64) -> f64 {
+    if phi_j > 0.0 && phi_i < 0.0 {
+        (phi_i / (phi_i - phi_j)).max(THETA_MIN)
+    } else {
+        1.0
+    }
+}
+
+/// Ghost values on the free-surface nodes after a solve: each is the linear extrapolation
+/// p_j = p_i + (d_j - p_i) / theta_ij from the unknowns i around it (the 3^D neighbours), which
+/// puts the surface value d_j where phi crosses zero, averaged with the weights theta_ij (a
+/// crossing near the fluid node extrapolates far and counts least). `p` holds the unknowns'
+/// solution and the surface values d_j on entry; the corrector then takes the gradient of a
+/// pressure that is linear across the surface, not one clamped to zero on whole nodes.
+pub fn ghost_values<const D: usize>(
+    geo: &GridGeometry<D>,
+    kinds: &[NodeKind],
+    phi: &[f64],
+    p: &[f64],
+    out: &mut Vec<f64>,
+) {
+    out.clear();
+    out.extend_from_slice(p);
+    out.par_iter_mut().enumerate().for_each(|(j, pj)| {
+        if kinds[j] != NodeKind::FreeSurface || phi[j] <= 0.0 {
+            return;
+        }
+        let node = geo.multi(j);
+        let (mut num, mut den) = (0.0, 0.0);
+        for k in 0..3usize.pow(D as u32) {
+            let mut idx = node;
+            let mut rem = k;
+            let mut valid = true;
+            for d in 0..D {
+                let o = rem % 3;
+                rem /= 3;
+                let n = node[d] + o;
+                valid &= n >= 1 && n - 1 < geo.nodes[d];
+                idx[d] = n.wrapping_sub(1);
+            }
+            if !valid || k == (3usize.pow(D as u32) - 1) / 2 {
+                continue;
+            }
+            let i = geo.canonical(geo.flat(&idx));
+            if kinds[i] != NodeKind::Interior {
+                continue;
+            }
+            let t = theta(phi[i], phi[j]);
+            num += t * p[i] + p[j] - p[i];
+            den += t;
+        }
+        if den > 0.0 {
+            *pj = num / den;
+        }
     });
 }
 

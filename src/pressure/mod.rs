@@ -18,8 +18,7 @@ pub mod solve;
 
 use crate::boundary::Boundary;
 use crate::deck::{
-    Deck, FreeSurface, PoissonRhs, Preconditioner, PressureUnknowns, Quadrature, ShapeFunction,
-    Solver,
+    Deck, PoissonRhs, Preconditioner, PressureUnknowns, Quadrature, ShapeFunction, Solver,
 };
 use crate::grid::{CellBins, Grid, Vector};
 use crate::particles::Particles;
@@ -34,19 +33,15 @@ use solve::{Direct, EllMatrix, Jacobi, LinearSolver, Pcg, SolveError, SolveStats
 pub struct Projection<const D: usize> {
     tolerance: f64,
     max_iterations: usize,
-    volume_fraction_tolerance: f64,
     /// Share of p^n in the predictor (0: Chorin, 1: incremental).
     pub beta: f64,
     shape: ShapeFunction,
-    open: Vec<bool>,
     solver: LinearSolver,
     bins: CellBins,
-    /// Particle volume fraction of each cell (numbered like its lower-corner node).
-    pub volume_fraction: Vec<f64>,
-    /// Role of each node in the last solve.
-    pub kinds: Vec<NodeKind>,
-    row_of: Vec<u32>,
-    node_of_row: Vec<u32>,
+    /// The free surface of the last solve: volume fractions, level set, each node's role.
+    pub surface: free_surface::Surface,
+    /// The numbering of the unknowns.
+    unknowns: Unknowns,
     /// The last assembled matrix L (interior rows and columns).
     pub matrix: EllMatrix,
     /// The last right-hand side.
@@ -64,17 +59,13 @@ pub struct Projection<const D: usize> {
     velocity_star: Vec<Vector<D>>,
     unconstrained: Vec<Vector<D>>,
     rhs_form: PoissonRhs,
-    free_surface: FreeSurface,
     quadrature: Quadrature,
-    bubble_cells: usize,
     /// alpha of `pressure.volume_correction`.
     volume_correction: f64,
     /// Per cell, the particles' volume ratio J averaged with the weights V_p^0.
     cell_jacobian: Vec<f64>,
-    raw_fraction: Vec<f64>,
-    /// Volume fractions with the rigid bodies' cover, for the classification only.
-    covered: Vec<f64>,
-    flood_fill: free_surface::FloodFill,
+    /// Scratch for the ghost values.
+    ghost: Vec<f64>,
     gauss: GaussPoints<D>,
     pressure_gradient: Vec<Vector<D>>,
     /// Statistics of the last solve.
@@ -115,16 +106,12 @@ impl<const D: usize> Projection<D> {
         Self {
             tolerance: pd.tolerance,
             max_iterations: pd.max_iterations,
-            volume_fraction_tolerance: pd.volume_fraction_tolerance,
             beta: pd.beta,
             shape: deck.simulation.shape_function,
-            open: (0..2 * D).map(|f| boundary.is_open(f)).collect(),
             solver,
             bins: CellBins::default(),
-            volume_fraction: Vec::new(),
-            kinds: Vec::new(),
-            row_of: Vec::new(),
-            node_of_row: Vec::new(),
+            surface: free_surface::Surface::new(pd, boundary),
+            unknowns: Unknowns::default(),
             matrix: EllMatrix::default(),
             rhs: Vec::new(),
             solution: Vec::new(),
@@ -137,14 +124,10 @@ impl<const D: usize> Projection<D> {
             velocity_star: vec![Vector::<D>::zeros(); particle_quadrature * ps.len()],
             unconstrained: Vec::new(),
             rhs_form: pd.rhs,
-            free_surface: pd.free_surface,
             quadrature: pd.quadrature,
-            bubble_cells: pd.bubble_cells,
             volume_correction: pd.volume_correction,
             cell_jacobian: Vec::new(),
-            raw_fraction: Vec::new(),
-            covered: Vec::new(),
-            flood_fill: Default::default(),
+            ghost: Vec::new(),
             gauss: GaussPoints::default(),
             pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
             stats: SolveStats {
@@ -240,61 +223,16 @@ impl<const D: usize> Projection<D> {
             timers.lap(Phase::Corrector);
         }
         let geo = &grid.geo;
-        // 3. free surface
-        free_surface::volume_fractions(geo, &self.bins, &ps.volume0, &mut self.volume_fraction);
-        if self.free_surface == FreeSurface::None {
-            // the fluid fills its container: every cell full (the cells past the walls are
-            // left to the classification, which reads the faces)
-            self.volume_fraction
-                .par_iter_mut()
-                .for_each(|f| *f = f.max(1.0));
-        } else if self.bubble_cells > 0 {
-            std::mem::swap(&mut self.volume_fraction, &mut self.raw_fraction);
-            free_surface::close_bubbles(
-                geo,
-                &self.raw_fraction,
-                self.volume_fraction_tolerance,
-                &self.open,
-                self.bubble_cells,
-                &mut self.flood_fill,
-                &mut self.volume_fraction,
-            );
-        }
-        // a rigid body is read as a wall: the cells it covers count as full
-        let fraction = if boundary.rigid.is_empty() {
-            &self.volume_fraction
-        } else {
-            self.covered.clone_from(&self.volume_fraction);
-            boundary.rigid.cover(geo, &mut self.covered);
-            &self.covered
-        };
-        free_surface::classify(
+        // 3. free surface: each node's role, and the level set where the surface lies
+        self.surface.detect(
             geo,
+            &self.bins,
+            &ps.volume0,
             &grid.mass,
             mass_epsilon,
-            fraction,
-            self.volume_fraction_tolerance,
-            &self.open,
-            &mut self.kinds,
+            &boundary.rigid,
         );
-        self.row_of.clear();
-        self.row_of.resize(n_nodes, u32::MAX);
-        self.node_of_row.clear();
-        let mut free = 0usize;
-        for (i, k) in self.kinds.iter().enumerate() {
-            if geo.canonical(i) != i {
-                // a periodic image: its node has the row
-                continue;
-            }
-            match k {
-                NodeKind::Interior => {
-                    self.row_of[i] = self.node_of_row.len() as u32;
-                    self.node_of_row.push(i as u32);
-                }
-                NodeKind::FreeSurface => free += 1,
-                NodeKind::Empty => {}
-            }
-        }
+        let free = self.unknowns.number(geo, &self.surface.kinds);
         // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is
         self.surface_pressure.resize(n_nodes, 0.0);
         if self.traction_free {
@@ -306,16 +244,17 @@ impl<const D: usize> Projection<D> {
                 &ps.half_width,
                 &ps.volume0,
                 &ps.tau,
-                &self.volume_fraction,
-                &self.open,
-                &self.kinds,
+                &self.surface.fraction,
+                &self.surface.open,
+                &self.surface.kinds,
                 &mut self.surface_pressure,
             );
         }
         timers.lap(Phase::FreeSurface);
         // the unknown is p^{n+1} - beta p^n
         {
-            let (kinds, prev, surface) = (&self.kinds, &self.previous, &self.surface_pressure);
+            let (kinds, prev, surface) =
+                (&self.surface.kinds, &self.previous, &self.surface_pressure);
             self.node_pressure
                 .par_iter_mut()
                 .enumerate()
@@ -340,15 +279,22 @@ impl<const D: usize> Projection<D> {
         let v_star = &grid.velocity_new;
         let v_free = &self.unconstrained;
         let geo = &grid.geo;
-        let cell = self.quadrature == Quadrature::Cell;
+        // the ghost-fluid condition needs the matrix over whole cells: the cell quadrature
+        let level_set = self.surface.level_set().is_some();
+        let cell = self.quadrature == Quadrature::Cell || level_set;
         if cell {
+            let domain = level_set.then(|| FluidDomain {
+                kinds: &self.surface.kinds,
+                solid: self.surface.solid(),
+            });
             self.gauss.build(
                 geo,
                 &self.bins,
-                &self.volume_fraction,
+                &self.surface.fraction,
                 &ps.mass,
                 &ps.volume0,
                 shape,
+                domain,
             );
         }
         let (qx, qhw, qdiv, qw, qcell) = if cell {
@@ -437,9 +383,10 @@ impl<const D: usize> Projection<D> {
             shape,
             bins,
             &quadrature,
-            &self.kinds,
-            &self.row_of,
-            &self.node_of_row,
+            &self.surface.kinds,
+            self.surface.level_set(),
+            &self.unknowns.row_of,
+            &self.unknowns.node_of_row,
             &self.node_pressure,
             dt,
             &mut self.matrix,
@@ -447,16 +394,16 @@ impl<const D: usize> Projection<D> {
         );
         timers.lap(Phase::Assembly);
         // solve; Chorin's form starts from the last step's pressure at the same nodes
-        self.solution.resize(self.node_of_row.len(), 0.0);
+        self.solution.resize(self.unknowns.node_of_row.len(), 0.0);
         {
             let prev = &self.previous;
             let warm = beta == 0.0;
             self.solution
                 .par_iter_mut()
-                .zip(self.node_of_row.par_iter())
+                .zip(self.unknowns.node_of_row.par_iter())
                 .for_each(|(x, &i)| *x = if warm { prev[i as usize] } else { 0.0 });
         }
-        self.singular = free == 0 && !self.node_of_row.is_empty();
+        self.singular = free == 0 && !self.unknowns.node_of_row.is_empty();
         if let Some(layout) = self.solver.layout_mut() {
             // where the unknowns sit, for the multigrid's coarsening
             let geo = &grid.geo;
@@ -469,10 +416,12 @@ impl<const D: usize> Projection<D> {
                 layout.periodic[d] = geo.periodic[d];
             }
             layout.index.clear();
-            layout.index.extend(self.node_of_row.iter().map(|&i| {
-                let m = geo.multi(i as usize);
-                std::array::from_fn(|d| if d < D { m[d] as u32 } else { 0 })
-            }));
+            layout
+                .index
+                .extend(self.unknowns.node_of_row.iter().map(|&i| {
+                    let m = geo.multi(i as usize);
+                    std::array::from_fn(|d| if d < D { m[d] as u32 } else { 0 })
+                }));
         }
         self.stats = self.solver.solve(
             &self.matrix,
@@ -483,23 +432,29 @@ impl<const D: usize> Projection<D> {
             self.singular,
         )?;
         {
-            let (sol, node_of_row) = (&self.solution, &self.node_of_row);
+            let (sol, node_of_row) = (&self.solution, &self.unknowns.node_of_row);
             let dp = &mut self.node_pressure;
             for (r, &i) in node_of_row.iter().enumerate() {
                 dp[i as usize] = sol[r];
             }
             grid.geo.copy_to_images(dp);
-            // p^{n+1} = beta p^n + dp on the fluid's nodes, the memory of the next step (the
-            // free surface's own value there)
-            let (kinds, surface) = (&self.kinds, &self.surface_pressure);
+            if level_set {
+                // the free-surface nodes take the ghost values that put p = 0 on the surface
+                let (kinds, phi) = (&self.surface.kinds, &self.surface.phi);
+                free_surface::ghost_values(&grid.geo, kinds, phi, dp, &mut self.ghost);
+                std::mem::swap(dp, &mut self.ghost);
+                grid.geo.copy_to_images(dp);
+            }
+            // p^{n+1} = beta p^n + dp on the fluid's nodes, the memory of the next step (on the
+            // free surface its own value, or the ghost value)
+            let kinds = &self.surface.kinds;
             self.previous
                 .par_iter_mut()
-                .zip(dp.par_iter())
+                .zip(self.node_pressure.par_iter())
                 .enumerate()
                 .for_each(|(i, (p, &d))| {
                     *p = match kinds[i] {
-                        NodeKind::Interior => beta * *p + d,
-                        NodeKind::FreeSurface => surface[i],
+                        NodeKind::Interior | NodeKind::FreeSurface => beta * *p + d,
                         NodeKind::Empty => 0.0,
                     }
                 });
@@ -588,6 +543,44 @@ impl<const D: usize> Projection<D> {
     }
 }
 
+/// The numbering of a solve's unknowns: the interior nodes, a row each.
+#[derive(Debug, Default)]
+pub struct Unknowns {
+    /// Each node's row, or `u32::MAX` where it is not an unknown.
+    pub row_of: Vec<u32>,
+    /// Each row's node.
+    pub node_of_row: Vec<u32>,
+}
+
+impl Unknowns {
+    /// Numbers the interior nodes (a periodic image shares its node's row) and returns the
+    /// number of free-surface nodes.
+    pub fn number<const D: usize>(
+        &mut self,
+        geo: &crate::grid::GridGeometry<D>,
+        kinds: &[NodeKind],
+    ) -> usize {
+        self.row_of.clear();
+        self.row_of.resize(geo.node_count(), u32::MAX);
+        self.node_of_row.clear();
+        let mut free = 0usize;
+        for (i, k) in kinds.iter().enumerate() {
+            if geo.canonical(i) != i {
+                continue;
+            }
+            match k {
+                NodeKind::Interior => {
+                    self.row_of[i] = self.node_of_row.len() as u32;
+                    self.node_of_row.push(i as u32);
+                }
+                NodeKind::FreeSurface => free += 1,
+                NodeKind::Empty => {}
+            }
+        }
+        free
+    }
+}
+
 /// (div v*)_q and w_q (the part of v* the walls removed) at quadrature points.
 #[allow(clippy::too_many_arguments)]
 fn velocity_at_points<const D: usize>(
@@ -621,6 +614,27 @@ fn velocity_at_points<const D: usize>(
         });
 }
 
+/// The fluid's domain for the level-set free surface: the matrix is integrated over every cell
+/// next to an unknown, less what rigid bodies cover.
+struct FluidDomain<'a> {
+    kinds: &'a [NodeKind],
+    solid: Option<&'a [f64]>,
+}
+
+impl FluidDomain<'_> {
+    /// Whether a corner node of cell `idx` (padded multi-index) is an unknown.
+    fn touches_unknown<const D: usize>(
+        &self,
+        geo: &crate::grid::GridGeometry<D>,
+        idx: &[usize; D],
+    ) -> bool {
+        (0..(1usize << D)).any(|corner| {
+            let node: [usize; D] = std::array::from_fn(|d| idx[d] + ((corner >> d) & 1));
+            self.kinds[geo.canonical(geo.flat(&node))] == NodeKind::Interior
+        })
+    }
+}
+
 /// Gauss points of the cell quadrature: 2^D per cell with fluid, volume min(phi_c, 1) h^D / 2^D,
 /// density of the cell (its particles' mass over their volume; cells without particles, filled
 /// by hole closing, take the mean density of all particles).
@@ -640,6 +654,7 @@ struct GaussPoints<const D: usize> {
 }
 
 impl<const D: usize> GaussPoints<D> {
+    #[allow(clippy::too_many_arguments)]
     fn build(
         &mut self,
         geo: &crate::grid::GridGeometry<D>,
@@ -648,6 +663,7 @@ impl<const D: usize> GaussPoints<D> {
         mass: &[f64],
         volume: &[f64],
         shape: ShapeFunction,
+        domain: Option<FluidDomain<'_>>,
     ) {
         use crate::shape::PAD;
         self.x.clear();
@@ -660,20 +676,31 @@ impl<const D: usize> GaussPoints<D> {
         let a = 0.5 / 3f64.sqrt();
         for (c, &phi) in fraction.iter().enumerate() {
             let w = phi.min(1.0);
-            if w <= 0.0 {
-                continue;
-            }
             let idx = geo.multi(c);
             if (0..D).any(|d| idx[d] < PAD || idx[d] >= PAD + geo.cells[d]) {
                 continue;
             }
+            // the matrix's share of the cell: its fraction of fluid, or with a level set the
+            // whole cell less what a rigid body covers (the ghost-fluid condition needs the
+            // couplings across the surface, and a solid's face is where the flux is imposed)
+            let matrix_share = match &domain {
+                Some(fd) => {
+                    if !fd.touches_unknown(geo, &idx) {
+                        continue;
+                    }
+                    1.0 - fd.solid.map_or(0.0, |s| s[c].clamp(0.0, 1.0))
+                }
+                None if w <= 0.0 => continue,
+                None => w,
+            };
             let ps = bins.particles(c);
             let (m, v) = ps.iter().fold((0.0, 0.0), |(m, v), &p| {
                 (m + mass[p as usize], v + volume[p as usize])
             });
             let rho = if v > 0.0 { m / v } else { mean_density };
             let lower = geo.node_position(&idx);
-            let vol = w * cell_volume / corners as f64;
+            let vol = w.max(0.0) * cell_volume / corners as f64;
+            let matrix_vol = matrix_share * cell_volume / corners as f64;
             for k in 0..corners {
                 let x = Vector::<D>::from_fn(|d, _| {
                     let s = if (k >> d) & 1 == 1 { 0.5 + a } else { 0.5 - a };
@@ -681,7 +708,7 @@ impl<const D: usize> GaussPoints<D> {
                 });
                 self.x.push(x);
                 self.volume.push(vol);
-                self.volume_over_density.push(vol / rho);
+                self.volume_over_density.push(matrix_vol / rho);
                 self.cell
                     .push(std::array::from_fn(|d| (idx[d] - PAD) as u32));
             }
