@@ -129,6 +129,23 @@ impl<const D: usize> NodalAveraging<D> {
         });
     }
 
+    /// Replaces a per-particle field by the interpolated nodal average of it.
+    pub fn smooth(
+        &mut self,
+        ps: &Particles<D>,
+        geo: &GridGeometry<D>,
+        shape: ShapeFunction,
+        values: &mut [f64],
+    ) {
+        crate::with_shape!(shape, S => {
+            self.project::<S>(ps, geo, |p| values[p]);
+            let average = &self.average;
+            (ps.x.par_iter(), ps.half_width.par_iter(), values.par_iter_mut())
+                .into_par_iter()
+                .for_each(|(x, &lp, v)| *v = interpolate::<D, S>(geo, average, x, lp));
+        });
+    }
+
     /// Replaces every particle's pressure by the interpolated nodal average of the pressure,
     /// the one the next step's internal force takes. After the constitutive update (which
     /// sets p = K (1 - J) afresh from each particle's J every step, so the averages do not
@@ -174,6 +191,8 @@ impl<const D: usize> NodalAveraging<D> {
         });
         // the threads' sums in a fixed order, then the average; with periodic axes the images
         // are folded onto their nodes first, so the division waits for that
+        self.weight.resize(geo.node_count(), 0.0);
+        self.average.resize(geo.node_count(), 0.0);
         let bands = &self.bands;
         let periodic = geo.has_periodic();
         (self.weight.par_iter_mut(), self.average.par_iter_mut())

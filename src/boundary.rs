@@ -174,6 +174,18 @@ impl<const D: usize> Boundary<D> {
         self.rigid.apply(v);
     }
 
+    /// Zeroes a node displacement's normal component on the slip and no-slip faces, and the
+    /// components a rigid body holds on its nodes: a correction that moves the particles must
+    /// not move them through a wall or into a body.
+    pub fn hold_still(&self, u: &mut [Vector<D>]) {
+        for &(i, f) in &self.nodes {
+            if matches!(self.faces[f].0, BoundaryKind::Slip | BoundaryKind::NoSlip) {
+                u[i][f / 2] = 0.0;
+            }
+        }
+        self.rigid.hold_still(u);
+    }
+
     /// Imposes the face conditions on node velocities.
     pub fn apply(&self, v: &mut [Vector<D>]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {

@@ -217,6 +217,17 @@ impl<const D: usize> RigidBodies<D> {
         }
     }
 
+    /// Zeroes the components the bodies hold on their nodes.
+    pub fn hold_still(&self, u: &mut [Vector<D>]) {
+        for &(i, _, h) in &self.nodes {
+            for d in 0..D {
+                if h & (1 << d) != 0 {
+                    u[i][d] = 0.0;
+                }
+            }
+        }
+    }
+
     /// Adds to each cell's volume fraction the part of it a body covers, so that the
     /// free-surface detection reads a body as it reads a wall: the material against it is
     /// not at a free surface.

@@ -133,7 +133,13 @@ impl<const D: usize> Simulation<D> {
             .collect();
         let projection = (deck.simulation.scheme == Scheme::Projection)
             .then(|| Projection::new(deck, &particles, &boundary));
-        let averaging = (deck.simulation.volumetric_averaging == VolumetricAveraging::Nodal)
+        // the projection's density correction restores each particle's volume from the nodes,
+        // and so reads J with the nodally averaged dilatation (src/pressure/density.rs)
+        let corrected = deck.simulation.scheme == Scheme::Projection
+            && deck.pressure.unknowns == crate::deck::PressureUnknowns::Nodes
+            && deck.pressure.density_correction == crate::deck::DensityCorrection::Positions;
+        let averaging = (deck.simulation.volumetric_averaging == VolumetricAveraging::Nodal
+            || corrected)
             .then(|| NodalAveraging::new(rayon::current_num_threads(), geo.node_count()));
         let body_force = (!gravity.is_constant()).then(|| {
             let f = particles.x.iter().map(|x| gravity.eval(x, 0.0)).collect();
@@ -281,9 +287,26 @@ impl<const D: usize> Simulation<D> {
             self.scheme == Scheme::Explicit,
         );
         if let Some(averaging) = &mut self.averaging {
-            averaging.average_pressure(&mut self.particles, geo, shape);
+            if self.scheme == Scheme::Explicit {
+                averaging.average_pressure(&mut self.particles, geo, shape);
+            }
         }
         self.timers.lap(Phase::Constitutive);
+        // 6. projection: the particles moved back to their rest volumes
+        if let Some(projection) = &mut self.projection {
+            projection
+                .correct_density(&mut self.particles, &self.grid.geo, &self.boundary)
+                .map_err(|e| {
+                    Error::BlowUp(format!(
+                        "run stopped at step {}, t = {:.6} s: the density correction: {e}",
+                        self.steps + 1,
+                        self.time
+                    ))
+                })?;
+            self.boundary
+                .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
+            self.timers.lap(Phase::Corrector);
+        }
         self.time += dt;
         self.steps += 1;
         self.check_particles()

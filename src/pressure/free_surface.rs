@@ -363,6 +363,75 @@ pub fn classify_level_set<const D: usize>(
     });
 }
 
+/// Velocities of the free-surface nodes that no pressure reaches, extended from the walls.
+///
+/// A free-surface node with an unknown among its 3^D neighbours is corrected by the ghost
+/// pressure. One without (a layer of fluid thinner than half a cell, such as a dam break's
+/// front on the floor) would keep its predicted velocity, gravity and all, while the wall node
+/// below it holds the normal velocity: the layer's particles, between the two, would be packed
+/// against the wall step after step. Each velocity component of such a node takes the mean of
+/// that component over its neighbours that hold it (`held[i][d] == 0`: the wall's normal, a
+/// rigid body's components), where there are any; the fluid's velocity extended into its
+/// surface layer, as a projection on a staggered grid extends it into the air (Bridson, Fluid
+/// Simulation for Computer Graphics, 2nd ed., 2015, section 4.4).
+pub fn extend_velocity<const D: usize>(
+    geo: &GridGeometry<D>,
+    kinds: &[NodeKind],
+    held: &[crate::grid::Vector<D>],
+    v: &mut [crate::grid::Vector<D>],
+    scratch: &mut Vec<crate::grid::Vector<D>>,
+) {
+    scratch.clear();
+    scratch.extend_from_slice(v);
+    let old = &scratch[..];
+    let centre = (3usize.pow(D as u32) - 1) / 2;
+    v.par_iter_mut().enumerate().for_each(|(j, vj)| {
+        if kinds[j] != NodeKind::FreeSurface {
+            return;
+        }
+        let node = geo.multi(j);
+        let mut sum = crate::grid::Vector::<D>::zeros();
+        let mut count = [0usize; D];
+        let mut reached = false;
+        for k in 0..3usize.pow(D as u32) {
+            if k == centre {
+                continue;
+            }
+            let mut idx = node;
+            let mut rem = k;
+            let mut valid = true;
+            for d in 0..D {
+                let n = node[d] + rem % 3;
+                rem /= 3;
+                valid &= n >= 1 && n - 1 < geo.nodes[d];
+                idx[d] = n.wrapping_sub(1);
+            }
+            if !valid {
+                continue;
+            }
+            let i = geo.flat(&idx);
+            if kinds[geo.canonical(i)] == NodeKind::Interior {
+                reached = true;
+                break;
+            }
+            for d in 0..D {
+                if held[i][d] == 0.0 && kinds[i] != NodeKind::Empty {
+                    sum[d] += old[i][d];
+                    count[d] += 1;
+                }
+            }
+        }
+        if reached {
+            return;
+        }
+        for d in 0..D {
+            if count[d] > 0 && held[j][d] != 0.0 {
+                vj[d] = sum[d] / count[d] as f64;
+            }
+        }
+    });
+}
+
 /// The ghost-fluid share theta of the segment from fluid node i (phi_i < 0) to node j that
 /// lies in the fluid: the linear crossing of phi, bounded below by [`THETA_MIN`]; 1 when j is
 /// not outside the fluid.

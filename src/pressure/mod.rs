@@ -12,6 +12,7 @@
 
 pub mod assemble;
 pub mod cell;
+pub mod density;
 pub mod free_surface;
 pub mod multigrid;
 pub mod solve;
@@ -66,6 +67,9 @@ pub struct Projection<const D: usize> {
     cell_jacobian: Vec<f64>,
     /// Scratch for the ghost values.
     ghost: Vec<f64>,
+    /// Per node, 0 in the velocity components the walls and rigid bodies hold, 1 elsewhere.
+    held: Vec<Vector<D>>,
+    extended: Vec<Vector<D>>,
     gauss: GaussPoints<D>,
     pressure_gradient: Vec<Vector<D>>,
     /// Statistics of the last solve.
@@ -80,22 +84,16 @@ pub struct Projection<const D: usize> {
     /// With `pressure.unknowns = "cells"`, the cell projection (then `previous` holds the
     /// cell pressures, numbered like their cells' lower-corner nodes).
     cells: Option<cell::CellProjection<D>>,
+    /// The density correction after the step (`pressure.density_correction = "positions"`,
+    /// nodal unknowns).
+    density: Option<density::DensityCorrection<D>>,
 }
 
 impl<const D: usize> Projection<D> {
     /// The projection set up from a validated deck, for the given particles.
     pub fn new(deck: &Deck, ps: &Particles<D>, boundary: &Boundary<D>) -> Self {
         let pd = &deck.pressure;
-        let solver = match (pd.solver, pd.preconditioner) {
-            (Solver::Direct, _) => LinearSolver::Direct(Direct::default()),
-            // validation refuses the preconditioners that are not built yet
-            (Solver::Pcg, Preconditioner::Multigrid) => {
-                LinearSolver::Pcg(Pcg::new(Box::<multigrid::Multigrid>::default()))
-            }
-            (Solver::Pcg, Preconditioner::Jacobi | Preconditioner::Ic0) => {
-                LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())))
-            }
-        };
+        let solver = linear_solver(pd);
         let particle_quadrature = usize::from(pd.quadrature == Quadrature::Particle);
         let volume_over_density = ps
             .volume0
@@ -128,6 +126,8 @@ impl<const D: usize> Projection<D> {
             volume_correction: pd.volume_correction,
             cell_jacobian: Vec::new(),
             ghost: Vec::new(),
+            held: Vec::new(),
+            extended: Vec::new(),
             gauss: GaussPoints::default(),
             pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
             stats: SolveStats {
@@ -142,6 +142,25 @@ impl<const D: usize> Projection<D> {
             surface_pressure: Vec::new(),
             cells: (pd.unknowns == PressureUnknowns::Cells)
                 .then(|| cell::CellProjection::new(deck.simulation.shape_function)),
+            density: (pd.unknowns == PressureUnknowns::Nodes
+                && pd.density_correction == crate::deck::DensityCorrection::Positions)
+                .then(|| {
+                    density::DensityCorrection::new(pd, deck.simulation.shape_function, boundary)
+                }),
+        }
+    }
+
+    /// After the step: moves the particles so that their volumes return to V0 (nothing
+    /// without the density correction). Returns the solve's iterations.
+    pub fn correct_density(
+        &mut self,
+        ps: &mut Particles<D>,
+        geo: &crate::grid::GridGeometry<D>,
+        boundary: &Boundary<D>,
+    ) -> Result<usize, SolveError> {
+        match &mut self.density {
+            Some(d) => Ok(d.correct(ps, geo, boundary)?.iterations),
+            None => Ok(0),
         }
     }
 
@@ -404,25 +423,12 @@ impl<const D: usize> Projection<D> {
                 .for_each(|(x, &i)| *x = if warm { prev[i as usize] } else { 0.0 });
         }
         self.singular = free == 0 && !self.unknowns.node_of_row.is_empty();
-        if let Some(layout) = self.solver.layout_mut() {
-            // where the unknowns sit, for the multigrid's coarsening
-            let geo = &grid.geo;
-            layout.dim = D;
-            layout.reach = shape.width() - 1;
-            for d in 0..D {
-                layout.nodes[d] = geo.nodes[d];
-                layout.offset[d] = crate::shape::PAD;
-                layout.cells[d] = geo.cells[d];
-                layout.periodic[d] = geo.periodic[d];
-            }
-            layout.index.clear();
-            layout
-                .index
-                .extend(self.unknowns.node_of_row.iter().map(|&i| {
-                    let m = geo.multi(i as usize);
-                    std::array::from_fn(|d| if d < D { m[d] as u32 } else { 0 })
-                }));
-        }
+        describe_layout(
+            &mut self.solver,
+            &grid.geo,
+            shape,
+            &self.unknowns.node_of_row,
+        );
         self.stats = self.solver.solve(
             &self.matrix,
             &self.rhs,
@@ -463,6 +469,20 @@ impl<const D: usize> Projection<D> {
         // 5. particle pressure and (grad dp)_p, then the corrector
         self.particle_pressure(ps, &grid.geo, true);
         self.correct(ps, grid, mass_epsilon, dt);
+        if level_set {
+            // the nodes no pressure reached take the held velocity of the walls around them
+            boundary.apply(&mut grid.velocity_new);
+            self.held.clear();
+            self.held.resize(n_nodes, Vector::<D>::repeat(1.0));
+            boundary.hold_still(&mut self.held);
+            free_surface::extend_velocity(
+                &grid.geo,
+                &self.surface.kinds,
+                &self.held,
+                &mut grid.velocity_new,
+                &mut self.extended,
+            );
+        }
         timers.lap(Phase::Corrector);
         Ok(self.stats)
     }
@@ -541,6 +561,46 @@ impl<const D: usize> Projection<D> {
                 *v -= f * (scale / m);
             });
     }
+}
+
+/// The linear solver `[pressure]` asks for.
+fn linear_solver(pd: &crate::deck::PressureDeck) -> LinearSolver {
+    match (pd.solver, pd.preconditioner) {
+        (Solver::Direct, _) => LinearSolver::Direct(Direct::default()),
+        // validation refuses the preconditioners that are not built yet
+        (Solver::Pcg, Preconditioner::Multigrid) => {
+            LinearSolver::Pcg(Pcg::new(Box::<multigrid::Multigrid>::default()))
+        }
+        (Solver::Pcg, Preconditioner::Jacobi | Preconditioner::Ic0) => {
+            LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())))
+        }
+    }
+}
+
+/// Tells a preconditioner that wants it (the multigrid) where the unknowns sit on the grid,
+/// for its coarsening.
+fn describe_layout<const D: usize>(
+    solver: &mut LinearSolver,
+    geo: &crate::grid::GridGeometry<D>,
+    shape: ShapeFunction,
+    node_of_row: &[u32],
+) {
+    let Some(layout) = solver.layout_mut() else {
+        return;
+    };
+    layout.dim = D;
+    layout.reach = shape.width() - 1;
+    for d in 0..D {
+        layout.nodes[d] = geo.nodes[d];
+        layout.offset[d] = crate::shape::PAD;
+        layout.cells[d] = geo.cells[d];
+        layout.periodic[d] = geo.periodic[d];
+    }
+    layout.index.clear();
+    layout.index.extend(node_of_row.iter().map(|&i| {
+        let m = geo.multi(i as usize);
+        std::array::from_fn(|d| if d < D { m[d] as u32 } else { 0 })
+    }));
 }
 
 /// The numbering of a solve's unknowns: the interior nodes, a row each.
