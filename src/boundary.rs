@@ -123,7 +123,7 @@ impl<const D: usize> Boundary<D> {
 
     /// Wraps particles across periodic faces and keeps them inside closed faces. Near a wall a particle's velocity is interpolated
     /// from nodes off the wall as well, so it can cross the wall by a fraction of a step; it is
-    /// put back on the wall and its velocity into the wall removed (the particle-level form of
+    /// reflected back inside by as much as it crossed, and its velocity into the wall removed (the particle-level form of
     /// v . n = 0). A particle further than a cell beyond a wall, or beyond an open face, is
     /// left where it is for the blow-up guard to report.
     pub fn confine(&self, geo: &GridGeometry<D>, x: &mut [Vector<D>], v: &mut [Vector<D>]) {
@@ -144,10 +144,13 @@ impl<const D: usize> Boundary<D> {
                     }
                     x[d] = lo[d] + r;
                 } else if x[d] < lo[d] && x[d] > lo[d] - h && kmin != BoundaryKind::Open {
-                    x[d] = lo[d];
+                    // reflected back by the distance it went past: a particle put on the wall
+                    // itself stays on it (the wall nodes hold its normal velocity at zero), and
+                    // a splash running along a wall packed its particles into that line
+                    x[d] = (2.0 * lo[d] - x[d]).min(hi[d]);
                     v[d] = v[d].max(wmin[d]);
                 } else if x[d] > hi[d] && x[d] < hi[d] + h && kmax != BoundaryKind::Open {
-                    x[d] = hi[d];
+                    x[d] = (2.0 * hi[d] - x[d]).max(lo[d]);
                     v[d] = v[d].min(wmax[d]);
                 }
             }

@@ -453,8 +453,10 @@ pub struct PressureDeck {
     pub tolerance: f64,
     #[serde(default = "default_max_iterations")]
     pub max_iterations: usize,
+    /// How p = 0 is imposed; `validate` fills it in: the level set, or the paper's rule where
+    /// the deck has rigid bodies (the level set does not yet see them).
     #[serde(default)]
-    pub free_surface: FreeSurface,
+    pub free_surface: Option<FreeSurface>,
     #[serde(default = "default_vf_tolerance")]
     pub volume_fraction_tolerance: f64,
     #[serde(default = "default_beta")]
@@ -509,7 +511,7 @@ impl Default for PressureDeck {
             preconditioner: Preconditioner::default(),
             tolerance: default_tolerance(),
             max_iterations: default_max_iterations(),
-            free_surface: FreeSurface::default(),
+            free_surface: None,
             volume_fraction_tolerance: default_vf_tolerance(),
             beta: default_beta(),
             rhs: PoissonRhs::default(),
@@ -1363,6 +1365,16 @@ impl Deck {
                 "simulation.volumetric_averaging",
                 "is for scheme = \"explicit\" (against the locking of its equation of state); the projection's pressure already keeps one volume constraint per node: remove the key or set it to \"none\"",
             ));
+        }
+        // the level set reads a rigid body as fluid and loses the contact of a plate pushed
+        // into water (its load 6 N/m against 52 hydrostatic): with rigid bodies the default is
+        // the paper's rule until the bodies enter the level set
+        if self.pressure.free_surface.is_none() {
+            self.pressure.free_surface = Some(if self.rigid_bodies.is_empty() {
+                FreeSurface::LevelSet
+            } else {
+                FreeSurface::VolumeFraction
+            });
         }
         let vc = self.pressure.volume_correction;
         if !(0.0..1.0).contains(&vc) {

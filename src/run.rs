@@ -530,7 +530,46 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     {
         w.push("every material is a solid and the projection's pressure sits on the nodes: a solid under a steady load creeps with it (docs/method.md, \"One pressure per cell\"); set pressure.unknowns = \"cells\" with simulation.stress_update = \"usl\"".into());
     }
+    // material that starts inside a rigid body: the body's nodes take its velocity, and the
+    // particles inside are squeezed out (or held) in the first steps
+    for (b, body) in deck.bodies.iter().enumerate() {
+        for (r, rigid) in deck.rigid_bodies.iter().enumerate() {
+            if let Some(x) = overlap_point(&body.shape, &rigid.shape) {
+                let at: Vec<String> = x.iter().map(|c| format!("{c}")).collect();
+                w.push(format!(
+                    "bodies[{b}] starts inside rigid_bodies[{r}] (for example at ({})): its material there will be pushed out of the body in the first steps; cut the body around the rigid one",
+                    at.join(", ")
+                ));
+            }
+        }
+    }
     w
+}
+
+/// A point inside both a body's shape and a rigid body's box, if the two overlap (tested on a
+/// lattice of 9^D points over the boxes' common part).
+fn overlap_point(
+    body: &crate::deck::ShapeDeck,
+    rigid: &crate::deck::ShapeDeck,
+) -> Option<Vec<f64>> {
+    let (blo, bhi) = body.bounds();
+    let (rlo, rhi) = rigid.bounds();
+    let dim = blo.len();
+    let lo: Vec<f64> = (0..dim).map(|d| blo[d].max(rlo[d])).collect();
+    let hi: Vec<f64> = (0..dim).map(|d| bhi[d].min(rhi[d])).collect();
+    if (0..dim).any(|d| hi[d] <= lo[d]) {
+        return None;
+    }
+    let n = 9usize;
+    (0..n.pow(dim as u32)).find_map(|k| {
+        let x: Vec<f64> = (0..dim)
+            .map(|d| {
+                let i = (k / n.pow(d as u32)) % n;
+                lo[d] + (hi[d] - lo[d]) * (i as f64 + 0.5) / n as f64
+            })
+            .collect();
+        (body.contains(&x) && rigid.contains(&x)).then_some(x)
+    })
 }
 
 /// The summary `pmpm check` prints: what the deck sets up and what a run will cost.
@@ -736,16 +775,31 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
                 p.max_iterations,
             );
         } else {
+            let surface = match p.free_surface.unwrap_or_default() {
+                crate::deck::FreeSurface::LevelSet => {
+                    "free surface from the level set (ghost fluid)".to_string()
+                }
+                crate::deck::FreeSurface::VolumeFraction => format!(
+                    "free surface (the paper's rule) where a cell is below {} full",
+                    p.volume_fraction_tolerance
+                ),
+                crate::deck::FreeSurface::None => "no free surface".to_string(),
+            };
+            let density = match p.density_correction {
+                crate::deck::DensityCorrection::Positions => {
+                    "particle volumes restored by a position correction"
+                }
+                crate::deck::DensityCorrection::None => "no density correction",
+            };
             out += &format!(
-            "  pressure         {} ({}), tolerance {:e}, at most {} iterations; rhs {}, beta = {}; free surface where a cell is below {} full\n",
-            lower(format!("{:?}", p.solver)),
-            lower(format!("{:?}", p.preconditioner)),
-            p.tolerance,
-            p.max_iterations,
-            lower(format!("{:?}", p.rhs)),
-            p.beta,
-            p.volume_fraction_tolerance
-        );
+                "  pressure         {} ({}), tolerance {:e}, at most {} iterations; rhs {}, beta = {}; {surface}; {density}\n",
+                lower(format!("{:?}", p.solver)),
+                lower(format!("{:?}", p.preconditioner)),
+                p.tolerance,
+                p.max_iterations,
+                lower(format!("{:?}", p.rhs)),
+                p.beta,
+            );
         }
     }
     let frames = (s.end_time / deck.output.interval.unwrap_or(s.end_time)).round() as usize + 1;

@@ -272,6 +272,8 @@ impl<const D: usize> Simulation<D> {
         }
         self.boundary
             .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
+        // a particle that left the grid stops the run here, before a transfer reads it
+        self.check_particles()?;
         self.timers.lap(Phase::G2p);
         // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme);
         //    with volumetric_averaging = "nodal", against locking, the strain rate's volumetric

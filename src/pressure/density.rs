@@ -135,6 +135,7 @@ impl<const D: usize> DensityCorrection<D> {
         }
         // K over whole cells (density 1: the particles' volumes as their masses), and b
         let domain = FluidDomain {
+            shape,
             kinds: &self.surface.kinds,
             solid: self.surface.solid(),
         };

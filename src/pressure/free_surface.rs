@@ -54,7 +54,7 @@ impl Surface {
         boundary: &crate::boundary::Boundary<D>,
     ) -> Self {
         Self {
-            method: pd.free_surface,
+            method: pd.free_surface.unwrap_or_default(),
             tolerance: pd.volume_fraction_tolerance,
             bubble_cells: pd.bubble_cells,
             open: (0..2 * D).map(|f| boundary.is_open(f)).collect(),

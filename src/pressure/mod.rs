@@ -303,6 +303,7 @@ impl<const D: usize> Projection<D> {
         let cell = self.quadrature == Quadrature::Cell || level_set;
         if cell {
             let domain = level_set.then(|| FluidDomain {
+                shape,
                 kinds: &self.surface.kinds,
                 solid: self.surface.solid(),
             });
@@ -677,19 +678,33 @@ fn velocity_at_points<const D: usize>(
 /// The fluid's domain for the level-set free surface: the matrix is integrated over every cell
 /// next to an unknown, less what rigid bodies cover.
 struct FluidDomain<'a> {
+    shape: ShapeFunction,
     kinds: &'a [NodeKind],
     solid: Option<&'a [f64]>,
 }
 
 impl FluidDomain<'_> {
-    /// Whether a corner node of cell `idx` (padded multi-index) is an unknown.
+    /// Whether a point in cell `idx` (padded multi-index) reaches an unknown: a node of the
+    /// cell's corners with linear shape functions, up to one more node either side with the
+    /// wider ones (as [`assemble::cell_range`] has it).
     fn touches_unknown<const D: usize>(
         &self,
         geo: &crate::grid::GridGeometry<D>,
         idx: &[usize; D],
     ) -> bool {
-        (0..(1usize << D)).any(|corner| {
-            let node: [usize; D] = std::array::from_fn(|d| idx[d] + ((corner >> d) & 1));
+        let (below, above) = if self.shape == ShapeFunction::Linear {
+            (0, 1)
+        } else {
+            (1, 2)
+        };
+        let span: usize = below + above + 1;
+        (0..span.pow(D as u32)).any(|k| {
+            let mut rem = k;
+            let node: [usize; D] = std::array::from_fn(|d| {
+                let o = rem % span;
+                rem /= span;
+                (idx[d] + o).saturating_sub(below).min(geo.nodes[d] - 1)
+            });
             self.kinds[geo.canonical(geo.flat(&node))] == NodeKind::Interior
         })
     }
