@@ -389,10 +389,11 @@ pub enum FreeSurface {
 pub enum DensityCorrection {
     /// After each step, a second Poisson solve on the particles' volume error moves the
     /// particles (and deforms their F) so that each one's volume J V0 returns towards V0
-    /// (`src/pressure/density.rs`).
-    #[default]
+    /// (`src/pressure/density.rs`). Experimental: it holds a dam break's volume but throws a
+    /// viscous slump apart.
     Positions,
     /// None: the paper's scheme.
+    #[default]
     None,
 }
 
@@ -477,7 +478,7 @@ pub struct PressureDeck {
     /// default) turns it off.
     #[serde(default)]
     pub volume_correction: f64,
-    /// How each particle's volume is kept from drifting: "positions" (the default) or "none".
+    /// How each particle's volume is kept from drifting: "none" (the default) or "positions".
     #[serde(default)]
     pub density_correction: DensityCorrection,
     /// Where the pressure unknowns sit: "nodes" (METHOD.md, the default) or "cells".
