@@ -148,16 +148,7 @@ impl<const D: usize> DensityCorrection<D> {
         self.potential.clear();
         self.potential.resize(geo.node_count(), 0.0);
         let g = &self.gauss;
-        let quadrature = super::assemble::ParticleQuadrature {
-            x: &g.x,
-            half_width: &g.half_width,
-            volume: &g.volume,
-            volume_over_density: &g.volume_over_density,
-            divergence: &g.divergence,
-            velocity: &g.velocity,
-            flux: false,
-            templates: Some((&g.templates, &g.cell)),
-        };
+        let quadrature = g.quadrature(false);
         super::assemble::assemble(
             geo,
             shape,

@@ -374,17 +374,7 @@ impl<const D: usize> Projection<D> {
             boundary.apply(&mut grid.velocity_new);
         }
         let quadrature = if cell {
-            let g = &self.gauss;
-            ParticleQuadrature {
-                x: &g.x,
-                half_width: &g.half_width,
-                volume: &g.volume,
-                volume_over_density: &g.volume_over_density,
-                divergence: &g.divergence,
-                velocity: &g.velocity,
-                flux,
-                templates: Some((&g.templates, &g.cell)),
-            }
+            self.gauss.quadrature(flux)
         } else {
             ParticleQuadrature {
                 x: &ps.x,
@@ -729,6 +719,20 @@ struct GaussPoints<const D: usize> {
 }
 
 impl<const D: usize> GaussPoints<D> {
+    /// The points as the assembly reads them.
+    fn quadrature(&self, flux: bool) -> ParticleQuadrature<'_, D> {
+        ParticleQuadrature {
+            x: &self.x,
+            half_width: &self.half_width,
+            volume: &self.volume,
+            volume_over_density: &self.volume_over_density,
+            divergence: &self.divergence,
+            velocity: &self.velocity,
+            flux,
+            templates: Some((&self.templates, &self.cell)),
+        }
+    }
+
     #[allow(clippy::too_many_arguments)]
     fn build(
         &mut self,
