@@ -122,8 +122,10 @@ impl Surface {
             &self.covered
         };
         if self.method == FreeSurface::LevelSet {
-            level_set(geo, fraction, &self.open, &mut self.phi);
+            // a rigid body is neither water nor air: the level set weighs only the part of
+            // each cell it leaves open
             let solid = (!self.solid.is_empty()).then_some(&self.solid[..]);
+            level_set(geo, &self.fraction, solid, &self.open, &mut self.phi);
             classify_level_set(
                 geo,
                 mass,
@@ -257,8 +259,9 @@ pub const THETA_MIN: f64 = 0.01;
 const ON_SURFACE: f64 = 1e-9;
 
 /// Level set of the fluid at every node, phi_i = h (1 - 2 f_i), negative inside, from f_i the
-/// mean of min(fraction, 1) over the 2^D cells around the node (a cell beyond a closed wall
-/// the mirror image of the cell inside it, beyond an open face empty).
+/// share of fluid in the 2^D cells around the node (a cell beyond a closed wall the mirror
+/// image of the cell inside it, beyond an open face empty), counting only the part of each cell
+/// no rigid body covers.
 ///
 /// For a plane surface parallel to the grid, f_i falls linearly from 1 to 0 as the node goes
 /// from a cell inside the surface to a cell outside it, so phi is the signed distance to the
@@ -267,6 +270,7 @@ const ON_SURFACE: f64 = 1e-9;
 pub fn level_set<const D: usize>(
     geo: &GridGeometry<D>,
     fraction: &[f64],
+    solid: Option<&[f64]>,
     open: &[bool],
     phi: &mut Vec<f64>,
 ) {
@@ -274,14 +278,21 @@ pub fn level_set<const D: usize>(
     phi.resize(geo.node_count(), 0.0);
     phi.par_iter_mut().enumerate().for_each(|(i, phi)| {
         let node = geo.multi(i);
-        let mut f = 0.0;
+        let (mut f, mut room) = (0.0, 0.0);
         for corner in 0..corners {
-            f += match mirrored_cell(geo, &node, corner, open) {
-                Some(c) => fraction[c].clamp(0.0, 1.0),
-                None => 0.0,
-            };
+            match mirrored_cell(geo, &node, corner, open) {
+                Some(c) => {
+                    // the part of the cell a rigid body leaves open, and the fluid in it
+                    let open_part = 1.0 - solid.map_or(0.0, |s| s[c].clamp(0.0, 1.0));
+                    f += fraction[c].clamp(0.0, open_part);
+                    room += open_part;
+                }
+                None => room += 1.0,
+            }
         }
-        let f = f / corners as f64;
+        // inside a body the node is no part of the fluid's domain (classify_level_set
+        // buries it); read it as inside so that it puts no surface at the body's face
+        let f = if room > 1e-9 { f / room } else { 1.0 };
         let p = 1.0 - 2.0 * f;
         // a node on the surface to round-off is on it, so that a column at rest whose top
         // lies on a node row holds p = 0 there exactly
@@ -692,6 +703,54 @@ mod tests {
         }
         assert_eq!(kind_at(&k, 4, 0), NodeKind::Empty);
         assert_eq!(kind_at(&k, 0, 5), NodeKind::Empty);
+    }
+
+    /// The level set of a column 3 cells wide and 4 high in the lower-left corner of a closed
+    /// 6 x 6 box (2 x 2 particles per filled cell): the signed distance to its top and side
+    /// within a cell of them, the walls read as mirrors; and a rigid block beside the column
+    /// is no free surface.
+    #[test]
+    fn level_set_of_a_column_is_its_signed_distance() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [6, 6]);
+        let mut x = Vec::new();
+        for cy in 0..4 {
+            for cx in 0..3 {
+                for (a, b) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
+                    x.push(Vector::<2>::new(cx as f64 + a, cy as f64 + b));
+                }
+            }
+        }
+        let mut bins = CellBins::default();
+        bins.sort(&geo, &x);
+        let mut vf = Vec::new();
+        volume_fractions(&geo, &bins, &vec![0.25; x.len()], &mut vf);
+        let at = |phi: &[f64], i: usize, j: usize| phi[geo.flat(&[i + PAD, j + PAD])];
+        let mut phi = Vec::new();
+        level_set(&geo, &vf, None, &[false; 4], &mut phi);
+        // the top (y = 4) and the side (x = 3): on the surface; a cell inside and outside
+        for i in 0..3 {
+            assert_eq!(at(&phi, i, 4), 0.0, "top, node {i}");
+            assert_eq!(at(&phi, i, 3), -1.0, "below the top, node {i}");
+            assert_eq!(at(&phi, i, 5), 1.0, "above the top, node {i}");
+        }
+        for j in 0..4 {
+            assert_eq!(at(&phi, 3, j), 0.0, "side, node {j}");
+            assert_eq!(at(&phi, 4, j), 1.0, "beside the side, node {j}");
+        }
+        // the walls mirror the fluid: the corner where the top meets the wall is on the surface
+        assert_eq!(at(&phi, 0, 4), 0.0);
+        assert_eq!(at(&phi, 0, 1), -1.0);
+        // a rigid block filling the cells beside the column (x in [3, 6], y in [0, 2]): the
+        // water against it is inside, the top above it still a surface
+        let mut solid = vec![0.0; geo.node_count()];
+        for cy in 0..2 {
+            for cx in 3..6 {
+                solid[geo.flat(&[cx + PAD, cy + PAD])] = 1.0;
+            }
+        }
+        level_set(&geo, &vf, Some(&solid), &[false; 4], &mut phi);
+        assert_eq!(at(&phi, 3, 1), -1.0, "water against the block");
+        assert_eq!(at(&phi, 3, 3), 0.0, "the side above the block");
     }
 
     #[test]
