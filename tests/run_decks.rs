@@ -448,3 +448,29 @@ fn check_summarises_the_run_and_warns() {
     assert!(out.contains("  memory           about "), "{out}");
     assert!(out.contains(": 6 frames of about "), "{out}");
 }
+
+/// `pmpm check` warns of water that starts inside a rigid body, and names the free-surface
+/// method that runs: the paper's rule in a deck with rigid bodies, the level set without.
+#[test]
+fn check_warns_of_water_inside_a_rigid_body() {
+    let warning = "warning: bodies[0] starts inside rigid_bodies[0]";
+    let dir = scratch_dir("check-inside");
+    let deck = dir.join("inside.toml");
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/dam_break_obstacle_2d.toml"),
+    )
+    .unwrap()
+    .replace("max = [0.1455, 0.292]", "max = [0.3, 0.292]");
+    assert!(
+        text.contains("max = [0.3, 0.292]"),
+        "the edit found its line"
+    );
+    std::fs::write(&deck, text).unwrap();
+    let inside = check(deck.to_str().unwrap());
+    assert!(inside.contains(warning), "{inside}");
+    let apart = check("examples/dam_break_obstacle_2d.toml");
+    assert!(!apart.contains("starts inside"), "{apart}");
+    assert!(apart.contains("free surface (the paper's rule)"), "{apart}");
+    let plain = check("examples/dam_break_2d.toml");
+    assert!(plain.contains("free surface from the level set"), "{plain}");
+}
