@@ -395,43 +395,22 @@ pub fn extend_velocity<const D: usize>(
     scratch.clear();
     scratch.extend_from_slice(v);
     let old = &scratch[..];
-    let centre = (3usize.pow(D as u32) - 1) / 2;
     v.par_iter_mut().enumerate().for_each(|(j, vj)| {
         if kinds[j] != NodeKind::FreeSurface {
             return;
         }
-        let node = geo.multi(j);
         let mut sum = crate::grid::Vector::<D>::zeros();
         let mut count = [0usize; D];
         let mut reached = false;
-        for k in 0..3usize.pow(D as u32) {
-            if k == centre {
-                continue;
-            }
-            let mut idx = node;
-            let mut rem = k;
-            let mut valid = true;
-            for d in 0..D {
-                let n = node[d] + rem % 3;
-                rem /= 3;
-                valid &= n >= 1 && n - 1 < geo.nodes[d];
-                idx[d] = n.wrapping_sub(1);
-            }
-            if !valid {
-                continue;
-            }
-            let i = geo.flat(&idx);
-            if kinds[geo.canonical(i)] == NodeKind::Interior {
-                reached = true;
-                break;
-            }
+        for_each_neighbour(geo, &geo.multi(j), |i| {
+            reached |= kinds[geo.canonical(i)] == NodeKind::Interior;
             for d in 0..D {
                 if held[i][d] == 0.0 && kinds[i] != NodeKind::Empty {
                     sum[d] += old[i][d];
                     count[d] += 1;
                 }
             }
-        }
+        });
         if reached {
             return;
         }
@@ -441,6 +420,31 @@ pub fn extend_velocity<const D: usize>(
             }
         }
     });
+}
+
+/// Calls `f` with the flat index of each of the 3^D - 1 nodes around `node` that lie in the
+/// padded grid.
+#[inline]
+fn for_each_neighbour<const D: usize>(
+    geo: &GridGeometry<D>,
+    node: &[usize; D],
+    mut f: impl FnMut(usize),
+) {
+    let count = 3usize.pow(D as u32);
+    for k in (0..count).filter(|&k| k != (count - 1) / 2) {
+        let mut idx = *node;
+        let mut rem = k;
+        let mut valid = true;
+        for d in 0..D {
+            let n = node[d] + rem % 3;
+            rem /= 3;
+            valid &= n >= 1 && n - 1 < geo.nodes[d];
+            idx[d] = n.wrapping_sub(1);
+        }
+        if valid {
+            f(geo.flat(&idx));
+        }
+    }
 }
 
 /// The ghost-fluid share theta of the segment from fluid node i (phi_i < 0) to node j that
@@ -474,30 +478,15 @@ pub fn ghost_values<const D: usize>(
         if kinds[j] != NodeKind::FreeSurface || phi[j] <= 0.0 {
             return;
         }
-        let node = geo.multi(j);
         let (mut num, mut den) = (0.0, 0.0);
-        for k in 0..3usize.pow(D as u32) {
-            let mut idx = node;
-            let mut rem = k;
-            let mut valid = true;
-            for d in 0..D {
-                let o = rem % 3;
-                rem /= 3;
-                let n = node[d] + o;
-                valid &= n >= 1 && n - 1 < geo.nodes[d];
-                idx[d] = n.wrapping_sub(1);
+        for_each_neighbour(geo, &geo.multi(j), |i| {
+            let i = geo.canonical(i);
+            if kinds[i] == NodeKind::Interior {
+                let t = theta(phi[i], phi[j]);
+                num += t * p[i] + p[j] - p[i];
+                den += t;
             }
-            if !valid || k == (3usize.pow(D as u32) - 1) / 2 {
-                continue;
-            }
-            let i = geo.canonical(geo.flat(&idx));
-            if kinds[i] != NodeKind::Interior {
-                continue;
-            }
-            let t = theta(phi[i], phi[j]);
-            num += t * p[i] + p[j] - p[i];
-            den += t;
-        }
+        });
         if den > 0.0 {
             *pj = num / den;
         }
