@@ -103,17 +103,19 @@ impl<const D: usize> DensityCorrection<D> {
         }
     }
 
-    /// Moves the particles (positions, F and J) so that their volumes return to V0, in the
-    /// stages of the projection: free surface, unknowns, assembly, solve, correction.
+    /// Moves the particles (positions, F and J) so that their volumes return the share `rate`
+    /// (0 to 1) of the way to V0, in the stages of the projection: free surface, unknowns,
+    /// assembly, solve, correction.
     pub fn correct(
         &mut self,
         ps: &mut Particles<D>,
         geo: &GridGeometry<D>,
         boundary: &Boundary<D>,
+        rate: f64,
     ) -> Result<SolveStats, SolveError> {
         let shape = self.shape;
         self.bins.sort(geo, &ps.x);
-        self.gather_volumes(ps, geo);
+        self.gather_volumes(ps, geo, rate.clamp(0.0, 1.0));
         // free surface and unknowns, from where the particles are now
         let epsilon = 1e-9 * ps.volume0.iter().copied().fold(f64::INFINITY, f64::min);
         self.surface.detect(
@@ -195,9 +197,9 @@ impl<const D: usize> DensityCorrection<D> {
         Ok(self.stats)
     }
 
-    /// sum_p V_p N_ip and sum_p V0_p (1 - J_p) N_ip per node, gathered from the particles
-    /// around each node.
-    fn gather_volumes(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>) {
+    /// sum_p V_p N_ip and rate sum_p V0_p (1 - J_p) N_ip per node, gathered from the
+    /// particles around each node.
+    fn gather_volumes(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>, rate: f64) {
         let shape = self.shape;
         let n = geo.node_count();
         self.weight.resize(n, 0.0);
@@ -216,7 +218,7 @@ impl<const D: usize> DensityCorrection<D> {
                         let n = node_weight(geo, shape, &xs[p], hw[p], &image);
                         sw += v0[p] * jac[p] * n;
                         // at most MAX_RATE of a particle's volume per correction
-                        se += v0[p] * (1.0 - jac[p]).clamp(-MAX_RATE, MAX_RATE) * n;
+                        se += v0[p] * (1.0 - jac[p]).clamp(-MAX_RATE, MAX_RATE) * n * rate;
                     });
                 });
                 *w = sw;
@@ -401,7 +403,8 @@ particles_per_cell = 2
         let (max0, mean0) = errors(&ps);
         let mut last = max0;
         for pass in 0..5 {
-            c.correct(&mut ps, &sim.grid.geo, &sim.boundary).unwrap();
+            c.correct(&mut ps, &sim.grid.geo, &sim.boundary, 1.0)
+                .unwrap();
             let (max, mean) = errors(&ps);
             assert!(max < last, "pass {pass}: max |J - 1| = {max} after {last}");
             if pass == 0 {

@@ -150,16 +150,23 @@ impl<const D: usize> Projection<D> {
         }
     }
 
-    /// After the step: moves the particles so that their volumes return to V0 (nothing
-    /// without the density correction). Returns the solve's iterations.
+    /// Whether this projection has a density correction.
+    pub fn corrects_density(&self) -> bool {
+        self.density.is_some()
+    }
+
+    /// After the step: moves the particles so that their volumes return towards V0, the
+    /// share `rate` of the way (nothing without the density correction). Returns the solve's
+    /// iterations.
     pub fn correct_density(
         &mut self,
         ps: &mut Particles<D>,
         geo: &crate::grid::GridGeometry<D>,
         boundary: &Boundary<D>,
+        rate: f64,
     ) -> Result<usize, SolveError> {
         match &mut self.density {
-            Some(d) => Ok(d.correct(ps, geo, boundary)?.iterations),
+            Some(d) => Ok(d.correct(ps, geo, boundary, rate)?.iterations),
             None => Ok(0),
         }
     }
