@@ -56,11 +56,13 @@ pub enum Scheme {
 pub enum Transfer {
     /// Particle-in-cell: particle velocity is the interpolated grid velocity.
     Pic,
-    /// PIC/FLIP blend, `flip_ratio` of FLIP. The default: with linear shape functions APIC
-    /// is not yet stable at free-surface corners.
+    /// PIC/FLIP blend, `flip_ratio` of FLIP. The explicit scheme's default: with linear shape
+    /// functions its APIC is not stable at free-surface corners.
     #[default]
     Flip,
-    /// Affine particle-in-cell (Jiang et al. 2015).
+    /// Affine particle-in-cell (Jiang et al. 2015). The projection's default: FLIP's particle
+    /// velocities carry a noise the projected grid velocity does not have, and the strain rate
+    /// the particles' volumes integrate picks it up.
     Apic,
 }
 
@@ -234,9 +236,10 @@ pub struct SimulationDeck {
     /// down the last axis.
     #[serde(default)]
     pub gravity: VectorField,
-    /// Velocity transfer (default `flip`).
+    /// Velocity transfer; `validate` fills it in: `apic` for the projection, `flip` for the
+    /// explicit scheme.
     #[serde(default)]
-    pub transfer: Transfer,
+    pub transfer: Option<Transfer>,
     /// Share of FLIP for `transfer = "flip"` (default 0.99).
     #[serde(default = "default_flip_ratio")]
     pub flip_ratio: f64,
@@ -265,7 +268,16 @@ pub struct SimulationDeck {
     /// halving of dt shows as a pressure jump.
     #[serde(default)]
     pub land_on_frames: Option<bool>,
+    /// Bounds [min, max] on each particle's volume ratio J = V / V0: a particle outside them
+    /// stops the run. Without them a run stops where J <= 0 or a particle's volume passes
+    /// [`MAX_PARTICLE_CELLS`] cells.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub volume_limits: Option<[f64; 2]>,
 }
+
+/// The most cells a particle's volume may cover before the run stops: a particle that large
+/// has lost touch with the grid's resolution (a volume that grew without bound).
+pub const MAX_PARTICLE_CELLS: f64 = 4.0;
 
 fn default_sort_interval() -> usize {
     20
@@ -389,11 +401,10 @@ pub enum FreeSurface {
 pub enum DensityCorrection {
     /// After each step, a second Poisson solve on the particles' volume error moves the
     /// particles (and deforms their F) so that each one's volume J V0 returns towards V0
-    /// (`src/pressure/density.rs`). Experimental: it holds a dam break's volume but throws a
-    /// viscous slump apart.
-    Positions,
-    /// None: the paper's scheme.
+    /// (`src/pressure/density.rs`). The default with a free surface.
     #[default]
+    Positions,
+    /// None: the paper's scheme; the default without a free surface.
     None,
 }
 
@@ -478,9 +489,10 @@ pub struct PressureDeck {
     /// default) turns it off.
     #[serde(default)]
     pub volume_correction: f64,
-    /// How each particle's volume is kept from drifting: "none" (the default) or "positions".
+    /// How each particle's volume is kept from drifting; `validate` fills it in: "positions"
+    /// with a free surface, "none" without one (the container holds the volume).
     #[serde(default)]
-    pub density_correction: DensityCorrection,
+    pub density_correction: Option<DensityCorrection>,
     /// Where the pressure unknowns sit: "nodes" (METHOD.md, the default) or "cells".
     #[serde(default)]
     pub unknowns: PressureUnknowns,
@@ -519,7 +531,7 @@ impl Default for PressureDeck {
             quadrature: Quadrature::default(),
             bubble_cells: default_bubble_cells(),
             volume_correction: 0.0,
-            density_correction: DensityCorrection::default(),
+            density_correction: None,
             unknowns: PressureUnknowns::default(),
         }
     }
@@ -1361,6 +1373,20 @@ impl Deck {
             ));
         }
         c.non_negative("simulation.damping", s.damping)?;
+        if s.transfer.is_none() {
+            s.transfer = Some(match s.scheme {
+                Scheme::Projection => Transfer::Apic,
+                Scheme::Explicit => Transfer::Flip,
+            });
+        }
+        if let Some([lo, hi]) = s.volume_limits {
+            if !(lo > 0.0 && lo < 1.0 && hi > 1.0 && hi.is_finite()) {
+                return Err(c.err(
+                "simulation.volume_limits",
+                format!("must be [min, max] with 0 < min < 1 < max (bounds on a particle's volume ratio J = V / V0), got [{lo}, {hi}]"),
+            ));
+            }
+        }
         if s.volumetric_averaging != VolumetricAveraging::None && s.scheme != Scheme::Explicit {
             return Err(c.err(
                 "simulation.volumetric_averaging",
@@ -1375,6 +1401,17 @@ impl Deck {
                 FreeSurface::LevelSet
             } else {
                 FreeSurface::VolumeFraction
+            });
+        }
+        // the particles' volumes held by a position correction wherever the fluid has a free
+        // surface; a fluid that fills its container keeps the container's volume
+        if self.pressure.density_correction.is_none() {
+            let free = self.pressure.free_surface != Some(FreeSurface::None)
+                && self.pressure.unknowns == PressureUnknowns::Nodes;
+            self.pressure.density_correction = Some(if free {
+                DensityCorrection::Positions
+            } else {
+                DensityCorrection::None
             });
         }
         let vc = self.pressure.volume_correction;

@@ -469,7 +469,7 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     use crate::deck::{ShapeFunction, Transfer};
     let s = &deck.simulation;
     let mut w = Vec::new();
-    if s.transfer == Transfer::Apic
+    if s.transfer == Some(Transfer::Apic)
         && s.scheme == crate::deck::Scheme::Explicit
         && matches!(
             s.shape_function,
@@ -484,7 +484,7 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     // an elastic solid with APIC under MUSL and linear or GIMP shapes: the remap takes the last
     // step's affine matrix (`transfer::grid_to_particles`), the strain rate lags a step, and
     // the solid's waves grow (a von Mises block on a floor blew up in 390 explicit steps)
-    if s.transfer == Transfer::Apic
+    if s.transfer == Some(Transfer::Apic)
         && s.stress_update == crate::deck::StressUpdate::Musl
         && matches!(
             s.shape_function,
@@ -666,7 +666,8 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     out += &format!("  particles        {}\n", sim.particles.len());
     out += &format!(
         "  transfer         {:?}, shape functions {:?}\n",
-        s.transfer, s.shape_function
+        s.transfer.unwrap_or_default(),
+        s.shape_function
     );
     let dt = match (s.dt, s.cfl) {
         (Some(dt), _) => format!("fixed dt = {dt:e} s"),
@@ -785,7 +786,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
                 ),
                 crate::deck::FreeSurface::None => "no free surface".to_string(),
             };
-            let density = match p.density_correction {
+            let density = match p.density_correction.unwrap_or_default() {
                 crate::deck::DensityCorrection::Positions => {
                     "particle volumes restored by a position correction"
                 }

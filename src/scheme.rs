@@ -112,7 +112,7 @@ impl<const D: usize> Simulation<D> {
             .expect("validated expressions");
         let settings = TransferSettings {
             shape: deck.simulation.shape_function,
-            transfer: deck.simulation.transfer,
+            transfer: deck.simulation.transfer.unwrap_or_default(),
             flip_ratio: deck.simulation.flip_ratio,
             gravity: gravity.eval(&geo.origin, 0.0),
             pressure_weight: match deck.simulation.scheme {
@@ -138,7 +138,7 @@ impl<const D: usize> Simulation<D> {
         // and so reads J with the nodally averaged dilatation (src/pressure/density.rs)
         let corrected = deck.simulation.scheme == Scheme::Projection
             && deck.pressure.unknowns == crate::deck::PressureUnknowns::Nodes
-            && deck.pressure.density_correction == crate::deck::DensityCorrection::Positions;
+            && deck.pressure.density_correction == Some(crate::deck::DensityCorrection::Positions);
         let averaging = (deck.simulation.volumetric_averaging == VolumetricAveraging::Nodal
             || corrected)
             .then(|| NodalAveraging::new(rayon::current_num_threads(), geo.node_count()));
@@ -283,6 +283,9 @@ impl<const D: usize> Simulation<D> {
         if let Some(averaging) = &mut self.averaging {
             averaging.average_strain_rate(&mut self.particles, geo, shape);
         }
+        if let Some(projection) = &self.projection {
+            projection.hold_spray_volumes(&mut self.particles, geo);
+        }
         material::update(
             &mut self.particles,
             &self.materials,
@@ -326,7 +329,60 @@ impl<const D: usize> Simulation<D> {
         }
         self.time += dt;
         self.steps += 1;
-        self.check_particles()
+        self.check_particles()?;
+        self.check_volumes()
+    }
+
+    /// Stops the run if a particle's volume ratio J is not positive, left
+    /// `simulation.volume_limits` where the deck gives them, or its volume grew past
+    /// [`crate::deck::MAX_PARTICLE_CELLS`] cells: its state no longer says anything about the
+    /// material, and its volume would go on into the output and the transfers.
+    pub fn check_volumes(&self) -> Result<(), Error> {
+        let limits = self.deck.simulation.volume_limits;
+        let [lo, hi] = limits.unwrap_or([0.0, f64::INFINITY]);
+        let cell = self.grid.geo.h.powi(D as i32);
+        let largest = crate::deck::MAX_PARTICLE_CELLS * cell;
+        let ps = &self.particles;
+        let bad = ps
+            .jacobian
+            .par_iter()
+            .zip(ps.volume0.par_iter())
+            .position_first(|(&j, &v0)| !(j > lo && j <= hi && j * v0 <= largest));
+        let Some(p) = bad else { return Ok(()) };
+        let (j, v0) = (ps.jacobian[p], ps.volume0[p]);
+        let parts: Vec<String> = ps.x[p].iter().map(|c| format!("{c:.6}")).collect();
+        let what = if j * v0 > largest && j <= hi {
+            format!(
+                "its volume {:.3e} covers {:.1} cells (at most {} allowed)",
+                j * v0,
+                j * v0 / cell,
+                crate::deck::MAX_PARTICLE_CELLS
+            )
+        } else if let Some([lo, hi]) = limits {
+            format!("J is outside simulation.volume_limits = [{lo}, {hi}]")
+        } else {
+            "a volume ratio must be positive".to_string()
+        };
+        let verb = if j < 1.0 { "compressed" } else { "expanded" };
+        let cause = match self.scheme {
+            Scheme::Explicit => format!(
+                "the equation of state let it be {verb} that far: a bulk_modulus too low for \
+                 the flow's speed, or a step above the stability limit"
+            ),
+            Scheme::Projection => format!(
+                "the projection {verb} it where no pressure equation holds it (against a wall \
+                 at an impact, in spray, in a sheet thinner than a cell): refine \
+                 grid.cell_size or lower simulation.cfl"
+            ),
+        };
+        Err(Error::BlowUp(format!(
+            "run stopped at step {}, t = {:.6} s: particle {} at x = ({}) has a volume ratio \
+             J = V / V0 = {j:.4e}; {what}. Likely cause: {cause}",
+            self.steps,
+            self.time,
+            ps.id[p],
+            parts.join(", ")
+        )))
     }
 
     /// The body force at each particle, where it varies in space or time.

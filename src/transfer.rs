@@ -633,6 +633,16 @@ mod tests {
         conservation::<3>();
     }
 
+    /// Under the projection APIC's affine matrix loses its trace and keeps the rest.
+    #[test]
+    fn isochoric_affine_drops_only_the_trace() {
+        let b = Matrix::<2>::new(0.3, -1.2, 0.7, 0.1);
+        let c = affine(b, true);
+        assert!(c.trace().abs() < 1e-15);
+        assert!((c - b - Matrix::<2>::identity() * -0.2).norm() < 1e-15);
+        assert_eq!(affine(b, false), b);
+    }
+
     /// An affine grid field v = A x + b is picked up exactly by G2P (v_p and C_p = A), and
     /// P2G of the result gives back A x_i + b on every node that has mass.
     fn affine_roundtrip<const D: usize>(shape: ShapeFunction) {

@@ -40,7 +40,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown key",
             edit(&[("end_time = 0.05", "endtime = 0.05")]),
-            "bad.toml:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames)",
+            "bad.toml:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames, volume_limits)",
         ),
         (
             "unknown key, another name for a key",
@@ -593,7 +593,7 @@ fn the_deck_is_named_as_the_user_named_it() {
     assert_eq!(
         stderr.lines().next().unwrap_or(""),
         format!(
-            "error: {}:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames)",
+            "error: {}:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames, volume_limits)",
             deck.display()
         )
     );

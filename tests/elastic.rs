@@ -191,7 +191,7 @@ fn projection_column_with_cell_pressure_comes_to_rest() {
                 // the volume of the nodal column too (creep -3.0e-5 m/s, but resting at 0.74 of
                 // the settlement)
                 d.pressure.free_surface = Some(pmpm::deck::FreeSurface::VolumeFraction);
-                d.pressure.density_correction = pmpm::deck::DensityCorrection::None;
+                d.pressure.density_correction = Some(pmpm::deck::DensityCorrection::None);
             },
         );
         let (u, _) = column_settlement(&d, &[0.3, 0.4]);

@@ -322,13 +322,24 @@ impl<const D: usize> DensityCorrection<D> {
             .into_par_iter()
             .enumerate()
             .for_each(|(p, (x, f, j))| {
-                let h = strain[p];
-                let inc = Matrix::<D>::identity()
-                    + h
-                    + Matrix::<D>::identity() * ((dilatation[p] - h.trace()) / D as f64);
+                let h = strain[p]
+                    + Matrix::<D>::identity() * ((dilatation[p] - strain[p].trace()) / D as f64);
+                // a particle whose correction would more than halve or double it (or turn it
+                // inside out, det <= 0, where the nodes' shifts cross within its cell) takes the
+                // largest part 2^-k of it that does not: shift and deformation alike, so that
+                // its position stays consistent with its volume
+                let mut s = 1.0;
+                let mut inc = Matrix::<D>::identity() + h;
+                while !(0.5..=2.0).contains(&crate::material::det(&inc)) && s > 1e-3 {
+                    s *= 0.5;
+                    inc = Matrix::<D>::identity() + h * s;
+                }
+                if s <= 1e-3 {
+                    return;
+                }
                 *f = inc * *f;
                 *j *= crate::material::det(&inc);
-                *x += shift[p];
+                *x += shift[p] * s;
             });
     }
 }
