@@ -163,7 +163,8 @@ fn column_settlement(d: &Deck, times: &[f64]) -> (Vec<f64>, f64) {
 /// settlement rho g H^2 / (8 G) = 1.25 mm and stays there, where the nodal pressure's column
 /// never comes to rest: its stabilisation residual moves volume under a steady load
 /// (docs/method.md; in this set-up its top rises). Measured, top settlement over the analytic
-/// at t = 0.4 s and its rate from 0.3 s: cells 0.9982, -2e-9 m/s; nodes -5.0, -1.7e-3 m/s.
+/// at t = 0.4 s and its rate from 0.3 s: cells 0.9982, -2e-9 m/s; nodes -1.8, -6.0e-4 m/s
+/// (-5.0 and -1.7e-3 m/s before the projection read J with the nodally averaged dilatation).
 #[test]
 fn projection_column_with_cell_pressure_comes_to_rest() {
     use pmpm::deck::PressureUnknowns;
@@ -209,8 +210,9 @@ fn projection_column_with_cell_pressure_comes_to_rest() {
         "cells: settlement / analytic {cells}"
     );
     assert!(cells_rate.abs() < 1e-6, "cells: creep {cells_rate} m/s");
-    // the nodal pressure's drift, for contrast: the difference is the unknowns
-    assert!(nodes_rate.abs() > 1e-3, "nodes: creep {nodes_rate} m/s");
+    // the nodal pressure's drift, for contrast: the difference is the unknowns (the nodal
+    // column creeps at more than a hundred times the cells' bound)
+    assert!(nodes_rate.abs() > 1e-4, "nodes: creep {nodes_rate} m/s");
 }
 
 /// The cell projection in 3D: a neo-Hookean block (0.2 x 0.5 x 0.2 m, rho g H / G = 0.1,

@@ -161,8 +161,9 @@ fn startup(ctx: &Ctx, couette: bool) -> Result<Section, String> {
         }
         true
     })?;
+    // the quick grid (h = L/20) is held to the same bound: it meets it tenfold
     s.rows
-        .push(Row::bounded(metric, err, 0.02, pct, !quick, quick));
+        .push(Row::bounded(metric, err, 0.02, pct, true, quick));
     let file = format!("{name}.png");
     save(
         &ctx.opts.out.join(&file),
@@ -265,7 +266,8 @@ pub fn taylor_green(ctx: &Ctx) -> Result<Section, String> {
         errors[2],
         0.05,
         pct,
-        !quick,
+        // the quick grids' finest (h = 1/32) is held to the same bound (2.4 % measured)
+        true,
         quick,
     ));
     s.rows.push(Row::report(
