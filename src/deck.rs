@@ -1373,10 +1373,15 @@ impl Deck {
             ));
         }
         c.non_negative("simulation.damping", s.damping)?;
+        // APIC for the projection's fluids; FLIP for the explicit scheme, whose APIC with
+        // linear shapes is unstable at free surfaces, and for solids, whose waves APIC's lagged
+        // affine matrix lets grow under the musl remap (`run::warnings`)
         if s.transfer.is_none() {
-            s.transfer = Some(match s.scheme {
-                Scheme::Projection => Transfer::Apic,
-                Scheme::Explicit => Transfer::Flip,
+            let solid = self.materials.iter().any(|m| m.shear_modulus.is_some());
+            s.transfer = Some(if s.scheme == Scheme::Projection && !solid {
+                Transfer::Apic
+            } else {
+                Transfer::Flip
             });
         }
         if let Some([lo, hi]) = s.volume_limits {

@@ -481,6 +481,17 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
             format!("{:?}", s.shape_function).to_lowercase()
         ));
     }
+    // FLIP under the projection for a fluid: its particle noise goes into the particles'
+    // volumes (a closed tank's splash and the two-fluid column stopped on a particle's volume
+    // with FLIP where APIC ran)
+    if s.transfer == Some(Transfer::Flip)
+        && s.scheme == crate::deck::Scheme::Projection
+        && deck.materials.iter().all(|m| m.shear_modulus.is_none())
+    {
+        w.push(
+            "simulation.transfer: \"flip\" with the projection scheme: FLIP's particle noise enters the particles' volumes, and after splashes single particles can be crushed or blown up until the run stops; the projection's default for fluids, \"apic\", keeps them (docs/deck.md)".to_string(),
+        );
+    }
     // an elastic solid with APIC under MUSL and linear or GIMP shapes: the remap takes the last
     // step's affine matrix (`transfer::grid_to_particles`), the strain rate lags a step, and
     // the solid's waves grow (a von Mises block on a floor blew up in 390 explicit steps)

@@ -474,3 +474,32 @@ fn check_warns_of_water_inside_a_rigid_body() {
     let plain = check("examples/dam_break_2d.toml");
     assert!(plain.contains("free surface from the level set"), "{plain}");
 }
+
+/// Under the projection a fluid deck without `transfer` runs APIC, and `pmpm check` warns of
+/// FLIP, whose particle noise enters the particles' volumes.
+#[test]
+fn projection_defaults_to_apic_and_check_warns_of_flip() {
+    let warning = "warning: simulation.transfer: \"flip\" with the projection scheme";
+    let dir = scratch_dir("check-flip");
+    let example = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/dam_break_2d.toml"),
+    )
+    .unwrap();
+    assert!(
+        example.contains("transfer = \"apic\"\n"),
+        "the edit finds its line"
+    );
+    let deck = dir.join("default.toml");
+    std::fs::write(&deck, example.replace("transfer = \"apic\"\n", "")).unwrap();
+    let default = check(deck.to_str().unwrap());
+    assert!(default.contains("  transfer         Apic,"), "{default}");
+    assert!(!default.contains(warning), "{default}");
+    let deck = dir.join("flip.toml");
+    std::fs::write(
+        &deck,
+        example.replace("transfer = \"apic\"\n", "transfer = \"flip\"\n"),
+    )
+    .unwrap();
+    let flip = check(deck.to_str().unwrap());
+    assert!(flip.contains(warning), "{flip}");
+}
