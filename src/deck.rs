@@ -60,9 +60,9 @@ pub enum Transfer {
     /// functions its APIC is not stable at free-surface corners.
     #[default]
     Flip,
-    /// Affine particle-in-cell (Jiang et al. 2015). The projection's default: FLIP's particle
-    /// velocities carry a noise the projected grid velocity does not have, and the strain rate
-    /// the particles' volumes integrate picks it up.
+    /// Affine particle-in-cell (Jiang et al. 2015). The projection's default for fluids:
+    /// FLIP's particle velocities carry a noise the projected grid velocity does not have, and
+    /// the strain rate the particles' volumes integrate picks it up.
     Apic,
 }
 
