@@ -401,10 +401,10 @@ pub enum FreeSurface {
 pub enum DensityCorrection {
     /// After each step, a second Poisson solve on the particles' volume error moves the
     /// particles (and deforms their F) so that each one's volume J V0 returns towards V0
-    /// (`src/pressure/density.rs`). The default with a free surface.
+    /// (`src/pressure/density.rs`). The default for fluids with a free surface.
     #[default]
     Positions,
-    /// None: the paper's scheme; the default without a free surface.
+    /// None: the paper's scheme; the default without a free surface and for solids.
     None,
 }
 
@@ -1408,11 +1408,14 @@ impl Deck {
                 FreeSurface::VolumeFraction
             });
         }
-        // the particles' volumes held by a position correction wherever the fluid has a free
-        // surface; a fluid that fills its container keeps the container's volume
+        // the particles' volumes held by a position correction wherever a fluid has a free
+        // surface; a fluid that fills its container keeps the container's volume, and a solid's
+        // J is its deformation (the strip footing's nodal run threw a particle out of its heave
+        // with the correction)
         if self.pressure.density_correction.is_none() {
             let free = self.pressure.free_surface != Some(FreeSurface::None)
-                && self.pressure.unknowns == PressureUnknowns::Nodes;
+                && self.pressure.unknowns == PressureUnknowns::Nodes
+                && self.materials.iter().all(|m| m.shear_modulus.is_none());
             self.pressure.density_correction = Some(if free {
                 DensityCorrection::Positions
             } else {
