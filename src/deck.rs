@@ -626,6 +626,12 @@ pub struct MaterialDeck {
 }
 
 impl MaterialDeck {
+    /// A solid: a material with a shear modulus (its J is its deformation, its waves set the
+    /// projection's step).
+    pub fn is_solid(&self) -> bool {
+        self.shear_modulus.is_some()
+    }
+
     /// The model's keys against those given: each given key must be the model's, each required
     /// one given, each value in range.
     fn check_model_keys(&self, k: &str, c: &Check) -> Result<(), DeckError> {
@@ -1377,7 +1383,7 @@ impl Deck {
         // linear shapes is unstable at free surfaces, and for solids, whose waves APIC's lagged
         // affine matrix lets grow under the musl remap (`run::warnings`)
         if s.transfer.is_none() {
-            let solid = self.materials.iter().any(|m| m.shear_modulus.is_some());
+            let solid = self.materials.iter().any(MaterialDeck::is_solid);
             s.transfer = Some(if s.scheme == Scheme::Projection && !solid {
                 Transfer::Apic
             } else {
@@ -1415,7 +1421,7 @@ impl Deck {
         if self.pressure.density_correction.is_none() {
             let free = self.pressure.free_surface != Some(FreeSurface::None)
                 && self.pressure.unknowns == PressureUnknowns::Nodes
-                && self.materials.iter().all(|m| m.shear_modulus.is_none());
+                && !self.materials.iter().any(MaterialDeck::is_solid);
             self.pressure.density_correction = Some(if free {
                 DensityCorrection::Positions
             } else {

@@ -486,7 +486,10 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     // with FLIP where APIC ran)
     if s.transfer == Some(Transfer::Flip)
         && s.scheme == crate::deck::Scheme::Projection
-        && deck.materials.iter().all(|m| m.shear_modulus.is_none())
+        && !deck
+            .materials
+            .iter()
+            .any(crate::deck::MaterialDeck::is_solid)
     {
         w.push(
             "simulation.transfer: \"flip\" with the projection scheme: FLIP's particle noise enters the particles' volumes, and after splashes single particles can be crushed or blown up until the run stops; the projection's default for fluids, \"apic\", keeps them (docs/deck.md)".to_string(),
