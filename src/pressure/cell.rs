@@ -64,7 +64,6 @@ pub struct CellProjection<const D: usize> {
     weight: Vec<f64>,
     /// Per node, 1 on the components the walls leave free, 0 on the others.
     free: Vec<Vector<D>>,
-    zero: Vec<Vector<D>>,
     matrix: EllMatrix,
     rhs: Vec<f64>,
     solution: Vec<f64>,
@@ -131,18 +130,11 @@ impl<const D: usize> CellProjection<D> {
         let geo = &grid.geo;
         let n_nodes = geo.node_count();
         cell_pressure.resize(n_nodes, 0.0);
-        // the components the walls leave free: (apply(1) - apply(0)) is 1 there, 0 where a
-        // wall (or a rigid body) prescribes the velocity
+        // the components the walls leave free: 1 there, 0 where a wall (or a rigid body)
+        // prescribes the velocity
         self.free.clear();
         self.free.resize(n_nodes, Vector::<D>::from_element(1.0));
-        self.zero.clear();
-        self.zero.resize(n_nodes, Vector::<D>::zeros());
-        boundary.apply(&mut self.free);
-        boundary.apply(&mut self.zero);
-        self.free
-            .par_iter_mut()
-            .zip(self.zero.par_iter())
-            .for_each(|(f, z)| *f = Vector::<D>::from_fn(|d, _| f64::from(f[d] != z[d])));
+        boundary.mask_held(&mut self.free);
         boundary.apply(&mut grid.velocity_new);
 
         // the unknowns: every cell that holds a particle

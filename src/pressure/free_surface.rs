@@ -361,11 +361,11 @@ pub fn classify_level_set<const D: usize>(
         if *kind == NodeKind::Interior {
             if let Some(solid) = solid {
                 let node = geo.multi(i);
-                let buried =
-                    (0..(1usize << D)).all(|corner| match corner_cell(geo, &node, corner, open) {
-                        Corner::Cell(c) => solid[c] >= 1.0 - 1e-9,
-                        _ => true,
-                    });
+                // a cell beyond a wall reads as its mirror image inside (a ghost node behind
+                // the floor is no part of a body unless the cells it mirrors are)
+                let buried = (0..(1usize << D)).all(|corner| {
+                    mirrored_cell(geo, &node, corner, open).is_some_and(|c| solid[c] >= 1.0 - 1e-9)
+                });
                 if buried {
                     *kind = NodeKind::Empty;
                 }
@@ -471,10 +471,11 @@ pub fn ghost_values<const D: usize>(
     phi: &[f64],
     p: &[f64],
     out: &mut Vec<f64>,
+    first: &mut Vec<f64>,
 ) {
-    out.clear();
-    out.extend_from_slice(p);
-    out.par_iter_mut().enumerate().for_each(|(j, pj)| {
+    first.clear();
+    first.extend_from_slice(p);
+    first.par_iter_mut().enumerate().for_each(|(j, pj)| {
         if kinds[j] != NodeKind::FreeSurface || phi[j] <= 0.0 {
             return;
         }
@@ -489,6 +490,50 @@ pub fn ghost_values<const D: usize>(
         });
         if den > 0.0 {
             *pj = num / den;
+        }
+    });
+    // a second layer, where the wider shape functions reach: a free-surface node with no
+    // unknown beside it continues the line from an unknown m through a neighbour j,
+    // 2 p_j - p_m (left at the surface value, a node of a quadratic B-spline a cell and a
+    // half above a flat surface kept the gradient of the particles below it a half short,
+    // and a pool at rest sank into itself)
+    out.clear();
+    out.extend_from_slice(first);
+    let first = &first[..];
+    out.par_iter_mut().enumerate().for_each(|(k, pk)| {
+        if kinds[k] != NodeKind::FreeSurface || phi[k] <= 0.0 {
+            return;
+        }
+        let node = geo.multi(k);
+        let mut reached = false;
+        for_each_neighbour(geo, &node, |j| {
+            reached |= kinds[geo.canonical(j)] == NodeKind::Interior;
+        });
+        if reached {
+            return;
+        }
+        let (mut sum, mut count) = (0.0, 0usize);
+        for_each_neighbour(geo, &node, |j| {
+            if kinds[geo.canonical(j)] != NodeKind::FreeSurface {
+                return;
+            }
+            let jn = geo.multi(j);
+            let mut m = jn;
+            for d in 0..D {
+                let md = 2 * jn[d] as isize - node[d] as isize;
+                if md < 0 || md >= geo.nodes[d] as isize {
+                    return;
+                }
+                m[d] = md as usize;
+            }
+            let m = geo.canonical(geo.flat(&m));
+            if kinds[m] == NodeKind::Interior {
+                sum += 2.0 * first[geo.canonical(j)] - p[m];
+                count += 1;
+            }
+        });
+        if count > 0 {
+            *pk = sum / count as f64;
         }
     });
 }

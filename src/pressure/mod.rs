@@ -65,8 +65,8 @@ pub struct Projection<const D: usize> {
     volume_correction: f64,
     /// Per cell, the particles' volume ratio J averaged with the weights V_p^0.
     cell_jacobian: Vec<f64>,
-    /// Scratch for the ghost values.
-    ghost: Vec<f64>,
+    /// Scratch for the ghost values (the second and the first layer).
+    ghost: [Vec<f64>; 2],
     /// Per node, 0 in the velocity components the walls and rigid bodies hold, 1 elsewhere.
     held: Vec<Vector<D>>,
     extended: Vec<Vector<D>>,
@@ -125,7 +125,7 @@ impl<const D: usize> Projection<D> {
             quadrature: pd.quadrature,
             volume_correction: pd.volume_correction,
             cell_jacobian: Vec::new(),
-            ghost: Vec::new(),
+            ghost: [Vec::new(), Vec::new()],
             held: Vec::new(),
             extended: Vec::new(),
             gauss: GaussPoints::default(),
@@ -477,8 +477,9 @@ impl<const D: usize> Projection<D> {
             if level_set {
                 // the free-surface nodes take the ghost values that put p = 0 on the surface
                 let (kinds, phi) = (&self.surface.kinds, &self.surface.phi);
-                free_surface::ghost_values(&grid.geo, kinds, phi, dp, &mut self.ghost);
-                std::mem::swap(dp, &mut self.ghost);
+                let [out, first] = &mut self.ghost;
+                free_surface::ghost_values(&grid.geo, kinds, phi, dp, out, first);
+                std::mem::swap(dp, out);
                 grid.geo.copy_to_images(dp);
             }
             // p^{n+1} = beta p^n + dp on the fluid's nodes, the memory of the next step (on the
