@@ -1404,15 +1404,8 @@ impl Deck {
                 "is for scheme = \"explicit\" (against the locking of its equation of state); the projection's pressure already keeps one volume constraint per node: remove the key or set it to \"none\"",
             ));
         }
-        // the level set reads a rigid body as fluid and loses the contact of a plate pushed
-        // into water (its load 6 N/m against 52 hydrostatic): with rigid bodies the default is
-        // the paper's rule until the bodies enter the level set
         if self.pressure.free_surface.is_none() {
-            self.pressure.free_surface = Some(if self.rigid_bodies.is_empty() {
-                FreeSurface::LevelSet
-            } else {
-                FreeSurface::VolumeFraction
-            });
+            self.pressure.free_surface = Some(FreeSurface::LevelSet);
         }
         // the particles' volumes held by a position correction wherever a fluid has a free
         // surface; a fluid that fills its container keeps the container's volume, and a solid's

@@ -275,6 +275,13 @@ impl<const D: usize> Simulation<D> {
         }
         self.boundary
             .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
+        self.boundary.rigid.push_out(
+            &self.grid.geo,
+            dt,
+            &mut self.particles.x,
+            &mut self.particles.v,
+            &self.particles.mass,
+        );
         // a particle that left the grid stops the run here, before a transfer reads it
         self.check_particles()?;
         self.timers.lap(Phase::G2p);
@@ -327,6 +334,13 @@ impl<const D: usize> Simulation<D> {
                 })?;
             self.boundary
                 .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
+            self.boundary.rigid.push_out(
+                &self.grid.geo,
+                dt,
+                &mut self.particles.x,
+                &mut self.particles.v,
+                &self.particles.mass,
+            );
             self.timers.lap(Phase::Corrector);
         }
         self.time += dt;

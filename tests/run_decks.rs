@@ -450,7 +450,7 @@ fn check_summarises_the_run_and_warns() {
 }
 
 /// `pmpm check` warns of water that starts inside a rigid body, and names the free-surface
-/// method that runs: the paper's rule in a deck with rigid bodies, the level set without.
+/// method that runs: the level set, with rigid bodies or without.
 #[test]
 fn check_warns_of_water_inside_a_rigid_body() {
     let warning = "warning: bodies[0] starts inside rigid_bodies[0]";
@@ -470,7 +470,7 @@ fn check_warns_of_water_inside_a_rigid_body() {
     assert!(inside.contains(warning), "{inside}");
     let apart = check("examples/dam_break_obstacle_2d.toml");
     assert!(!apart.contains("starts inside"), "{apart}");
-    assert!(apart.contains("free surface (the paper's rule)"), "{apart}");
+    assert!(apart.contains("free surface from the level set"), "{apart}");
     let plain = check("examples/dam_break_2d.toml");
     assert!(plain.contains("free surface from the level set"), "{plain}");
 }
