@@ -6,6 +6,7 @@
 
 use crate::deck::{BoundaryKind, Deck, PressureUnknowns, Scheme};
 use crate::grid::{GridGeometry, Vector};
+use crate::particles::Particles;
 use crate::shape::PAD;
 use rayon::prelude::*;
 
@@ -150,8 +151,15 @@ impl<const D: usize> Boundary<D> {
     /// from nodes off the wall as well, so it can cross the wall by a fraction of a step; it is
     /// reflected back inside by as much as it crossed, and its velocity into the wall removed (the particle-level form of
     /// v . n = 0). A particle further than a cell beyond a wall, or beyond an open face, is
-    /// left where it is for the blow-up guard to report.
-    pub fn confine(&self, geo: &GridGeometry<D>, x: &mut [Vector<D>], v: &mut [Vector<D>]) {
+    /// left where it is for the blow-up guard to report. Then the rigid bodies put back the
+    /// particles the step carried into them ([`crate::rigid::RigidBodies::push_out`]).
+    pub fn confine(&mut self, geo: &GridGeometry<D>, dt: f64, ps: &mut Particles<D>) {
+        self.confine_to_walls(geo, &mut ps.x, &mut ps.v);
+        self.rigid.push_out(geo, dt, &mut ps.x, &mut ps.v, &ps.mass);
+    }
+
+    /// The walls' part of [`Boundary::confine`].
+    fn confine_to_walls(&self, geo: &GridGeometry<D>, x: &mut [Vector<D>], v: &mut [Vector<D>]) {
         let lo = geo.origin;
         let hi = geo.upper();
         let h = geo.h;

@@ -274,14 +274,7 @@ impl<const D: usize> Simulation<D> {
             }
         }
         self.boundary
-            .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
-        self.boundary.rigid.push_out(
-            &self.grid.geo,
-            dt,
-            &mut self.particles.x,
-            &mut self.particles.v,
-            &self.particles.mass,
-        );
+            .confine(&self.grid.geo, dt, &mut self.particles);
         // a particle that left the grid stops the run here, before a transfer reads it
         self.check_particles()?;
         self.timers.lap(Phase::G2p);
@@ -333,14 +326,7 @@ impl<const D: usize> Simulation<D> {
                     ))
                 })?;
             self.boundary
-                .confine(&self.grid.geo, &mut self.particles.x, &mut self.particles.v);
-            self.boundary.rigid.push_out(
-                &self.grid.geo,
-                dt,
-                &mut self.particles.x,
-                &mut self.particles.v,
-                &self.particles.mass,
-            );
+                .confine(&self.grid.geo, dt, &mut self.particles);
             self.timers.lap(Phase::Corrector);
         }
         self.time += dt;
