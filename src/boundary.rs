@@ -2,7 +2,8 @@
 //! the nodes of rigid bodies ([`crate::rigid`]), which take the body's velocity.
 //!
 //! A face's condition holds on its wall nodes and on the ghost nodes behind it, so that the
-//! wide shape functions (GIMP, B-splines) see the wall too.
+//! wide shape functions (GIMP, B-splines) see the wall too; under the nodal projection a ghost
+//! node's normal component mirrors the node as far inside ([`Boundary::apply`]).
 
 use crate::deck::{BoundaryKind, Deck, PressureUnknowns, Scheme};
 use crate::grid::{GridGeometry, Vector};
@@ -202,12 +203,13 @@ impl<const D: usize> Boundary<D> {
             let (kind, wall) = (self.faces[f].0, self.wall(k, f));
             let axis = f / 2;
             if matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip) {
-                v[i][axis] = self.held_value(k, v, wall, axis);
+                v[i][axis] = wall[axis];
             }
         }
         // a rigid body's velocity, the components its nodes hold: a node inside it is on no
         // face with one normal
         self.rigid.apply(v);
+        self.mirror_ghosts(v);
     }
 
     /// Zeroes a node displacement's normal component on the slip and no-slip faces, and the
@@ -236,37 +238,43 @@ impl<const D: usize> Boundary<D> {
         self.rigid.hold_still(mask);
     }
 
-    /// The value pair k holds in the normal component d: the wall's on the face; behind it, on
-    /// a ghost node that the wide shape functions (B-splines, GIMP) reach, the reflection
-    /// 2 v_wall - v_mirror of the node as far inside, so that the normal velocity they
-    /// interpolate is the wall's on the face itself (a ghost node held at the wall's value
-    /// leaves the quadratic B-spline an eighth of the inner node's velocity there: water at
-    /// rest then sank into the floor under the projection). A no-slip face's tangential
-    /// components stay at the wall's value on its ghost nodes: mirrored, a moving lid's corner
-    /// with a side wall threw a cavity's particle out to 4 cells.
-    #[inline]
-    fn held_value(&self, k: usize, v: &[Vector<D>], wall: Vector<D>, d: usize) -> f64 {
-        match self.mirror[k] {
-            usize::MAX => wall[d],
-            m => 2.0 * wall[d] - v[m][d],
-        }
-    }
-
-    /// Imposes the face conditions on node velocities.
+    /// Imposes the face conditions on node velocities: the walls' values (a slip face's
+    /// normal, a no-slip face's every component) on the face nodes and the ghost nodes behind
+    /// them, the rigid bodies' velocities on their nodes, and then, under the nodal projection,
+    /// the ghost nodes' normal components mirrored ([`Boundary::mirror_ghosts`]).
     pub fn apply(&self, v: &mut [Vector<D>]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
             let (kind, wall) = (self.faces[f].0, self.wall(k, f));
-            let axis = f / 2;
             match kind {
-                BoundaryKind::Slip => v[i][axis] = self.held_value(k, v, wall, axis),
-                BoundaryKind::NoSlip => {
-                    let normal = self.held_value(k, v, wall, axis);
-                    v[i] = wall;
-                    v[i][axis] = normal;
-                }
+                BoundaryKind::Slip => v[i][f / 2] = wall[f / 2],
+                BoundaryKind::NoSlip => v[i] = wall,
                 BoundaryKind::Open | BoundaryKind::Periodic => {}
             }
         }
         self.rigid.apply(v);
+        self.mirror_ghosts(v);
+    }
+
+    /// Under the nodal projection, the normal component of a ghost node behind a slip or
+    /// no-slip face (a node the wide shape functions, B-splines and GIMP, reach) takes the
+    /// reflection 2 v_wall - v_mirror of the node as far inside, so that the normal velocity
+    /// they interpolate is the wall's on the face itself. Held at the wall's value, a ghost
+    /// node leaves the quadratic B-spline an eighth of the inner node's velocity there: water
+    /// at rest sank into the floor under the projection. A no-slip face's tangential components
+    /// stay at the wall's value on its ghost nodes: mirrored, a moving lid's corner with a side
+    /// wall threw a cavity's particle out to 4 cells. A second pass over the pairs, after every
+    /// wall and body has set its values, so that a corner reads its mirror's final value
+    /// whatever the order of the faces.
+    fn mirror_ghosts(&self, v: &mut [Vector<D>]) {
+        for (k, &(i, f)) in self.nodes.iter().enumerate() {
+            let m = self.mirror[k];
+            if m == usize::MAX
+                || !matches!(self.faces[f].0, BoundaryKind::Slip | BoundaryKind::NoSlip)
+            {
+                continue;
+            }
+            let axis = f / 2;
+            v[i][axis] = 2.0 * self.wall(k, f)[axis] - v[m][axis];
+        }
     }
 }

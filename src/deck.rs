@@ -465,8 +465,7 @@ pub struct PressureDeck {
     pub tolerance: f64,
     #[serde(default = "default_max_iterations")]
     pub max_iterations: usize,
-    /// How p = 0 is imposed; `validate` fills it in: the level set, or the paper's rule where
-    /// the deck has rigid bodies (the level set does not yet see them).
+    /// How p = 0 is imposed; `validate` fills it in (the level set).
     #[serde(default)]
     pub free_surface: Option<FreeSurface>,
     #[serde(default = "default_vf_tolerance")]

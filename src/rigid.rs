@@ -19,6 +19,7 @@ use crate::deck::{Deck, RigidSides, ShapeFunction};
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::Particles;
 use crate::shape::{Stencil, PAD};
+use rayon::prelude::*;
 
 /// The deck's rigid bodies and the nodes each holds now.
 #[derive(Debug, Clone, Default)]
@@ -45,6 +46,10 @@ pub struct RigidBodies<const D: usize> {
     free_momentum: Vec<Vector<D>>,
     /// Per body, the force the material exerted on it over the last step (N; N/m in 2D).
     force: Vec<Vector<D>>,
+    /// Per particle, the body [`RigidBodies::push_out`] put it out of this step (`u32::MAX`:
+    /// none), and the impulse that took.
+    hit: Vec<u32>,
+    impulse: Vec<Vector<D>>,
 }
 
 impl<const D: usize> RigidBodies<D> {
@@ -79,6 +84,8 @@ impl<const D: usize> RigidBodies<D> {
             reach: vec![(Vector::<D>::zeros(), Vector::<D>::zeros()); n],
             free_momentum: vec![Vector::<D>::zeros(); n],
             force: vec![Vector::<D>::zeros(); n],
+            hit: Vec::new(),
+            impulse: Vec::new(),
         }
     }
 
@@ -235,8 +242,9 @@ impl<const D: usize> RigidBodies<D> {
     /// does at a wall. The grid holds a body's velocity on its nodes, not on its faces, so
     /// the velocity a particle interpolates between the last node outside and the first inside
     /// carries it up to half a cell into the body (a 3D dam break left a hundred particles
-    /// inside a column). Faces on or beyond the grid's walls are no way out. The momentum the
-    /// particles lose joins the body's force of the step.
+    /// inside a column). A face whose reflection would leave the grid (a face on a wall, or a
+    /// gate lifted a hair off the floor) is no way out. The momentum the particles lose joins
+    /// the body's force of the step.
     pub fn push_out(
         &mut self,
         geo: &GridGeometry<D>,
@@ -250,47 +258,72 @@ impl<const D: usize> RigidBodies<D> {
         }
         let (lo_grid, hi_grid) = (geo.origin, geo.upper());
         let eps = 1e-9 * geo.h;
-        // serial: the particles are few and checked in a fixed order, so the impulse's sum
-        // has the same bits on any number of threads
-        for ((x, v), m) in x.iter_mut().zip(v.iter_mut()).zip(mass) {
-            for b in 0..self.len() {
-                let (mut lo, mut hi) = self.bounds(b);
-                let shift = self.velocity[b] * dt;
-                lo += shift;
-                hi += shift;
-                if (0..D).any(|d| x[d] <= lo[d] || x[d] >= hi[d]) {
-                    continue;
-                }
-                // the face of least depth that opens onto the grid: (depth, axis, outward sign)
-                let mut best: Option<(f64, usize, f64)> = None;
-                for d in 0..D {
-                    if lo[d] > lo_grid[d] + eps {
-                        let depth = x[d] - lo[d];
-                        if best.is_none_or(|(b, _, _)| depth < b) {
-                            best = Some((depth, d, -1.0));
+        let n = x.len();
+        let (mut hits, mut impulses) = (
+            std::mem::take(&mut self.hit),
+            std::mem::take(&mut self.impulse),
+        );
+        hits.resize(n, u32::MAX);
+        impulses.resize(n, Vector::<D>::zeros());
+        let this = &*self;
+        (
+            x.par_iter_mut(),
+            v.par_iter_mut(),
+            mass.par_iter(),
+            hits.par_iter_mut(),
+            impulses.par_iter_mut(),
+        )
+            .into_par_iter()
+            .for_each(|(x, v, &m, hit, impulse)| {
+                *hit = u32::MAX;
+                for b in 0..this.len() {
+                    let (mut lo, mut hi) = this.bounds(b);
+                    let shift = this.velocity[b] * dt;
+                    lo += shift;
+                    hi += shift;
+                    if (0..D).any(|d| x[d] <= lo[d] || x[d] >= hi[d]) {
+                        continue;
+                    }
+                    // the face of least depth whose reflection stays inside the grid, as
+                    // (depth, axis, outward sign, new coordinate): a face on a wall, or one so
+                    // near it that the reflection would cross it, is no way out
+                    let mut best: Option<(f64, usize, f64, f64)> = None;
+                    for d in 0..D {
+                        for (face, sign) in [(lo[d], -1.0), (hi[d], 1.0)] {
+                            let depth = sign * (face - x[d]);
+                            let to = face + sign * depth.min(0.5 * (hi[d] - lo[d]));
+                            if to <= lo_grid[d] + eps || to >= hi_grid[d] - eps {
+                                continue;
+                            }
+                            if best.is_none_or(|(bd, ..)| depth < bd) {
+                                best = Some((depth, d, sign, to));
+                            }
                         }
                     }
-                    if hi[d] < hi_grid[d] - eps {
-                        let depth = hi[d] - x[d];
-                        if best.is_none_or(|(b, _, _)| depth < b) {
-                            best = Some((depth, d, 1.0));
-                        }
+                    let Some((_, d, sign, to)) = best else {
+                        continue;
+                    };
+                    x[d] = to;
+                    let body = this.velocity[b][d];
+                    if (v[d] - body) * sign < 0.0 {
+                        // the impulse the body gives the particle, the particle's push on it
+                        *impulse = Vector::<D>::zeros();
+                        impulse[d] = m * (v[d] - body) / dt;
+                        *hit = b as u32;
+                        v[d] = body;
                     }
+                    // a particle is inside one body at most (bodies that overlap are one
+                    // obstacle to it)
+                    break;
                 }
-                let Some((depth, d, sign)) = best else {
-                    continue;
-                };
-                let face = if sign > 0.0 { hi[d] } else { lo[d] };
-                // reflected by the depth, but no further than half the body
-                x[d] = face + sign * depth.min(0.5 * (hi[d] - lo[d]));
-                let body = self.velocity[b][d];
-                if (v[d] - body) * sign < 0.0 {
-                    // the impulse the body gives the particle, the particle's push on it
-                    self.force[b][d] += m * (v[d] - body) / dt;
-                    v[d] = body;
-                }
+            });
+        // the impulses summed in particle order: the same bits on any number of threads
+        for (&b, i) in hits.iter().zip(&impulses) {
+            if b != u32::MAX {
+                self.force[b as usize] += *i;
             }
         }
+        (self.hit, self.impulse) = (hits, impulses);
     }
 
     /// Adds to each cell's volume fraction the part of it a body covers, so that the
@@ -428,6 +461,8 @@ mod tests {
             reach: vec![(Vector::<2>::zeros(), Vector::<2>::zeros())],
             free_momentum: vec![Vector::<2>::zeros()],
             force: vec![Vector::<2>::zeros()],
+            hit: Vec::new(),
+            impulse: Vec::new(),
         }
     }
 
@@ -514,5 +549,51 @@ mod tests {
         assert_eq!(cell(0, 6), 0.0);
         let total: f64 = f.iter().sum();
         assert!((total - 0.25 * 0.25 / 0.01).abs() < 1e-12);
+    }
+
+    #[test]
+    fn push_out_reflects_a_particle_out_of_a_body_and_counts_its_impulse() {
+        let g = geo();
+        // a block on the floor, x in [0.3, 0.6], y in [0, 0.5], at rest
+        let mut r = bodies([0.3, 0.0], [0.6, 0.5], [0.0, 0.0]);
+        r.set_time(0.0, &g);
+        let dt = 0.01;
+        let mut x = vec![
+            Vector::<2>::new(0.32, 0.2),  // 0.02 past the left face, moving in
+            Vector::<2>::new(0.40, 0.02), // nearest the floor face, which is no way out
+            Vector::<2>::new(0.29, 0.2),  // outside
+        ];
+        let mut v = vec![Vector::<2>::new(1.0, 0.0); 3];
+        let mass = [2.0, 1.0, 1.0];
+        r.push_out(&g, dt, &mut x, &mut v, &mass);
+        assert!((x[0] - Vector::<2>::new(0.28, 0.2)).norm() < 1e-12);
+        assert_eq!(v[0], Vector::<2>::new(0.0, 0.0));
+        // out through the left face (depth 0.1) rather than the floor (0.02)
+        assert!((x[1] - Vector::<2>::new(0.2, 0.02)).norm() < 1e-12);
+        assert_eq!(x[2], Vector::<2>::new(0.29, 0.2));
+        assert_eq!(v[2], Vector::<2>::new(1.0, 0.0));
+        // the particles' momentum into the body, m v / dt, pushes it along +x
+        assert!((r.force[0] - Vector::<2>::new((2.0 + 1.0) / dt, 0.0)).norm() < 1e-9);
+        // a gate lifted a hair off the floor: reflected through its base, a particle 0.003 above
+        // the floor would land below it, so it leaves through the nearest side instead
+        let mut r = bodies([0.3, 0.001], [0.6, 0.5], [0.0, 0.0]);
+        r.set_time(0.0, &g);
+        let mut x = vec![Vector::<2>::new(0.35, 0.004)];
+        let mut v = vec![Vector::<2>::zeros()];
+        r.push_out(&g, dt, &mut x, &mut v, &[1.0]);
+        assert!((x[0] - Vector::<2>::new(0.25, 0.004)).norm() < 1e-12);
+        // a moving body is met where it is at the step's end
+        let mut r = bodies([0.3, 0.2], [0.6, 0.5], [1.0, 0.0]);
+        r.set_time(0.0, &g);
+        let mut x = vec![Vector::<2>::new(0.305, 0.3)];
+        let mut v = vec![Vector::<2>::zeros()];
+        r.push_out(&g, dt, &mut x, &mut v, &[1.0]);
+        // the left face is at 0.31 after the step: 0.305 is outside it
+        assert_eq!(x[0], Vector::<2>::new(0.305, 0.3));
+        let mut x = vec![Vector::<2>::new(0.315, 0.3)];
+        r.push_out(&g, dt, &mut x, &mut v, &[1.0]);
+        assert!((x[0] - Vector::<2>::new(0.305, 0.3)).norm() < 1e-12);
+        // the body moves away from it (its trailing face): its velocity is its own
+        assert_eq!(v[0], Vector::<2>::zeros());
     }
 }

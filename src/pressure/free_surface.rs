@@ -465,6 +465,11 @@ pub fn theta(phi_i: f64, phi_j: f64) -> f64 {
 /// crossing near the fluid node extrapolates far and counts least). `p` holds the unknowns'
 /// solution and the surface values d_j on entry; the corrector then takes the gradient of a
 /// pressure that is linear across the surface, not one clamped to zero on whole nodes.
+///
+/// A second layer follows for the wider shape functions: a free-surface node with no unknown
+/// among its neighbours continues the line from an unknown m through a neighbour j of the first
+/// layer, 2 p_j - p_m, averaged over such lines. `first` is scratch for the first layer; the
+/// result is in `out`.
 pub fn ghost_values<const D: usize>(
     geo: &GridGeometry<D>,
     kinds: &[NodeKind],
