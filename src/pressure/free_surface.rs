@@ -108,19 +108,12 @@ impl Surface {
                 &mut self.fraction,
             );
         }
-        // a rigid body is read as a wall: the cells it covers count as full
+        // the share of each cell the rigid bodies cover
         self.solid.clear();
-        let fraction = if rigid.is_empty() {
-            &self.fraction
-        } else {
+        if !rigid.is_empty() {
             self.solid.resize(geo.node_count(), 0.0);
             rigid.cover(geo, &mut self.solid);
-            self.covered.clone_from(&self.fraction);
-            for (c, s) in self.covered.iter_mut().zip(&self.solid) {
-                *c += s;
-            }
-            &self.covered
-        };
+        }
         if self.method == FreeSurface::LevelSet {
             // a rigid body is neither water nor air: the level set weighs only the part of
             // each cell it leaves open
@@ -136,6 +129,16 @@ impl Surface {
                 &mut self.kinds,
             );
         } else {
+            // the paper's rule reads a rigid body as a wall: the cells it covers count as full
+            let fraction = if self.solid.is_empty() {
+                &self.fraction
+            } else {
+                self.covered.clone_from(&self.fraction);
+                for (c, s) in self.covered.iter_mut().zip(&self.solid) {
+                    *c += s;
+                }
+                &self.covered
+            };
             classify(
                 geo,
                 mass,
