@@ -98,10 +98,18 @@ impl Surface {
             self.fraction.par_iter_mut().for_each(|f| *f = f.max(1.0));
         } else if self.bubble_cells > 0 {
             std::mem::swap(&mut self.fraction, &mut self.raw);
+            // a cell is under-filled below the level at which the method puts the surface: the
+            // level set puts it where the nodes' mean fraction is 1/2 (two half-filled cells
+            // on a floor, their particles drawn apart, read as air and dropped the whole
+            // column's pressure by a third for a step)
+            let low = match self.method {
+                FreeSurface::LevelSet => self.tolerance.max(0.5),
+                _ => self.tolerance,
+            };
             close_bubbles(
                 geo,
                 &self.raw,
-                self.tolerance,
+                low,
                 &self.open,
                 self.bubble_cells,
                 &mut self.flood,
@@ -387,7 +395,9 @@ pub fn classify_level_set<const D: usize>(
 /// that component over its neighbours that hold it (`held[i][d] == 0`: the wall's normal, a
 /// rigid body's components), where there are any; the fluid's velocity extended into its
 /// surface layer, as a projection on a staggered grid extends it into the air (Bridson, Fluid
-/// Simulation for Computer Graphics, 2nd ed., 2015, section 4.4).
+/// Simulation for Computer Graphics, 2nd ed., 2015, section 4.4). A wall pushes, it does not
+/// pull: a component that moves the node away from the holding nodes' side (a film under a lid,
+/// falling) keeps its own value, as a separating contact would.
 pub fn extend_velocity<const D: usize>(
     geo: &GridGeometry<D>,
     kinds: &[NodeKind],
@@ -404,13 +414,18 @@ pub fn extend_velocity<const D: usize>(
         }
         let mut sum = crate::grid::Vector::<D>::zeros();
         let mut count = [0usize; D];
+        // per component, on which side the nodes that hold it lie (their offsets summed)
+        let mut side = [0isize; D];
         let mut reached = false;
-        for_each_neighbour(geo, &geo.multi(j), |i| {
+        let nj = geo.multi(j);
+        for_each_neighbour(geo, &nj, |i| {
             reached |= kinds[geo.canonical(i)] == NodeKind::Interior;
+            let ni = geo.multi(i);
             for d in 0..D {
                 if held[i][d] == 0.0 && kinds[i] != NodeKind::Empty {
                     sum[d] += old[i][d];
                     count[d] += 1;
+                    side[d] += ni[d] as isize - nj[d] as isize;
                 }
             }
         });
@@ -419,7 +434,12 @@ pub fn extend_velocity<const D: usize>(
         }
         for d in 0..D {
             if count[d] > 0 && held[j][d] != 0.0 {
-                vj[d] = sum[d] / count[d] as f64;
+                let extended = sum[d] / count[d] as f64;
+                // a layer moving away from the wall that holds it leaves it (water falls off a
+                // lid): only the motion into the wall is taken away
+                if (vj[d] - extended) * side[d] as f64 >= 0.0 {
+                    vj[d] = extended;
+                }
             }
         }
     });
@@ -963,5 +983,91 @@ mod tests {
         // interior nodes carry none (their pressure is the solve's)
         assert_eq!(kinds[at(4, 2)], NodeKind::Interior);
         assert_eq!(p[at(4, 2)], 0.0);
+    }
+
+    /// A free-surface node out of reach of every unknown, in a film under a lid and in one on
+    /// a floor: the wall nodes hold v_y = 0. The film on the floor, falling into it, takes the
+    /// wall's v_y; the one under the lid, falling away from it, keeps its own.
+    #[test]
+    fn a_wall_stops_a_film_moving_into_it_and_lets_one_fall_off() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [6, 6]);
+        let n = geo.node_count();
+        let at = |i: usize, j: usize| geo.flat(&[i + PAD, j + PAD]);
+        let mut kinds = vec![NodeKind::Empty; n];
+        let mut held = vec![Vector::<2>::repeat(1.0); n];
+        let mut v = vec![Vector::<2>::zeros(); n];
+        for i in 0..=6 {
+            for (wall, film) in [(0, 1), (6, 5)] {
+                held[at(i, wall)][1] = 0.0;
+                kinds[at(i, wall)] = NodeKind::FreeSurface;
+                kinds[at(i, film)] = NodeKind::FreeSurface;
+                v[at(i, film)] = Vector::<2>::new(0.3, -0.5);
+            }
+        }
+        let mut scratch = Vec::new();
+        extend_velocity(&geo, &kinds, &held, &mut v, &mut scratch);
+        for i in 0..=6 {
+            assert_eq!(v[at(i, 1)], Vector::<2>::new(0.3, 0.0), "floor film at {i}");
+            assert_eq!(v[at(i, 5)], Vector::<2>::new(0.3, -0.5), "lid film at {i}");
+        }
+    }
+
+    /// A pool 4 cells deep in a closed 6 x 6 box whose two floor cells in the middle hold two
+    /// particles each instead of four (the particles drawn apart on the floor): with the level
+    /// set, whose surface lies where a node's cells are half full, the node between them would
+    /// read as air inside the water; the bubble closing fills them, and every node below the
+    /// top keeps its equation.
+    #[test]
+    fn half_filled_cells_inside_the_water_are_no_surface() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [6, 6]);
+        let mut x = Vec::new();
+        for cy in 0..4 {
+            for cx in 0..6 {
+                let thinned = cy == 0 && (cx == 2 || cx == 3);
+                for (a, b) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
+                    if !(thinned && b > 0.5) {
+                        x.push(Vector::<2>::new(cx as f64 + a, cy as f64 + b));
+                    }
+                }
+            }
+        }
+        let mut bins = CellBins::default();
+        bins.sort(&geo, &x);
+        let volume = vec![0.25; x.len()];
+        let mut mass = vec![0.0; geo.node_count()];
+        for p in &x {
+            let c = geo.multi(geo.cell_of(p));
+            for (a, b) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                mass[geo.flat(&[c[0] + a, c[1] + b])] += 1.0;
+            }
+        }
+        let mut surface = Surface {
+            method: FreeSurface::LevelSet,
+            tolerance: 0.3,
+            bubble_cells: 8,
+            open: vec![false; 4],
+            fraction: Vec::new(),
+            raw: Vec::new(),
+            covered: Vec::new(),
+            solid: Vec::new(),
+            phi: Vec::new(),
+            kinds: Vec::new(),
+            flood: FloodFill::default(),
+        };
+        let rigid = crate::rigid::RigidBodies::<2>::default();
+        surface.detect(&geo, &bins, &volume, &mass, 1e-9, &rigid);
+        for j in 0..4 {
+            for i in 0..=6 {
+                assert_eq!(
+                    kind_at(&surface.kinds, i, j),
+                    NodeKind::Interior,
+                    "node ({i}, {j})"
+                );
+            }
+        }
+        // without the closing the node between the two cells is a surface node
+        surface.bubble_cells = 0;
+        surface.detect(&geo, &bins, &volume, &mass, 1e-9, &rigid);
+        assert_eq!(kind_at(&surface.kinds, 3, 0), NodeKind::FreeSurface);
     }
 }
