@@ -416,31 +416,7 @@ mod tests {
     /// every particle's J back towards 1, step after step, without moving the pool's centre.
     #[test]
     fn a_smooth_volume_error_is_corrected() {
-        let src = r#"
-[simulation]
-dimension = 2
-end_time = 1.0
-dt = 1e-3
-gravity = [0.0, 0.0]
-[grid]
-size = [1.0, 1.0]
-cell_size = 0.05
-[grid.boundary]
-x_min = "slip"
-x_max = "slip"
-y_min = "slip"
-y_max = "slip"
-[[materials]]
-name = "water"
-density = 1000.0
-[[bodies]]
-material = "water"
-shape = { type = "box", min = [0.0, 0.0], max = [1.0, 0.5] }
-particles_per_cell = 2
-"#;
-        let mut deck = Deck::parse(src, "pool.toml").unwrap();
-        deck.validate("pool.toml").unwrap();
-        let sim = crate::scheme::Simulation::<2>::new(&deck).unwrap();
+        let (deck, sim) = pool("linear");
         let mut ps = sim.particles.clone();
         for p in 0..ps.len() {
             let x = ps.x[p];
@@ -473,7 +449,8 @@ particles_per_cell = 2
         assert!(drift < 1e-4, "sum J V0 / sum V0 - 1 = {drift}");
     }
 
-    /// The pool of [`a_smooth_volume_error_is_corrected`] as seeded, for a shape function.
+    /// A pool of water 0.5 m deep in a closed 1 m box, h = 0.05 m, no gravity, as seeded, for a
+    /// shape function.
     fn pool(shape: &str) -> (Deck, crate::scheme::Simulation<2>) {
         let src = format!(
             r#"

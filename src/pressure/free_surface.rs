@@ -53,11 +53,26 @@ impl Surface {
         pd: &crate::deck::PressureDeck,
         boundary: &crate::boundary::Boundary<D>,
     ) -> Self {
+        Self::with_settings(
+            pd.free_surface.unwrap_or_default(),
+            pd.volume_fraction_tolerance,
+            pd.bubble_cells,
+            (0..2 * D).map(|f| boundary.is_open(f)).collect(),
+        )
+    }
+
+    /// The method, the volume-fraction tolerance, the bubble bound and which faces are open.
+    fn with_settings(
+        method: FreeSurface,
+        tolerance: f64,
+        bubble_cells: usize,
+        open: Vec<bool>,
+    ) -> Self {
         Self {
-            method: pd.free_surface.unwrap_or_default(),
-            tolerance: pd.volume_fraction_tolerance,
-            bubble_cells: pd.bubble_cells,
-            open: (0..2 * D).map(|f| boundary.is_open(f)).collect(),
+            method,
+            tolerance,
+            bubble_cells,
+            open,
             fraction: Vec::new(),
             raw: Vec::new(),
             covered: Vec::new(),
@@ -1041,19 +1056,7 @@ mod tests {
                 mass[geo.flat(&[c[0] + a, c[1] + b])] += 1.0;
             }
         }
-        let mut surface = Surface {
-            method: FreeSurface::LevelSet,
-            tolerance: 0.3,
-            bubble_cells: 8,
-            open: vec![false; 4],
-            fraction: Vec::new(),
-            raw: Vec::new(),
-            covered: Vec::new(),
-            solid: Vec::new(),
-            phi: Vec::new(),
-            kinds: Vec::new(),
-            flood: FloodFill::default(),
-        };
+        let mut surface = Surface::with_settings(FreeSurface::LevelSet, 0.3, 8, vec![false; 4]);
         let rigid = crate::rigid::RigidBodies::<2>::default();
         surface.detect(&geo, &bins, &volume, &mass, 1e-9, &rigid);
         for j in 0..4 {
