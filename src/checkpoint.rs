@@ -197,9 +197,8 @@ pub fn write<const D: usize>(
     bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
     bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
     bytes.extend_from_slice(&payload);
-    let tmp = path.with_extension("bin.partial");
-    std::fs::write(&tmp, &bytes).map_err(|e| Error::io(&tmp, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+    crate::output::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
+        .map_err(|e| Error::io(path, e))
 }
 
 /// Why a checkpoint file cannot be used, as the user should read it.

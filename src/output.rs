@@ -26,6 +26,30 @@ pub struct OutputWriter {
     pub frames: usize,
 }
 
+/// Writes `path` whole or not at all: into `<name>.partial` beside it, synced to the disk, then
+/// renamed over `path`. A run killed at any instant leaves the old file or the new one, never a
+/// part of one (a frame, particles.pvd, run.toml, the checkpoint); a failed write leaves the old
+/// file and no `.partial`.
+pub fn write_atomic(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+) -> std::io::Result<()> {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial");
+    let tmp = path.with_file_name(name);
+    let mut w = BufWriter::new(File::create(&tmp)?);
+    let written = write(&mut w)
+        .and_then(|_| w.flush())
+        .and_then(|_| w.get_ref().sync_all());
+    if let Err(e) = written {
+        drop(w);
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    drop(w);
+    std::fs::rename(&tmp, path)
+}
+
 fn create(path: &Path) -> Result<BufWriter<File>, Error> {
     File::create(path)
         .map(BufWriter::new)
@@ -54,7 +78,8 @@ fn prepare<const D: usize>(dir: &Path, sim: &Simulation<D>) -> Result<(), Error>
     let frames_dir = dir.join("frames");
     std::fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
     let run_toml = dir.join("run.toml");
-    std::fs::write(&run_toml, sim.deck.to_run_toml()).map_err(|e| Error::io(&run_toml, e))
+    let text = sim.deck.to_run_toml();
+    write_atomic(&run_toml, |w| w.write_all(text.as_bytes())).map_err(|e| Error::io(&run_toml, e))
 }
 
 /// The header of rigid_bodies.csv: time, then per body its displacement and the force the
@@ -295,7 +320,13 @@ impl OutputWriter {
 }
 
 fn write_csv<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Result<()> {
-    let mut w = BufWriter::new(File::create(path)?);
+    write_atomic(path, |w| write_csv_to(w, sim))
+}
+
+fn write_csv_to<const D: usize>(
+    w: &mut BufWriter<File>,
+    sim: &Simulation<D>,
+) -> std::io::Result<()> {
     let ps = &sim.particles;
     if D == 2 {
         writeln!(w, "id,x,y,vx,vy,pressure,mass,volume,material")?;
@@ -437,22 +468,25 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
     }
     xml +=
         "      </Cells>\n    </Piece>\n  </UnstructuredGrid>\n  <AppendedData encoding=\"raw\">\n_";
-    let mut w = BufWriter::new(File::create(path)?);
-    w.write_all(xml.as_bytes())?;
-    for a in point_data
-        .iter()
-        .chain(std::iter::once(&points))
-        .chain(&cells)
-    {
-        w.write_all(&(a.bytes.len() as u64).to_le_bytes())?;
-        w.write_all(&a.bytes)?;
-    }
-    w.write_all(b"\n  </AppendedData>\n</VTKFile>\n")?;
-    w.flush()
+    write_atomic(path, |w| {
+        w.write_all(xml.as_bytes())?;
+        for a in point_data
+            .iter()
+            .chain(std::iter::once(&points))
+            .chain(&cells)
+        {
+            w.write_all(&(a.bytes.len() as u64).to_le_bytes())?;
+            w.write_all(&a.bytes)?;
+        }
+        w.write_all(b"\n  </AppendedData>\n</VTKFile>\n")
+    })
 }
 
 fn write_pvd(path: &Path, frames: &[(f64, String)]) -> std::io::Result<()> {
-    let mut w = BufWriter::new(File::create(path)?);
+    write_atomic(path, |w| write_pvd_to(w, frames))
+}
+
+fn write_pvd_to(w: &mut BufWriter<File>, frames: &[(f64, String)]) -> std::io::Result<()> {
     writeln!(w, "<?xml version=\"1.0\"?>")?;
     writeln!(
         w,
@@ -466,4 +500,30 @@ fn write_pvd(path: &Path, frames: &[(f64, String)]) -> std::io::Result<()> {
     }
     writeln!(w, "  </Collection>\n</VTKFile>")?;
     w.flush()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A write that fails half-way leaves the old file as it was and no `.partial` beside it;
+    /// one that succeeds replaces it whole.
+    #[test]
+    fn a_file_is_replaced_whole_or_not_at_all() {
+        let dir = std::env::temp_dir().join(format!("pmpm-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("particles.pvd");
+        std::fs::write(&path, "old frames\n").unwrap();
+        let failed = write_atomic(&path, |w| {
+            w.write_all(b"new fr")?;
+            Err(std::io::Error::other("disk full"))
+        });
+        assert!(failed.is_err());
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "old frames\n");
+        assert!(!dir.join("particles.pvd.partial").exists());
+        write_atomic(&path, |w| w.write_all(b"new frames\n")).unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "new frames\n");
+        assert!(!dir.join("particles.pvd.partial").exists());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
