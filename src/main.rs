@@ -39,7 +39,8 @@ enum Command {
         /// No progress bar or lines.
         #[arg(long, short)]
         quiet: bool,
-        /// Overwrite an output directory that holds an earlier run.
+        /// Replace an earlier pmpm run in the output directory (only the files pmpm wrote are
+        /// removed; a directory with other files is refused).
         #[arg(long)]
         force: bool,
         /// Go on from a checkpoint (OUTDIR/checkpoint.bin) written by a run of the same deck;

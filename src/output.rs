@@ -26,6 +26,176 @@ pub struct OutputWriter {
     pub frames: usize,
 }
 
+/// The file that marks a directory as a pmpm run's, written when a run starts in it: pmpm writes
+/// only into an empty directory or one holding this file, and `--force` removes only the files
+/// pmpm writes.
+pub const MARKER: &str = ".pmpm-run";
+
+/// Whether `name`, a file directly in a run directory, is one pmpm writes.
+fn run_file(name: &str) -> bool {
+    let name = name.strip_suffix(".partial").unwrap_or(name);
+    matches!(
+        name,
+        MARKER
+            | "run.toml"
+            | "series.csv"
+            | "probes.csv"
+            | "rigid_bodies.csv"
+            | "particles.pvd"
+            | "checkpoint.bin"
+    )
+}
+
+/// Whether `name`, a file in a run's `frames/`, is a frame pmpm writes; its number if so.
+fn frame_number(name: &str) -> Option<usize> {
+    let name = name.strip_suffix(".partial").unwrap_or(name);
+    let rest = name.strip_prefix("particles_")?;
+    let num = rest
+        .strip_suffix(".csv")
+        .or_else(|| rest.strip_suffix(".vtu"))?;
+    (num.len() == 6).then(|| num.parse().ok()).flatten()
+}
+
+/// The names in `dir` (empty when it does not exist).
+fn entries(dir: &Path) -> Result<Vec<String>, Error> {
+    match std::fs::read_dir(dir) {
+        Ok(rd) => Ok(rd
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .collect()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
+        Err(e) => Err(Error::io(dir, e)),
+    }
+}
+
+/// What `dir` holds, for a run about to write into it.
+enum Holds {
+    /// Nothing (or it does not exist).
+    Nothing,
+    /// A run pmpm wrote (its marker, or, from before the marker, only files pmpm writes).
+    Run,
+    /// Files pmpm did not write: the first of them.
+    Other(String),
+}
+
+fn holds(dir: &Path) -> Result<Holds, Error> {
+    let names = entries(dir)?;
+    if names.is_empty() {
+        return Ok(Holds::Nothing);
+    }
+    if names.iter().any(|n| n == MARKER) {
+        return Ok(Holds::Run);
+    }
+    let frames_ok = entries(&dir.join("frames"))?
+        .iter()
+        .all(|n| frame_number(n).is_some());
+    match names
+        .iter()
+        .find(|n| !(run_file(n) || (*n == "frames" && frames_ok)))
+    {
+        Some(other) => Ok(Holds::Other(other.clone())),
+        None if names.iter().any(|n| n == "series.csv") => Ok(Holds::Run),
+        None => Ok(Holds::Other(names[0].clone())),
+    }
+}
+
+/// Removes the files pmpm writes from a run directory (frames from number `from` on), and
+/// nothing else.
+fn remove_run_files(dir: &Path, from: usize) -> Result<(), Error> {
+    let frames = dir.join("frames");
+    for name in entries(&frames)? {
+        if frame_number(&name).is_some_and(|k| k >= from) {
+            let p = frames.join(&name);
+            std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+        }
+    }
+    if from == 0 {
+        for name in entries(dir)? {
+            if run_file(&name) && name != MARKER {
+                let p = dir.join(&name);
+                std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Takes `dir` for a run: a new run writes into a new or empty directory, or with `force` into
+/// one holding an earlier run, whose files it removes first; a resumed run (`resume`, its
+/// checkpoint) writes into the checkpoint's own directory, or into a new or empty one that first
+/// receives a copy of the checkpoint's run. A directory holding files pmpm did not write is
+/// refused (exit status 2), `force` or not. Leaves the marker in `dir`.
+pub fn claim_directory(dir: &Path, force: bool, resume: Option<&Path>) -> Result<(), Error> {
+    let own = resume.and_then(|ck| {
+        let ck_dir = ck.parent().filter(|p| !p.as_os_str().is_empty())?;
+        let a = std::fs::canonicalize(ck_dir).ok()?;
+        let b = std::fs::canonicalize(dir).ok()?;
+        Some(a == b)
+    });
+    match holds(dir)? {
+        Holds::Other(name) => {
+            return Err(Error::Usage(format!(
+                "{}: the output directory holds {name:?}, which pmpm did not write; run into a \
+                 new or empty directory (--output), or into an earlier pmpm run's",
+                dir.display()
+            )))
+        }
+        Holds::Run if resume.is_none() && !force => {
+            return Err(Error::Usage(format!(
+                "{}: the output directory holds an earlier run; pass --force to replace it or \
+                 --output to write elsewhere",
+                dir.display()
+            )))
+        }
+        Holds::Run if resume.is_none() => remove_run_files(dir, 0)?,
+        Holds::Run if own != Some(true) => {
+            return Err(Error::Usage(format!(
+                "{}: the output directory holds another run; resume into the checkpoint's own \
+                 directory or into a new or empty one",
+                dir.display()
+            )))
+        }
+        Holds::Run => {}
+        Holds::Nothing => {
+            if let Some(ck) = resume {
+                let from = ck.parent().unwrap_or(Path::new("."));
+                copy_run(from, dir)?;
+            }
+        }
+    }
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let marker = dir.join(MARKER);
+    write_atomic(&marker, |w| {
+        w.write_all(b"This directory holds a pmpm run; pmpm run --force replaces it.\n")
+    })
+    .map_err(|e| Error::io(&marker, e))
+}
+
+/// Copies the files pmpm writes from the run directory `from` into the new directory `to`.
+fn copy_run(from: &Path, to: &Path) -> Result<(), Error> {
+    let frames_to = to.join("frames");
+    std::fs::create_dir_all(&frames_to).map_err(|e| Error::io(&frames_to, e))?;
+    for name in entries(from)? {
+        if run_file(&name) && !name.ends_with(".partial") {
+            let p = from.join(&name);
+            std::fs::copy(&p, to.join(&name)).map_err(|e| Error::io(&p, e))?;
+        }
+    }
+    for name in entries(&from.join("frames"))? {
+        if frame_number(&name).is_some() && !name.ends_with(".partial") {
+            let p = from.join("frames").join(&name);
+            std::fs::copy(&p, frames_to.join(&name)).map_err(|e| Error::io(&p, e))?;
+        }
+    }
+    Ok(())
+}
+
+/// Removes the frames numbered `from` and above: a resumed run writes them again, and those of
+/// the run after its checkpoint must not stand beside them.
+pub fn remove_frames_from(dir: &Path, from: usize) -> Result<(), Error> {
+    remove_run_files(dir, from.max(1))
+}
+
 /// Writes `path` whole or not at all: into `<name>.partial` beside it, synced to the disk, then
 /// renamed over `path`. A run killed at any instant leaves the old file or the new one, never a
 /// part of one (a frame, particles.pvd, run.toml, the checkpoint); a failed write leaves the old

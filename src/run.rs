@@ -60,12 +60,6 @@ pub struct RunSummary {
 
 /// Runs a validated deck into `dir`, generic over the dimension.
 pub fn run(deck: &Deck, file: &str, dir: &Path, opts: &RunOptions) -> Result<RunSummary, Error> {
-    if dir.join("series.csv").exists() && !opts.force && opts.resume.is_none() {
-        return Err(Error::Usage(format!(
-            "{}: the output directory holds an earlier run (series.csv); pass --force to overwrite it or --output to write elsewhere",
-            dir.display()
-        )));
-    }
     if deck.simulation.scheme == Scheme::Projection
         && deck.pressure.solver == Solver::Pcg
         && deck.pressure.preconditioner == Preconditioner::Ic0
@@ -104,6 +98,9 @@ fn run_dim<const D: usize>(
     let checkpoint_path = dir.join("checkpoint.bin");
     let (mut out, mut driver) = match &opts.resume {
         None => {
+            // the directory is taken only once the run can start: a deck that cannot build
+            // its simulation, or a bad checkpoint, leaves an earlier run as it was
+            crate::output::claim_directory(dir, opts.force, None)?;
             let out = OutputWriter::new(dir, &sim)?;
             let driver = DriverState {
                 next_frame: 0.0,
@@ -124,6 +121,8 @@ fn run_dim<const D: usize>(
                     sim.time
                 )));
             }
+            crate::output::claim_directory(dir, opts.force, Some(path))?;
+            crate::output::remove_frames_from(dir, driver.frames)?;
             let out = OutputWriter::resume(dir, &sim, &driver)?;
             (out, driver)
         }
