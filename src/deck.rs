@@ -279,6 +279,10 @@ pub struct SimulationDeck {
 /// has lost touch with the grid's resolution (a volume that grew without bound).
 pub const MAX_PARTICLE_CELLS: f64 = 4.0;
 
+/// The most frames, or checkpoints, a deck may ask for over its run: a million frames of even a
+/// small run fill a disk.
+pub const MAX_OUTPUTS: f64 = 1e6;
+
 fn default_sort_interval() -> usize {
     20
 }
@@ -1800,8 +1804,26 @@ impl Deck {
         let o = &mut self.output;
         let interval = *o.interval.get_or_insert(self.simulation.end_time / 100.0);
         c.positive("output.interval", interval)?;
+        let end = self.simulation.end_time;
+        // a frame or a checkpoint per step of a runaway deck fills the disk and never ends
+        let count = |key: &str, what: &str, every: f64| -> Result<(), DeckError> {
+            let n = end / every;
+            if n > MAX_OUTPUTS {
+                return Err(c.err(
+                    key,
+                    format!(
+                        "gives {n:.3e} {what} over end_time = {end:.6e} s, more than \
+                         {MAX_OUTPUTS:.0e}: raise it to at least {:.3e} s",
+                        end / MAX_OUTPUTS
+                    ),
+                ));
+            }
+            Ok(())
+        };
+        count("output.interval", "frames", interval)?;
         if let Some(ci) = o.checkpoint_interval {
             c.positive("output.checkpoint_interval", ci)?;
+            count("output.checkpoint_interval", "checkpoints", ci)?;
         }
         for (i, pr) in o.probes.iter().enumerate() {
             let k = format!("output.probes[{i}]");

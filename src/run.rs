@@ -215,9 +215,7 @@ fn run_dim<const D: usize>(
             if let Err(e) = out.frame(&sim, dt, start.elapsed().as_secs_f64()) {
                 break Err(e);
             }
-            while driver.next_frame <= sim.time + eps {
-                driver.next_frame += interval;
-            }
+            driver.next_frame = next_after(driver.next_frame, sim.time + eps, interval);
             if !opts.quiet && !progress.is_bar() {
                 eprintln!(
                     "frame {:>5}  t = {:.5} s  step {:>8}  dt = {:.3e} s  max |v| = {:.4} m/s  wall {:.1} s",
@@ -232,9 +230,8 @@ fn run_dim<const D: usize>(
         }
         let checkpoint_due = sim.time >= driver.next_checkpoint - eps;
         if checkpoint_due || at_end || interrupted {
-            while driver.next_checkpoint <= sim.time + eps {
-                driver.next_checkpoint += checkpoint_interval;
-            }
+            driver.next_checkpoint =
+                next_after(driver.next_checkpoint, sim.time + eps, checkpoint_interval);
             driver.frames = out.frames;
             driver.pvd.clone_from(&out.pvd);
             if let Err(e) = checkpoint::write(&checkpoint_path, &sim, &driver) {
@@ -876,5 +873,41 @@ fn bytes(b: f64) -> String {
         format!("{:.1} MB", b / 1e6)
     } else {
         format!("{:.0} kB", (b / 1e3).ceil())
+    }
+}
+
+/// The first of `next`, `next + interval`, `next + 2 interval`, ... past `t`, found without a
+/// loop: an interval below the spacing of floating-point numbers near `t` would never get
+/// there by adding.
+fn next_after(next: f64, t: f64, interval: f64) -> f64 {
+    if next > t {
+        return next;
+    }
+    let k = ((t - next) / interval).floor() + 1.0;
+    let mut n = next + k * interval;
+    if n <= t {
+        // (t - next) / interval rounded down across a whole number
+        n += interval;
+    }
+    if n > t {
+        n
+    } else {
+        // interval below the floating-point spacing at t: the next number above t
+        f64::from_bits(t.to_bits() + 1).max(n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::next_after;
+
+    #[test]
+    fn the_next_output_time_is_found_without_a_loop() {
+        assert_eq!(next_after(0.5, 0.2, 0.1), 0.5);
+        let n = next_after(0.1, 0.35, 0.1);
+        assert!((n - 0.4).abs() < 1e-15, "{n}");
+        // an interval far below the spacing of numbers near t: the next number above t, at once
+        let n = next_after(1e-300, 0.01, 1e-300);
+        assert!(n > 0.01 && n - 0.01 < 1e-17, "{n}");
     }
 }

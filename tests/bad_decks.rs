@@ -401,6 +401,19 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             )]),
             "bad.toml: output.checkpoint_interval: must be > 0, got -1",
         ),
+        (
+            "a frame interval that asks for more than a million frames",
+            edit(&[("interval = 0.01", "interval = 1e-300")]),
+            "bad.toml: output.interval: gives 5.000e298 frames over end_time = 5.000000e-2 s, more than 1e6: raise it to at least 5.000e-8 s",
+        ),
+        (
+            "a checkpoint interval that asks for more than a million checkpoints",
+            edit(&[(
+                "interval = 0.01",
+                "interval = 0.01\ncheckpoint_interval = 1e-12",
+            )]),
+            "bad.toml: output.checkpoint_interval: gives 5.000e10 checkpoints over end_time = 5.000000e-2 s, more than 1e6: raise it to at least 5.000e-8 s",
+        ),
         // the grid
         (
             "dimension 4",
