@@ -161,6 +161,9 @@ impl<const D: usize> NodalAveraging<D> {
         shape: ShapeFunction,
         share: f64,
     ) {
+        if share <= 0.0 {
+            return;
+        }
         let materials = ps
             .material
             .iter()

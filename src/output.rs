@@ -99,22 +99,13 @@ fn holds(dir: &Path) -> Result<Holds, Error> {
     }
 }
 
-/// Removes the files pmpm writes from a run directory (frames from number `from` on), and
-/// nothing else.
-fn remove_run_files(dir: &Path, from: usize) -> Result<(), Error> {
-    let frames = dir.join("frames");
-    for name in entries(&frames)? {
-        if frame_number(&name).is_some_and(|k| k >= from) {
-            let p = frames.join(&name);
+/// Removes the files pmpm writes from a run directory, and nothing else.
+fn remove_run_files(dir: &Path) -> Result<(), Error> {
+    remove_frames_from(dir, 0)?;
+    for name in entries(dir)? {
+        if run_file(&name) && name != MARKER {
+            let p = dir.join(&name);
             std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-        }
-    }
-    if from == 0 {
-        for name in entries(dir)? {
-            if run_file(&name) && name != MARKER {
-                let p = dir.join(&name);
-                std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-            }
         }
     }
     Ok(())
@@ -147,7 +138,7 @@ pub fn claim_directory(dir: &Path, force: bool, resume: Option<&Path>) -> Result
                 dir.display()
             )))
         }
-        Holds::Run if resume.is_none() => remove_run_files(dir, 0)?,
+        Holds::Run if resume.is_none() => remove_run_files(dir)?,
         Holds::Run if own != Some(true) => {
             return Err(Error::Usage(format!(
                 "{}: the output directory holds another run; resume into the checkpoint's own \
@@ -193,7 +184,14 @@ fn copy_run(from: &Path, to: &Path) -> Result<(), Error> {
 /// Removes the frames numbered `from` and above: a resumed run writes them again, and those of
 /// the run after its checkpoint must not stand beside them.
 pub fn remove_frames_from(dir: &Path, from: usize) -> Result<(), Error> {
-    remove_run_files(dir, from.max(1))
+    let frames = dir.join("frames");
+    for name in entries(&frames)? {
+        if frame_number(&name).is_some_and(|k| k >= from) {
+            let p = frames.join(&name);
+            std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+        }
+    }
+    Ok(())
 }
 
 /// Writes `path` whole or not at all: into `<name>.partial` beside it, synced to the disk, then
