@@ -185,20 +185,53 @@ pub fn write<const D: usize>(
         node_pressure: projection.map_or(Vec::new(), |p| p.previous.clone()),
         volume_over_density: projection.map_or(Vec::new(), |p| p.volume_over_density().to_vec()),
     };
-    let payload = postcard::to_stdvec(&state).map_err(|e| {
+    let bytes = encode(&state).map_err(|e| {
         Error::io(
             path,
             std::io::Error::other(format!("cannot encode the checkpoint: {e}")),
         )
     })?;
+    crate::output::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
+        .map_err(|e| Error::io(path, e))
+}
+
+/// The file's bytes: magic, format, checksum and length of the payload, then the payload.
+fn encode(state: &State) -> Result<Vec<u8>, postcard::Error> {
+    let payload = postcard::to_stdvec(state)?;
     let mut bytes = Vec::with_capacity(payload.len() + 24);
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&FORMAT.to_le_bytes());
     bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
     bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
     bytes.extend_from_slice(&payload);
-    crate::output::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
-        .map_err(|e| Error::io(path, e))
+    Ok(bytes)
+}
+
+/// The state in a checkpoint file's bytes, or why it cannot be had.
+fn decode(bytes: &[u8]) -> Result<State, String> {
+    if bytes.len() < 24 || &bytes[..8] != MAGIC {
+        return Err("it is not a pmpm checkpoint".into());
+    }
+    let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
+    let format = word(8);
+    if format != FORMAT {
+        return Err(format!(
+            "it has format {format}, this pmpm reads format {FORMAT}"
+        ));
+    }
+    let crc = word(12);
+    let len = u64::from_le_bytes(bytes[16..24].try_into().expect("8 bytes"));
+    let payload = &bytes[24..];
+    if payload.len() as u64 != len {
+        return Err(format!(
+            "it is truncated or damaged ({} bytes of state, {len} expected)",
+            payload.len()
+        ));
+    }
+    if crc32fast::hash(payload) != crc {
+        return Err("it is damaged (checksum mismatch)".into());
+    }
+    postcard::from_bytes(payload).map_err(|e| format!("it cannot be decoded ({e})"))
 }
 
 /// Why a checkpoint file cannot be used, as the user should read it.
@@ -213,35 +246,17 @@ fn refuse(path: &Path, why: impl std::fmt::Display) -> Error {
 /// A file that is not a checkpoint, is damaged, or was written by another deck, another
 /// dimension or another particle count is refused with a message that says which.
 pub fn read<const D: usize>(path: &Path, sim: &mut Simulation<D>) -> Result<DriverState, Error> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    if bytes.len() < 24 || &bytes[..8] != MAGIC {
-        return Err(refuse(path, "it is not a pmpm checkpoint"));
-    }
-    let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
-    let format = word(8);
-    if format != FORMAT {
+    if path.is_dir() {
         return Err(refuse(
             path,
-            format!("it has format {format}, this pmpm reads format {FORMAT}"),
+            "it is a directory; give the checkpoint.bin inside it",
         ));
     }
-    let crc = word(12);
-    let len = u64::from_le_bytes(bytes[16..24].try_into().expect("8 bytes"));
-    let payload = &bytes[24..];
-    if payload.len() as u64 != len {
-        return Err(refuse(
-            path,
-            format!(
-                "it is truncated or damaged ({} bytes of state, {len} expected)",
-                payload.len()
-            ),
-        ));
-    }
-    if crc32fast::hash(payload) != crc {
-        return Err(refuse(path, "it is damaged (checksum mismatch)"));
-    }
-    let s: State = postcard::from_bytes(payload)
-        .map_err(|e| refuse(path, format!("it cannot be decoded ({e})")))?;
+    let bytes = std::fs::read(path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => refuse(path, "there is no such file"),
+        _ => Error::io(path, e),
+    })?;
+    let s = decode(&bytes).map_err(|why| refuse(path, why))?;
     if s.dimension != D {
         return Err(refuse(
             path,
@@ -272,6 +287,9 @@ pub fn read<const D: usize>(path: &Path, sim: &mut Simulation<D>) -> Result<Driv
             format!("it holds {} particles, the deck makes {n}", s.id.len()),
         ));
     }
+    let node_pressure_len = sim.projection.as_ref().map(|_| sim.grid.geo.node_count());
+    consistent::<D>(&s, n, sim.materials.len(), &sim.grid.geo, node_pressure_len)
+        .map_err(|why| refuse(path, why))?;
     let ps = &mut sim.particles;
     ps.id = s.id;
     ps.x = vectors(&s.x);
@@ -286,23 +304,6 @@ pub fn read<const D: usize>(path: &Path, sim: &mut Simulation<D>) -> Result<Driv
     ps.affine = matrices(&s.affine);
     ps.material = s.material;
     ps.half_width = s.half_width;
-    let lengths = [
-        ps.x.len(),
-        ps.v.len(),
-        ps.mass.len(),
-        ps.volume0.len(),
-        ps.jacobian.len(),
-        ps.deformation.len(),
-        ps.pressure.len(),
-        ps.tau.len(),
-        ps.velocity_gradient.len(),
-        ps.affine.len(),
-        ps.material.len(),
-        ps.half_width.len(),
-    ];
-    if lengths.iter().any(|&l| l != n) {
-        return Err(refuse(path, "its particle arrays have different lengths"));
-    }
     sim.time = s.time;
     sim.steps = s.steps;
     sim.pressure_iterations = s.pressure_iterations;
@@ -322,9 +323,202 @@ pub fn read<const D: usize>(path: &Path, sim: &mut Simulation<D>) -> Result<Driv
     Ok(s.driver)
 }
 
+/// Checks a decoded state field by field before any of it is used or any output is touched:
+/// a checksum guards against damage, not against a file written by a faulty or hostile tool,
+/// and a material index, id or position out of range would otherwise stop the run with a
+/// panic after series.csv was already cut back. Returns what is wrong, for the message.
+fn consistent<const D: usize>(
+    s: &State,
+    n: usize,
+    materials: usize,
+    geo: &crate::grid::GridGeometry<D>,
+    node_pressure_len: Option<usize>,
+) -> Result<(), String> {
+    if !(s.time.is_finite() && s.time >= 0.0) {
+        return Err(format!("its time is {}", s.time));
+    }
+    let d = &s.driver;
+    if !(d.next_frame.is_finite() && d.next_checkpoint.is_finite()) {
+        return Err("its next frame or checkpoint time is not a number".into());
+    }
+    if d.pvd.len() > d.frames || d.frames as f64 > crate::deck::MAX_OUTPUTS + 1.0 {
+        return Err(format!(
+            "its frame count ({}) and frame list ({}) disagree",
+            d.frames,
+            d.pvd.len()
+        ));
+    }
+    let lengths: [(&str, usize, usize); 12] = [
+        ("x", s.x.len(), n * D),
+        ("v", s.v.len(), n * D),
+        ("mass", s.mass.len(), n),
+        ("volume0", s.volume0.len(), n),
+        ("jacobian", s.jacobian.len(), n),
+        ("deformation", s.deformation.len(), n * D * D),
+        ("pressure", s.pressure.len(), n),
+        ("tau", s.tau.len(), n * D * D),
+        ("velocity_gradient", s.velocity_gradient.len(), n * D * D),
+        ("affine", s.affine.len(), n * D * D),
+        ("material", s.material.len(), n),
+        ("half_width", s.half_width.len(), n),
+    ];
+    if let Some((name, got, want)) = lengths.iter().find(|(_, got, want)| got != want) {
+        return Err(format!(
+            "its particle field {name} holds {got} values, {want} expected"
+        ));
+    }
+    let mut seen = vec![false; n];
+    for &id in &s.id {
+        match seen.get_mut(id as usize) {
+            Some(b) if !*b => *b = true,
+            _ => return Err(format!("its particle ids are not 0 to {} (id {id})", n - 1)),
+        }
+    }
+    if let Some(p) = s.material.iter().position(|&m| m as usize >= materials) {
+        return Err(format!(
+            "particle {} has material index {}; the deck has {materials} materials",
+            s.id[p], s.material[p]
+        ));
+    }
+    let fields: [(&str, &[f64]); 10] = [
+        ("x", &s.x),
+        ("v", &s.v),
+        ("deformation", &s.deformation),
+        ("pressure", &s.pressure),
+        ("tau", &s.tau),
+        ("velocity_gradient", &s.velocity_gradient),
+        ("affine", &s.affine),
+        ("body_force", &s.body_force),
+        ("node_pressure", &s.node_pressure),
+        ("volume_over_density", &s.volume_over_density),
+    ];
+    for (name, f) in fields {
+        if f.iter().any(|a| !a.is_finite()) {
+            return Err(format!(
+                "its field {name} holds a value that is not a finite number"
+            ));
+        }
+    }
+    let positive: [(&str, &[f64]); 3] = [
+        ("mass", &s.mass),
+        ("volume0", &s.volume0),
+        ("jacobian", &s.jacobian),
+    ];
+    for (name, f) in positive {
+        if let Some(p) = f.iter().position(|a| !(a.is_finite() && *a > 0.0)) {
+            return Err(format!("particle {} has {name} = {}", s.id[p], f[p]));
+        }
+    }
+    if let Some(p) = s
+        .half_width
+        .iter()
+        .position(|a| !(a.is_finite() && *a >= 0.0))
+    {
+        return Err(format!(
+            "particle {} has half_width = {}",
+            s.id[p], s.half_width[p]
+        ));
+    }
+    for (p, x) in s.x.chunks_exact(D).enumerate() {
+        if !geo.contains(&Vector::<D>::from_column_slice(x)) {
+            return Err(format!(
+                "particle {} lies outside the grid, at {x:?}",
+                s.id[p]
+            ));
+        }
+    }
+    if let Some(len) = node_pressure_len {
+        // empty before the first step has sized it
+        if !s.node_pressure.is_empty() && s.node_pressure.len() != len {
+            return Err(format!(
+                "its node pressure holds {} values, the grid has {len} nodes",
+                s.node_pressure.len()
+            ));
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::deck::Deck;
+
+    /// A small projection run's simulation and a driver state for it.
+    fn small() -> (Simulation<2>, DriverState) {
+        let src = r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 0.1
+cfl = 0.5
+[grid]
+size = [1.0, 1.0]
+cell_size = 0.1
+[[materials]]
+name = "water"
+density = 1000.0
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [0.5, 0.5] }
+particles_per_cell = 2
+"#;
+        let mut deck = Deck::parse(src, "small.toml").unwrap();
+        deck.validate("small.toml").unwrap();
+        let driver = DriverState {
+            next_frame: 0.01,
+            next_checkpoint: 0.01,
+            frames: 1,
+            pvd: Vec::new(),
+            iterations: (0, 0),
+        };
+        (Simulation::<2>::new(&deck).unwrap(), driver)
+    }
+
+    /// A checkpoint whose checksum is right but whose content is not (a material index, an id,
+    /// a position, a time out of range) is refused with a reason before anything is used.
+    #[test]
+    fn a_checkpoint_with_a_good_checksum_and_bad_content_is_refused() {
+        let (mut sim, driver) = small();
+        let dir = std::env::temp_dir().join(format!("pmpm-ck-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("checkpoint.bin");
+        write(&path, &sim, &driver).unwrap();
+        let good = decode(&std::fs::read(&path).unwrap()).unwrap();
+        if let Err(e) = read(&path, &mut sim) {
+            panic!("the good checkpoint: {e}");
+        }
+        type Tamper = fn(&mut State);
+        let cases: [(&str, Tamper); 7] = [
+            ("material index 7", |s| s.material[3] = 7),
+            ("ids are not 0 to", |s| s.id[1] = s.id[0]),
+            ("lies outside the grid", |s| s.x[4] = 1.5),
+            ("its time is NaN", |s| s.time = f64::NAN),
+            ("field v holds a value that is not", |s| {
+                s.v[0] = f64::INFINITY
+            }),
+            ("has jacobian = -1", |s| s.jacobian[2] = -1.0),
+            ("particle field tau holds", |s| {
+                s.tau.pop();
+            }),
+        ];
+        for (why, tamper) in cases {
+            let mut bad = decode(&std::fs::read(&path).unwrap()).unwrap();
+            tamper(&mut bad);
+            let bad_path = dir.join("bad.bin");
+            std::fs::write(&bad_path, encode(&bad).unwrap()).unwrap();
+            let (mut fresh, _) = small();
+            match read(&bad_path, &mut fresh) {
+                Err(Error::Usage(m)) => assert!(m.contains(why), "{why}: {m}"),
+                other => panic!("{why}: {:?}", other.map(|_| ())),
+            }
+            // nothing of the bad state reached the simulation
+            assert_eq!(fresh.time, 0.0);
+            assert_eq!(fresh.particles.material, vec![0; fresh.particles.len()]);
+        }
+        assert_eq!(good.material.len(), sim.particles.len());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn the_first_differing_key_is_named() {

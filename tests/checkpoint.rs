@@ -192,6 +192,23 @@ fn bad_checkpoints_are_refused_with_a_reason() {
             ),
         ),
     ];
+    let missing = dir.join("missing.bin");
+    let missing = missing.to_str().unwrap();
+    let cases = cases.into_iter().chain([
+        (
+            deck.as_str(),
+            missing,
+            format!("error: {missing}: cannot resume from this file: there is no such file"),
+        ),
+        (
+            deck.as_str(),
+            out,
+            format!(
+                "error: {out}: cannot resume from this file: it is a directory; give the \
+                 checkpoint.bin inside it"
+            ),
+        ),
+    ]);
     for (deck, file, message) in cases {
         let (status, line) = failure(&["run", deck, "-o", out, "-q", "--resume", file]);
         assert_eq!(status, 2, "{line}");
