@@ -194,6 +194,8 @@ fn execute(cmd: Command) -> Result<usize, Error> {
             steps,
             output,
         } => {
+            // Ctrl-C or SIGTERM ends the timed run at a step and removes the scratch folder
+            run::catch_interrupts();
             let d = run::load(&deck)?;
             let scratch = output.is_none();
             let dir = output.unwrap_or_else(|| {

@@ -470,6 +470,26 @@ impl OutputWriter {
         Ok(())
     }
 
+    /// Flushes the time series (series.csv, probes.csv, rigid_bodies.csv) and has the system
+    /// put them on the disk: called before each checkpoint, so that the rows a resume keeps
+    /// are all there after a crash.
+    pub fn sync(&mut self) -> Result<(), Error> {
+        let dir = &self.dir;
+        let sync = |w: &mut BufWriter<File>, name: &str| {
+            w.flush()
+                .and_then(|_| w.get_ref().sync_data())
+                .map_err(|e| Error::io(dir.join(name), e))
+        };
+        sync(&mut self.series, "series.csv")?;
+        if let Some(w) = &mut self.probes {
+            sync(w, "probes.csv")?;
+        }
+        if let Some(w) = &mut self.rigid {
+            sync(w, "rigid_bodies.csv")?;
+        }
+        Ok(())
+    }
+
     /// Flushes what is buffered (also on a blow-up, so nothing written is lost).
     pub fn finish(&mut self) -> Result<(), Error> {
         self.series

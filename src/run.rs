@@ -28,13 +28,28 @@ pub struct RunOptions {
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
 /// Makes SIGINT (Ctrl-C) and SIGTERM stop a run cleanly at the end of its current step instead
-/// of killing it. A second signal while the first is being handled kills the process.
+/// of killing it: the run writes a frame and a checkpoint and exits with status 130. Later
+/// signals are ignored while it does (coreutils `timeout` and a shell's job control may send two
+/// at once; dying at the second would leave a frame without its series row); SIGKILL still
+/// stops it at once, and every file it writes survives that.
+///
+/// SIGXFSZ (a file-size limit, `ulimit -f`) is ignored too, so that a write past the limit
+/// fails with an error pmpm reports, naming the last good checkpoint, instead of killing it.
 pub fn catch_interrupts() {
     let _ = ctrlc::set_handler(|| {
-        if INTERRUPTED.swap(true, Ordering::SeqCst) {
-            std::process::exit(130);
+        if !INTERRUPTED.swap(true, Ordering::SeqCst) {
+            eprintln!(
+                "\npmpm: interrupted: finishing this step, then writing a frame and a checkpoint \
+                 (further interrupts are ignored)"
+            );
         }
     });
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to SIG_IGN installs no handler code and is
+    // async-signal-safe; it is done once, before any file is written.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
 }
 
 /// What a finished run reports.
@@ -145,12 +160,14 @@ fn run_dim<const D: usize>(
         eprintln!("warning: {file}: {w}");
     }
     if opts.resume.is_none() {
-        out.frame(&sim, 0.0, 0.0)?;
+        out.frame(&sim, 0.0, 0.0)
+            .map_err(|e| write_failure_hint(e, None, ""))?;
         driver.next_frame = interval;
     }
     let progress = Progress::new(opts.quiet, sim.time, sim.steps, end);
     let mut last_dt = 0.0;
-    let mut last_checkpoint: Option<f64> = None;
+    // a resumed run's last good state is the checkpoint it started from
+    let mut last_checkpoint: Option<f64> = opts.resume.as_ref().map(|_| sim.time);
     sim.timers.lap(Phase::Other);
     let result = loop {
         if sim.time >= end - eps || opts.max_steps.is_some_and(|n| sim.steps >= n) {
@@ -228,12 +245,25 @@ fn run_dim<const D: usize>(
                 );
             }
         }
+        if at_end || last {
+            // the final state's probe row, before the last checkpoint: a run killed after
+            // that checkpoint is complete
+            sim.particles_to_grid();
+            if let Err(e) = out.probe_row(sim.time, &sim) {
+                break Err(e);
+            }
+        }
         let checkpoint_due = sim.time >= driver.next_checkpoint - eps;
         if checkpoint_due || at_end || interrupted {
             driver.next_checkpoint =
                 next_after(driver.next_checkpoint, sim.time + eps, checkpoint_interval);
             driver.frames = out.frames;
             driver.pvd.clone_from(&out.pvd);
+            // the time series reach the disk before the checkpoint that a resume cuts them
+            // back to: a crash after it loses no row
+            if let Err(e) = out.sync() {
+                break Err(e);
+            }
             if let Err(e) = checkpoint::write(&checkpoint_path, &sim, &driver) {
                 break Err(e);
             }
@@ -253,14 +283,10 @@ fn run_dim<const D: usize>(
         }
     };
     progress.clear();
-    if result.is_ok() {
-        // the final state's probe row
-        sim.particles_to_grid();
-        out.probe_row(sim.time, &sim)?;
-    }
     let flushed = out.finish();
-    result?;
-    flushed?;
+    let resume = resume_command(file, &checkpoint_path, dir, deck);
+    result.map_err(|e| write_failure_hint(e, last_checkpoint, &resume))?;
+    flushed.map_err(|e| write_failure_hint(e, last_checkpoint, &resume))?;
     let summary = RunSummary {
         steps: sim.steps,
         frames: out.frames,
@@ -291,6 +317,30 @@ fn resume_command(file: &str, checkpoint: &Path, dir: &Path, deck: &Deck) -> Str
         String::new()
     };
     format!("pmpm run {file} --resume {}{output}", checkpoint.display())
+}
+
+/// Adds to a failed write (a full disk, a file-size limit) where the last good state is and
+/// how to go on from it once there is room.
+fn write_failure_hint(e: Error, checkpoint: Option<f64>, resume: &str) -> Error {
+    match e {
+        Error::Io { path, source } => {
+            let kind = source.kind();
+            let hint = match checkpoint {
+                Some(t) => format!(
+                    "the run stopped there; its files up to the last checkpoint, at t = {t:.6} \
+                     s, are whole. Make room (or raise the file-size limit) and go on: {resume}"
+                ),
+                None => "the run stopped there, before its first checkpoint; make room (or \
+                         raise the file-size limit) and run it again"
+                    .to_string(),
+            };
+            Error::Io {
+                path,
+                source: std::io::Error::new(kind, format!("{source}; {hint}")),
+            }
+        }
+        e => e,
+    }
 }
 
 /// Adds to a blow-up message where the last good state is and how to go on from it.
