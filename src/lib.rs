@@ -29,6 +29,7 @@ pub mod deck;
 pub mod error;
 pub mod field;
 pub mod grid;
+pub mod limits;
 pub mod material;
 pub mod output;
 pub mod particles;

@@ -20,6 +20,10 @@ struct Cli {
     /// Worker threads (default: all cores). Results are bitwise repeatable for a given count.
     #[arg(long, global = true)]
     threads: Option<usize>,
+    /// Run (or check) a deck that needs more memory than this machine has or more than 1e9
+    /// steps, which are otherwise refused before anything is allocated.
+    #[arg(long, global = true)]
+    allow_large: bool,
 }
 
 #[derive(Subcommand)]
@@ -137,6 +141,16 @@ fn main() -> ExitCode {
         eprintln!("error: --threads must be at least 1");
         return ExitCode::from(2);
     }
+    let most = max_threads();
+    if let Some(n) = cli.threads.filter(|&n| n > most) {
+        eprintln!(
+            "error: --threads {n}: at most {most} on this machine ({} cores; up to 8 threads a \
+             core, at least 64, so that a run made elsewhere with more threads can be repeated \
+             bit for bit)",
+            cores()
+        );
+        return ExitCode::from(2);
+    }
     let mut builder = rayon::ThreadPoolBuilder::new();
     if let Some(n) = cli.threads {
         builder = builder.num_threads(n);
@@ -150,21 +164,33 @@ fn main() -> ExitCode {
     };
     // The whole run executes on a worker of the pool: the many short parallel loops of a step
     // then start without waking a sleeping thread from outside the pool each time.
-    match pool.install(|| execute(cli.command)) {
+    let allow_large = cli.allow_large;
+    match pool.install(|| execute(cli.command, allow_large)) {
         Ok(0) => ExitCode::SUCCESS,
         Ok(failed) => {
             eprintln!("validate: {failed} row(s) did not meet their bound");
             ExitCode::from(4)
         }
         Err(e) => {
-            eprintln!("error: {e}");
+            eprintln!("error: {}", pmpm::limits::shorten_numbers(&e.to_string()));
             ExitCode::from(e.exit_code())
         }
     }
 }
 
+/// The cores this process may use.
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// The most worker threads `--threads` accepts: starting tens of thousands of threads takes
+/// minutes and memory for nothing.
+fn max_threads() -> usize {
+    (8 * cores()).max(64)
+}
+
 /// Runs a command; Ok(number of failed validation rows).
-fn execute(cmd: Command) -> Result<usize, Error> {
+fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
     match cmd {
         Command::Run {
             deck,
@@ -175,6 +201,7 @@ fn execute(cmd: Command) -> Result<usize, Error> {
         } => {
             run::catch_interrupts();
             let d = run::load(&deck)?;
+            pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
             let dir = output.unwrap_or_else(|| PathBuf::from(&d.output.directory));
             run::run(
                 &d,
@@ -197,6 +224,7 @@ fn execute(cmd: Command) -> Result<usize, Error> {
             // Ctrl-C or SIGTERM ends the timed run at a step and removes the scratch folder
             run::catch_interrupts();
             let d = run::load(&deck)?;
+            pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
             let scratch = output.is_none();
             let dir = output.unwrap_or_else(|| {
                 std::env::temp_dir().join(format!("pmpm-bench-{}", std::process::id()))
@@ -225,7 +253,9 @@ fn execute(cmd: Command) -> Result<usize, Error> {
         }
         Command::Check { deck } => {
             let d = run::load(&deck)?;
-            print!("{}", run::check_summary(&d, &deck.display().to_string())?);
+            pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
+            let summary = run::check_summary(&d, &deck.display().to_string())?;
+            print!("{}", pmpm::limits::shorten_numbers(&summary));
             Ok(0)
         }
         Command::Validate {

@@ -162,10 +162,7 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
     }
     vplot::register();
     if opts.series {
-        let out = opts
-            .out
-            .clone()
-            .unwrap_or_else(|| dir.join("plot_series.png"));
+        let out = png_path(opts.out.as_deref(), dir, "plot_series.png")?;
         plot_series(dir, &out)?;
         return Ok(vec![out]);
     }
@@ -219,11 +216,44 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
     };
     let f = Frame::read(&path)?;
     let range = color_range(field, &f.range(field), opts);
-    let out = opts.out.clone().unwrap_or_else(|| dir.join(name(n)));
+    let out = png_path(opts.out.as_deref(), dir, &name(n))?;
     let time = times.iter().find(|t| t.0 == n).map(|t| t.1);
     let extent = f.extent(opts.plane, 0.5);
     draw_frame(&f, n, time, field, range, &info, extent, opts.plane, &out)?;
     Ok(vec![out])
+}
+
+/// Where one picture goes: `--out` when given (into it, under `name`, when it is a folder),
+/// else `name` in the run's directory. A folder that does not exist, or a name that is not a
+/// .png, is a usage error (exit status 2) before anything is drawn.
+fn png_path(out: Option<&Path>, dir: &Path, name: &str) -> Result<PathBuf, Error> {
+    let Some(out) = out else {
+        return Ok(dir.join(name));
+    };
+    if out.is_dir() {
+        return Ok(out.join(name));
+    }
+    if out.as_os_str().to_string_lossy().ends_with('/') {
+        return Err(Error::Usage(format!(
+            "--out {}: no such folder; create it first",
+            out.display()
+        )));
+    }
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty());
+    if let Some(p) = parent.filter(|p| !p.is_dir()) {
+        return Err(Error::Usage(format!(
+            "--out {}: the folder {} does not exist; create it first",
+            out.display(),
+            p.display()
+        )));
+    }
+    if out.extension().and_then(|e| e.to_str()) != Some("png") {
+        return Err(Error::Usage(format!(
+            "--out {}: pmpm plot writes PNG pictures; give a name ending in .png, or a folder",
+            out.display()
+        )));
+    }
+    Ok(out.to_path_buf())
 }
 
 /// The CSV frames of `dir`, (number, path) in order; a usage error when there are none.

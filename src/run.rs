@@ -157,7 +157,7 @@ fn run_dim<const D: usize>(
         );
     }
     for w in warnings(deck) {
-        eprintln!("warning: {file}: {w}");
+        eprintln!("warning: {file}: {}", crate::limits::shorten_numbers(&w));
     }
     if opts.resume.is_none() {
         out.frame(&sim, 0.0, 0.0)
@@ -742,27 +742,15 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         (None, None) => unreachable!("validated: dt or cfl"),
     };
     out += &format!("  time step        {dt}\n");
-    // steps: the fixed dt, or for cfl the step at the speed of a free fall through the grid's
-    // height along gravity (the fastest a gravity-driven flow gets), plus the sound speed for
-    // the explicit scheme
     let g = sim.settings.gravity;
     let gnorm = g.norm();
-    let steps = match (s.dt, s.cfl) {
-        (Some(dt), _) => Some(s.end_time / dt),
-        (None, Some(cfl)) => {
-            let height = (0..D)
-                .map(|d| (g[d] / gnorm.max(1e-300)).abs() * geo.cells[d] as f64 * geo.h)
-                .sum::<f64>();
-            let c = deck.max_wave_speed();
-            let speed = (2.0 * gnorm * height).sqrt() + c;
-            (speed > 0.0).then(|| s.end_time * speed / (cfl * geo.h))
-        }
-        (None, None) => None,
-    };
+    let estimate = crate::limits::estimate(deck);
+    let flow = estimate.flow_steps;
+    let steps = (flow > 0.0 && flow.is_finite()).then_some(flow);
     if let Some(n) = steps {
         out += &format!(
-            "  steps            about {:.0} to t = {} s{}\n",
-            n.ceil(),
+            "  steps            about {} to t = {} s{}\n",
+            crate::limits::short(n.ceil()),
             s.end_time,
             if s.dt.is_none() {
                 " (at most: with cfl the step follows the flow)"
@@ -896,18 +884,18 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         bytes(per_frame * frames as f64),
         bytes(n * checkpoint + 8.0 * geo.node_count() as f64)
     );
-    // memory: the per-particle and per-node figures of the largest runs in BENCHMARKS.md
-    // (peak resident size, projection scheme, multigrid), rounded up, and the program itself
-    // (about 8 MB with its threads)
-    let (per_particle, per_node) = if D == 2 {
-        (330.0, 420.0)
-    } else {
-        (580.0, 290.0)
-    };
+    let k = usize::from(D == 3);
     out += &format!(
-        "  memory           about {} (8 MB, {per_particle} B per particle and {per_node} B \
-         per grid node, from the benchmarks)\n",
-        bytes(8e6 + n * per_particle + geo.node_count() as f64 * per_node)
+        "  memory           about {} ({} MB, {} B per particle and {} B per grid node, from \
+         the benchmarks)\n",
+        bytes(
+            crate::limits::BYTES_BASE
+                + n * crate::limits::BYTES_PER_PARTICLE[k]
+                + geo.node_count() as f64 * crate::limits::BYTES_PER_NODE[k]
+        ),
+        crate::limits::BYTES_BASE / 1e6,
+        crate::limits::BYTES_PER_PARTICLE[k],
+        crate::limits::BYTES_PER_NODE[k],
     );
     for w in warn {
         out += &format!("warning: {w}\n");
@@ -915,16 +903,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     Ok(out)
 }
 
-/// A byte count for people: kB, MB or GB.
-fn bytes(b: f64) -> String {
-    if b >= 1e9 {
-        format!("{:.1} GB", b / 1e9)
-    } else if b >= 1e6 {
-        format!("{:.1} MB", b / 1e6)
-    } else {
-        format!("{:.0} kB", (b / 1e3).ceil())
-    }
-}
+use crate::limits::bytes;
 
 /// The first of `next`, `next + interval`, `next + 2 interval`, ... past `t`, found without a
 /// loop: an interval below the spacing of floating-point numbers near `t` would never get

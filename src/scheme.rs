@@ -72,6 +72,52 @@ pub struct Simulation<const D: usize> {
     pub timers: PhaseTimers,
 }
 
+/// The first expression field that is not a finite number where the run reads it at t = 0: a
+/// body's initial velocity at one of its particles, or the body force at the grid's origin
+/// (the hydrostatic initial stress) or at a particle. `check` calls the deck valid only when
+/// the run can start.
+fn not_finite<const D: usize>(
+    ps: &Particles<D>,
+    deck: &Deck,
+    gravity: impl Fn(&Vector<D>) -> Vector<D>,
+) -> Option<crate::deck::DeckError> {
+    let error = |key: String, x: &Vector<D>, value: &Vector<D>| crate::deck::DeckError {
+        file: String::new(),
+        key,
+        line_col: None,
+        message: format!(
+            "is not a finite number at ({}) at t = 0: ({}); change the expression there",
+            x.iter()
+                .map(|a| format!("{a:.6}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            value
+                .iter()
+                .map(|a| format!("{a}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
+    let origin = Vector::<D>::from_column_slice(&deck.grid.origin);
+    let g = gravity(&origin);
+    if !g.iter().all(|a| a.is_finite()) {
+        return Some(error("simulation.gravity".into(), &origin, &g));
+    }
+    for (x, v) in ps.x.iter().zip(&ps.v) {
+        let g = gravity(x);
+        if !g.iter().all(|a| a.is_finite()) {
+            return Some(error("simulation.gravity".into(), x, &g));
+        }
+        if !v.iter().all(|a| a.is_finite()) {
+            let b = (0..deck.bodies.len())
+                .find(|&b| deck.bodies[b].shape.contains(x.as_slice()))
+                .unwrap_or(0);
+            return Some(error(format!("bodies[{b}].velocity"), x, v));
+        }
+    }
+    None
+}
+
 impl<const D: usize> Simulation<D> {
     /// Sets up particles and grid from a validated deck.
     pub fn new(deck: &Deck) -> Result<Self, Error> {
@@ -102,14 +148,17 @@ impl<const D: usize> Simulation<D> {
             }
             .into());
         }
-        let n_particles = particles.len();
-        let materials = MaterialParams::from_deck(deck);
-        let min_mass = particles.mass.iter().copied().fold(f64::INFINITY, f64::min);
         let gravity = deck
             .simulation
             .gravity
             .compile()
             .expect("validated expressions");
+        if let Some(why) = not_finite(&particles, deck, |x| gravity.eval(x, 0.0)) {
+            return Err(why.into());
+        }
+        let n_particles = particles.len();
+        let materials = MaterialParams::from_deck(deck);
+        let min_mass = particles.mass.iter().copied().fold(f64::INFINITY, f64::min);
         let settings = TransferSettings {
             shape: deck.simulation.shape_function,
             transfer: deck.simulation.transfer.unwrap_or_default(),

@@ -1,0 +1,257 @@
+//! What a deck will cost, estimated from the deck alone before anything is allocated, and the
+//! limits past which `check`, `run` and `bench` refuse it (exit status 2) unless the user passes
+//! `--allow-large`: a deck that needs more memory than the machine has used to allocate for
+//! seconds and abort, and one that needs 1e150 steps used to start without a word.
+
+use crate::deck::{Deck, ShapeKind};
+use crate::error::Error;
+
+/// The most steps a deck may need without `--allow-large`.
+pub const MAX_STEPS: f64 = 1e9;
+
+/// Bytes per particle and per grid node (2D, 3D): the peak resident sizes of the largest runs in
+/// BENCHMARKS.md (projection scheme, multigrid), rounded up.
+pub const BYTES_PER_PARTICLE: [f64; 2] = [330.0, 580.0];
+/// See [`BYTES_PER_PARTICLE`].
+pub const BYTES_PER_NODE: [f64; 2] = [420.0, 290.0];
+/// The program itself with its threads.
+pub const BYTES_BASE: f64 = 8e6;
+
+/// What a deck will cost, from the deck alone.
+#[derive(Debug, Clone, Copy)]
+pub struct Estimate {
+    /// Particles: each body's volume inside the grid over the particle spacing to the power D.
+    pub particles: f64,
+    /// Grid nodes, with the ghost layers.
+    pub nodes: f64,
+    /// Peak memory in bytes.
+    pub memory: f64,
+    /// Steps to the end time that the flow asks for: the fixed step's count, or with `cfl` the
+    /// count at the speed of a free fall through the grid's height plus the fastest wave.
+    pub flow_steps: f64,
+    /// Steps to the end time: [`Self::flow_steps`], and no fewer than the wave and viscous
+    /// limits ask for.
+    pub steps: f64,
+}
+
+/// Estimates a validated deck's cost without building anything.
+pub fn estimate(deck: &Deck) -> Estimate {
+    let dim = deck.simulation.dimension;
+    let g = &deck.grid;
+    let h = g.cell_size;
+    let cells: Vec<f64> = g.size.iter().map(|s| (s / h).round()).collect();
+    let pad = 2.0 * crate::shape::PAD as f64 + 1.0;
+    let nodes: f64 = cells.iter().map(|c| c + pad).product();
+    let particles: f64 = deck
+        .bodies
+        .iter()
+        .map(|b| {
+            let (lo, hi) = b.shape.bounds();
+            // the bounding box clipped to the grid; a sphere fills pi/4 (2D) or pi/6 (3D) of it
+            let boxed: f64 = (0..dim)
+                .map(|d| {
+                    let a = lo[d].max(g.origin[d]);
+                    let z = hi[d].min(g.origin[d] + g.size[d]);
+                    (z - a).max(0.0)
+                })
+                .product();
+            let fill = match b.shape.kind {
+                ShapeKind::Box => 1.0,
+                ShapeKind::Sphere if dim == 2 => std::f64::consts::PI / 4.0,
+                ShapeKind::Sphere => std::f64::consts::PI / 6.0,
+            };
+            let spacing = h / b.particles_per_cell as f64;
+            boxed * fill / spacing.powi(dim as i32)
+        })
+        .sum();
+    let k = usize::from(dim == 3);
+    let memory = BYTES_BASE + particles * BYTES_PER_PARTICLE[k] + nodes * BYTES_PER_NODE[k];
+    let (flow_steps, steps) = steps(deck);
+    Estimate {
+        particles,
+        nodes,
+        memory,
+        flow_steps,
+        steps,
+    }
+}
+
+/// [`Estimate::flow_steps`] and [`Estimate::steps`].
+fn steps(deck: &Deck) -> (f64, f64) {
+    let s = &deck.simulation;
+    let (wave, viscous) = deck.dt_limits();
+    let limited = s.end_time / viscous.0;
+    match (s.dt, s.cfl) {
+        (Some(dt), _) => (s.end_time / dt, s.end_time / dt),
+        (None, Some(cfl)) => {
+            let h = deck.grid.cell_size;
+            // the fastest a gravity-driven flow gets: a free fall through the grid's height
+            let g = gravity_at_origin(deck);
+            let gnorm = g.iter().map(|a| a * a).sum::<f64>().sqrt();
+            let height: f64 = g
+                .iter()
+                .zip(&deck.grid.size)
+                .map(|(a, size)| (a / gnorm.max(1e-300)).abs() * size)
+                .sum();
+            let speed = (2.0 * gnorm * height).sqrt() + deck.max_wave_speed();
+            let flow = s.end_time * speed / (cfl * h);
+            (flow, flow.max(s.end_time / (cfl * wave)).max(limited))
+        }
+        (None, None) => (0.0, 0.0),
+    }
+}
+
+/// The body force at the grid's origin at t = 0, as a list.
+fn gravity_at_origin(deck: &Deck) -> Vec<f64> {
+    fn at<const D: usize>(deck: &Deck) -> Vec<f64> {
+        let origin = crate::grid::Vector::<D>::from_column_slice(&deck.grid.origin);
+        deck.simulation
+            .gravity
+            .compile()
+            .map(|f| f.eval(&origin, 0.0).iter().copied().collect())
+            .unwrap_or_default()
+    }
+    if deck.simulation.dimension == 3 {
+        at::<3>(deck)
+    } else {
+        at::<2>(deck)
+    }
+}
+
+/// The machine's memory in bytes, where the system tells it (Linux: MemTotal).
+pub fn machine_memory() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024.0)
+}
+
+/// Refuses (exit status 2) a deck that cannot run on this machine: more particles than ids,
+/// always; more memory than the machine has, or more than [`MAX_STEPS`] steps, unless
+/// `allow_large`.
+pub fn refuse_beyond_limits(deck: &Deck, file: &str, allow_large: bool) -> Result<(), Error> {
+    let e = estimate(deck);
+    let refuse = |what: String| Err(Error::Usage(format!("{file}: {what}")));
+    if e.particles > u32::MAX as f64 {
+        return refuse(format!(
+            "the bodies make about {} particles; pmpm numbers them with 32 bits, at most {:.2e}: \
+             coarsen grid.cell_size or lower particles_per_cell",
+            short(e.particles),
+            u32::MAX as f64
+        ));
+    }
+    if allow_large {
+        return Ok(());
+    }
+    if let Some(have) = machine_memory().filter(|&m| e.memory > m) {
+        return refuse(format!(
+            "the run needs about {} of memory ({} particles, {} grid nodes) and this machine \
+             has {}: coarsen grid.cell_size, shrink grid.size or the bodies, or pass \
+             --allow-large to try anyway",
+            bytes(e.memory),
+            short(e.particles),
+            short(e.nodes),
+            bytes(have)
+        ));
+    }
+    if e.steps > MAX_STEPS {
+        return refuse(format!(
+            "the run needs about {} steps to simulation.end_time = {} s, more than {:.0e}: \
+             check simulation.dt, simulation.cfl and the materials' bulk_modulus, viscosity \
+             and shear_modulus (which bound the step), or pass --allow-large to run it anyway",
+            short(e.steps),
+            short(deck.simulation.end_time),
+            MAX_STEPS
+        ));
+    }
+    Ok(())
+}
+
+/// A number in a message: as it is when short, else in scientific form with 3 digits (a
+/// bulk modulus of 1e308 must not print 300 digits).
+pub fn short(x: f64) -> String {
+    let plain = format!("{x}");
+    if plain.len() <= 12 {
+        plain
+    } else if x.abs() >= 1e6 || (x != 0.0 && x.abs() < 1e-4) {
+        format!("{x:.3e}")
+    } else {
+        format!("{x:.6}")
+    }
+}
+
+/// `text` with every number written with more than 15 digits (Rust prints 1e300 and 1e-300 as
+/// 300-digit decimals) put in short scientific form; other text is left as it is. The last
+/// pass over every message pmpm prints, so that no format site can let one through.
+pub fn shorten_numbers(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
+        // a numeral: digits, at most one point, more digits (a sign before it stays as text)
+        let tail = &rest[start..];
+        let mut end = tail
+            .find(|c: char| !c.is_ascii_digit())
+            .unwrap_or(tail.len());
+        if tail[end..].starts_with('.') {
+            let frac = &tail[end + 1..];
+            let digits = frac
+                .find(|c: char| !c.is_ascii_digit())
+                .unwrap_or(frac.len());
+            if digits > 0 {
+                end += 1 + digits;
+            }
+        }
+        let numeral = &tail[..end];
+        let digits = numeral.chars().filter(|c| c.is_ascii_digit()).count();
+        let preceded = rest[..start]
+            .chars()
+            .last()
+            .is_some_and(|c| c.is_alphanumeric() || c == '_');
+        out += &rest[..start];
+        match numeral.parse::<f64>() {
+            Ok(x) if digits > 15 && !preceded => out += &format!("{x:.3e}"),
+            _ => out += numeral,
+        }
+        rest = &tail[end..];
+    }
+    out + rest
+}
+
+/// A byte count for people: kB, MB, GB or TB.
+pub fn bytes(b: f64) -> String {
+    if b >= 1e12 {
+        format!("{} TB", short((b / 1e12 * 10.0).round() / 10.0))
+    } else if b >= 1e9 {
+        format!("{:.1} GB", b / 1e9)
+    } else if b >= 1e6 {
+        format!("{:.1} MB", b / 1e6)
+    } else {
+        format!("{:.0} kB", (b / 1e3).ceil())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn long_numbers_print_short() {
+        assert_eq!(short(0.05), "0.05");
+        assert_eq!(short(1e308), "1.000e308");
+        assert_eq!(short(2.5e-155), "2.500e-155");
+        assert_eq!(short(1.0 / 3.0), "0.333333");
+        assert_eq!(short(123456789.0), "123456789");
+        assert_eq!(short(1234567890123.0), "1.235e12");
+    }
+
+    #[test]
+    fn long_numerals_in_messages_are_shortened() {
+        let long = format!("x = {}, the grid spans [0, {}]", 1e300, 1e-300);
+        assert_eq!(
+            shorten_numbers(&long),
+            "x = 1.000e300, the grid spans [0, 1.000e-300]"
+        );
+        let plain = "bodies[0].shape at (0.005000, 0.1): 4294967295 nodes, particles_000012.csv";
+        assert_eq!(shorten_numbers(plain), plain);
+    }
+}
