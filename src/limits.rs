@@ -61,7 +61,7 @@ pub fn estimate(deck: &Deck) -> Estimate {
                 ShapeKind::Sphere => std::f64::consts::PI / 6.0,
             };
             let spacing = h / b.particles_per_cell as f64;
-            boxed * fill / spacing.powi(dim as i32)
+            (boxed * fill / spacing.powi(dim as i32)).round()
         })
         .sum();
     let k = usize::from(dim == 3);
@@ -126,6 +126,30 @@ pub fn machine_memory() -> Option<f64> {
     Some(kb * 1024.0)
 }
 
+/// The process's address-space limit in bytes (`ulimit -v`), where one is set.
+pub fn address_space_limit() -> Option<f64> {
+    #[cfg(unix)]
+    {
+        let mut r = libc::rlimit {
+            rlim_cur: 0,
+            rlim_max: 0,
+        };
+        // SAFETY: getrlimit writes one rlimit into the struct it is given, which lives here.
+        let ok = unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut r) } == 0;
+        (ok && r.rlim_cur != libc::RLIM_INFINITY).then_some(r.rlim_cur as f64)
+    }
+    #[cfg(not(unix))]
+    None
+}
+
+/// Address space a process takes beyond what it uses: each worker thread's stack and the
+/// allocator's arena (64 MB reserved per thread by glibc), and the program's own mappings.
+/// Only an address-space limit sees it.
+fn address_space_overhead() -> f64 {
+    let threads = rayon::current_num_threads() as f64 + 1.0;
+    threads * 66e6 + 32e6
+}
+
 /// Refuses (exit status 2) a deck that cannot run on this machine: more particles than ids,
 /// always; more memory than the machine has, or more than [`MAX_STEPS`] steps, unless
 /// `allow_large`.
@@ -142,6 +166,21 @@ pub fn refuse_beyond_limits(deck: &Deck, file: &str, allow_large: bool) -> Resul
     }
     if allow_large {
         return Ok(());
+    }
+    if let Some(limit) = address_space_limit().filter(|&l| e.memory + address_space_overhead() > l)
+    {
+        return refuse(format!(
+            "the run needs about {} of memory ({} particles, {} grid nodes) and about {} more \
+             of address space for its {} threads, and the address space is limited to {} \
+             (ulimit -v): raise the limit, use fewer --threads, coarsen grid.cell_size, or pass \
+             --allow-large to try anyway",
+            bytes(e.memory),
+            short(e.particles),
+            short(e.nodes),
+            bytes(address_space_overhead()),
+            rayon::current_num_threads(),
+            bytes(limit)
+        ));
     }
     if let Some(have) = machine_memory().filter(|&m| e.memory > m) {
         return refuse(format!(

@@ -135,6 +135,62 @@ enum Command {
     },
 }
 
+/// The system allocator, except that running out of memory (the machine's, or `ulimit -v`)
+/// ends pmpm with exit status 1 and its own message instead of an abort (status 134): every
+/// file a run writes is whole at any instant, so the run goes on from its last checkpoint.
+struct Allocator;
+
+/// Writes the out-of-memory message and exits, allocating nothing (the allocator is what
+/// failed): `write` and `_exit` are async-signal-safe system calls.
+#[cold]
+fn out_of_memory() -> ! {
+    const MESSAGE: &[u8] = b"error: out of memory (the machine's, or the address-space limit \
+of ulimit -v): pmpm stopped; a run's files up to its last checkpoint are whole. Free memory, raise \
+the limit, or use fewer --threads or a coarser grid, then go on with --resume \
+OUTDIR/checkpoint.bin (or run again where there is no checkpoint yet)\n";
+    #[cfg(unix)]
+    // SAFETY: write(2) reads MESSAGE, a static; _exit ends the process without running
+    // anything that could allocate.
+    unsafe {
+        libc::write(2, MESSAGE.as_ptr().cast(), MESSAGE.len());
+        libc::_exit(1)
+    }
+    #[cfg(not(unix))]
+    std::process::abort()
+}
+
+// SAFETY: every call goes to the system allocator with the same arguments; a null result
+// (out of memory) never returns.
+unsafe impl std::alloc::GlobalAlloc for Allocator {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        let p = std::alloc::System.alloc(layout);
+        if p.is_null() {
+            out_of_memory()
+        }
+        p
+    }
+    unsafe fn alloc_zeroed(&self, layout: std::alloc::Layout) -> *mut u8 {
+        let p = std::alloc::System.alloc_zeroed(layout);
+        if p.is_null() {
+            out_of_memory()
+        }
+        p
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        std::alloc::System.dealloc(ptr, layout)
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, size: usize) -> *mut u8 {
+        let p = std::alloc::System.realloc(ptr, layout, size);
+        if p.is_null() {
+            out_of_memory()
+        }
+        p
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Allocator = Allocator;
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     if cli.threads == Some(0) {

@@ -285,3 +285,37 @@ fn a_file_size_limit_is_reported() {
         .any(|e| e.file_name().to_string_lossy().ends_with(".partial"));
     assert!(!partial, "a part-written frame was left behind");
 }
+
+/// Under an address-space limit (`ulimit -v`) a deck that needs more is refused before it
+/// allocates (exit 2), and one let through with --allow-large that runs out of memory stops
+/// with exit 1 and pmpm's message, not an abort (134).
+#[test]
+fn an_address_space_limit_is_reported() {
+    let dir = scratch_dir("faults-vlimit");
+    let deck = dir.join("deck.toml");
+    // 160,000 particles: about 200 MB
+    std::fs::write(
+        &deck,
+        SMALL_2D.replace("cell_size = 0.02", "cell_size = 0.0005"),
+    )
+    .unwrap();
+    for (extra, status, message) in [
+        ("", 2, "(ulimit -v): raise the limit"),
+        ("--allow-large", 1, "error: out of memory"),
+    ] {
+        let out = dir.join(format!("out{status}"));
+        let o = Command::new("sh")
+            .arg("-c")
+            .arg(format!(
+                "ulimit -v 300000 && exec {} --threads 2 run {} -o {} -q {extra}",
+                env!("CARGO_BIN_EXE_pmpm"),
+                deck.display(),
+                out.display()
+            ))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(status), "{extra}: {err}");
+        assert!(err.contains(message), "{extra}: {err}");
+    }
+}
