@@ -300,7 +300,13 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             if scratch {
                 let _ = std::fs::remove_dir_all(&dir);
             }
-            let summary = summary?;
+            let summary = summary.map_err(|e| match e {
+                // the checkpoint the message points to was in the scratch folder
+                Error::Interrupted(_) if scratch => {
+                    Error::Interrupted("bench interrupted; its scratch folder is removed".into())
+                }
+                e => e,
+            })?;
             print!(
                 "{}",
                 run::bench_report(&d, &file, &summary, rayon::current_num_threads())

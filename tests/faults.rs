@@ -319,3 +319,36 @@ fn an_address_space_limit_is_reported() {
         assert!(err.contains(message), "{extra}: {err}");
     }
 }
+
+/// SIGTERM stops `pmpm bench` at a step (exit 130), and the scratch folder it ran in is removed
+/// (bench used to ignore the signal and leave the folder).
+#[test]
+fn bench_stops_on_sigterm_and_removes_its_scratch_folder() {
+    let dir = scratch_dir("faults-bench");
+    let deck = deck(&dir);
+    let text = std::fs::read_to_string(&deck)
+        .unwrap()
+        .replace("end_time = 0.3", "end_time = 100.0")
+        .replace("interval = 0.025", "interval = 1.0");
+    std::fs::write(&deck, text).unwrap();
+    let child = spawn(&["--threads", "2", "bench", &deck]);
+    let scratch = std::env::temp_dir().join(format!("pmpm-bench-{}", child.id()));
+    let start = Instant::now();
+    while !scratch.join("frames/particles_000000.csv").exists()
+        && start.elapsed() < Duration::from_secs(20)
+    {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(scratch.exists(), "bench runs in {}", scratch.display());
+    let _ = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("bench interrupted; its scratch folder is removed"),
+        "{err}"
+    );
+    assert!(!scratch.exists(), "{} is left", scratch.display());
+}
