@@ -288,8 +288,16 @@ pub fn read<const D: usize>(path: &Path, sim: &mut Simulation<D>) -> Result<Driv
         ));
     }
     let node_pressure_len = sim.projection.as_ref().map(|_| sim.grid.geo.node_count());
-    consistent::<D>(&s, n, sim.materials.len(), &sim.grid.geo, node_pressure_len)
-        .map_err(|why| refuse(path, why))?;
+    let variable_body_force = sim.body_force_values().is_some();
+    consistent::<D>(
+        &s,
+        n,
+        sim.materials.len(),
+        &sim.grid.geo,
+        node_pressure_len,
+        variable_body_force,
+    )
+    .map_err(|why| refuse(path, why))?;
     let ps = &mut sim.particles;
     ps.id = s.id;
     ps.x = vectors(&s.x);
@@ -308,15 +316,9 @@ pub fn read<const D: usize>(path: &Path, sim: &mut Simulation<D>) -> Result<Driv
     sim.steps = s.steps;
     sim.pressure_iterations = s.pressure_iterations;
     if let Some(f) = sim.body_force_values_mut() {
-        if s.body_force.len() != n * D {
-            return Err(refuse(path, "it holds no body force values"));
-        }
         *f = vectors(&s.body_force);
     }
     if let Some(p) = sim.projection.as_mut() {
-        if s.volume_over_density.len() != n {
-            return Err(refuse(path, "it holds no projection state"));
-        }
         p.previous = s.node_pressure;
         p.restore_volume_over_density(s.volume_over_density);
     }
@@ -333,6 +335,7 @@ fn consistent<const D: usize>(
     materials: usize,
     geo: &crate::grid::GridGeometry<D>,
     node_pressure_len: Option<usize>,
+    variable_body_force: bool,
 ) -> Result<(), String> {
     if !(s.time.is_finite() && s.time >= 0.0) {
         return Err(format!("its time is {}", s.time));
@@ -427,6 +430,22 @@ fn consistent<const D: usize>(
             ));
         }
     }
+    if variable_body_force && s.body_force.len() != n * D {
+        return Err("it holds no body force values".into());
+    }
+    if node_pressure_len.is_some() && s.volume_over_density.len() != n {
+        return Err("it holds no projection state".into());
+    }
+    // the frame list goes into particles.pvd as it is
+    if let Some((_, name)) = d.pvd.iter().find(|(t, name)| {
+        !t.is_finite()
+            || !name
+                .strip_prefix("frames/particles_")
+                .and_then(|r| r.strip_suffix(".vtu"))
+                .is_some_and(|k| k.len() == 6 && k.bytes().all(|c| c.is_ascii_digit()))
+    }) {
+        return Err(format!("its frame list names {name:?}"));
+    }
     if let Some(len) = node_pressure_len {
         // empty before the first step has sized it
         if !s.node_pressure.is_empty() && s.node_pressure.len() != len {
@@ -489,7 +508,7 @@ particles_per_cell = 2
             panic!("the good checkpoint: {e}");
         }
         type Tamper = fn(&mut State);
-        let cases: [(&str, Tamper); 7] = [
+        let cases: [(&str, Tamper); 8] = [
             ("material index 7", |s| s.material[3] = 7),
             ("ids are not 0 to", |s| s.id[1] = s.id[0]),
             ("lies outside the grid", |s| s.x[4] = 1.5),
@@ -500,6 +519,10 @@ particles_per_cell = 2
             ("has jacobian = -1", |s| s.jacobian[2] = -1.0),
             ("particle field tau holds", |s| {
                 s.tau.pop();
+            }),
+            ("its frame list names", |s| {
+                s.driver.pvd.push((0.0, "\"/><x".into()));
+                s.driver.frames += 1;
             }),
         ];
         for (why, tamper) in cases {

@@ -64,8 +64,7 @@ pub fn estimate(deck: &Deck) -> Estimate {
             (boxed * fill / spacing.powi(dim as i32)).round()
         })
         .sum();
-    let k = usize::from(dim == 3);
-    let memory = BYTES_BASE + particles * BYTES_PER_PARTICLE[k] + nodes * BYTES_PER_NODE[k];
+    let memory = memory(dim, particles, nodes);
     let (flow_steps, steps) = steps(deck);
     Estimate {
         particles,
@@ -76,10 +75,16 @@ pub fn estimate(deck: &Deck) -> Estimate {
     }
 }
 
+/// Peak memory in bytes of a run of `particles` particles on `nodes` grid nodes.
+pub fn memory(dimension: usize, particles: f64, nodes: f64) -> f64 {
+    let k = usize::from(dimension == 3);
+    BYTES_BASE + particles * BYTES_PER_PARTICLE[k] + nodes * BYTES_PER_NODE[k]
+}
+
 /// [`Estimate::flow_steps`] and [`Estimate::steps`].
 fn steps(deck: &Deck) -> (f64, f64) {
     let s = &deck.simulation;
-    let (wave, viscous) = deck.dt_limits();
+    let (_, viscous) = deck.dt_limits();
     let limited = s.end_time / viscous.0;
     match (s.dt, s.cfl) {
         (Some(dt), _) => (s.end_time / dt, s.end_time / dt),
@@ -95,7 +100,8 @@ fn steps(deck: &Deck) -> (f64, f64) {
                 .sum();
             let speed = (2.0 * gnorm * height).sqrt() + deck.max_wave_speed();
             let flow = s.end_time * speed / (cfl * h);
-            (flow, flow.max(s.end_time / (cfl * wave)).max(limited))
+            // (the wave limit is in the speed already)
+            (flow, flow.max(limited))
         }
         (None, None) => (0.0, 0.0),
     }
@@ -150,20 +156,12 @@ fn address_space_overhead() -> f64 {
     threads * 66e6 + 32e6
 }
 
-/// Refuses (exit status 2) a deck that cannot run on this machine: more particles than ids,
-/// always; more memory than the machine has, or more than [`MAX_STEPS`] steps, unless
-/// `allow_large`.
+/// Refuses (exit status 2), unless `allow_large`, a deck that cannot run on this machine: more
+/// memory than the machine has or its address-space limit allows, or more than [`MAX_STEPS`]
+/// steps. (More particles than 32-bit ids is a deck error already.)
 pub fn refuse_beyond_limits(deck: &Deck, file: &str, allow_large: bool) -> Result<(), Error> {
     let e = estimate(deck);
     let refuse = |what: String| Err(Error::Usage(format!("{file}: {what}")));
-    if e.particles > u32::MAX as f64 {
-        return refuse(format!(
-            "the bodies make about {} particles; pmpm numbers them with 32 bits, at most {:.2e}: \
-             coarsen grid.cell_size or lower particles_per_cell",
-            short(e.particles),
-            u32::MAX as f64
-        ));
-    }
     if allow_large {
         return Ok(());
     }
@@ -219,41 +217,66 @@ pub fn short(x: f64) -> String {
     }
 }
 
-/// `text` with every number written with more than 15 digits (Rust prints 1e300 and 1e-300 as
-/// 300-digit decimals) put in short scientific form; other text is left as it is. The last
-/// pass over every message pmpm prints, so that no format site can let one through.
+/// `text` with every number Rust printed as a long decimal (it writes 1e300 and 1e-300 with
+/// 300 digits) in short scientific form, exact (`{:e}`): an integer part of more than 15 digits,
+/// or a fraction that starts with more than 15 zeros. Other numbers stay as they are, and so do
+/// digits that are part of a word, a path or a file name. The last pass over every message
+/// pmpm prints, so that no format site can let a long one through.
 pub fn shorten_numbers(text: &str) -> String {
+    let bytes = text.as_bytes();
     let mut out = String::with_capacity(text.len());
-    let mut rest = text;
-    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
-        // a numeral: digits, at most one point, more digits (a sign before it stays as text)
-        let tail = &rest[start..];
-        let mut end = tail
-            .find(|c: char| !c.is_ascii_digit())
-            .unwrap_or(tail.len());
-        if tail[end..].starts_with('.') {
-            let frac = &tail[end + 1..];
-            let digits = frac
-                .find(|c: char| !c.is_ascii_digit())
-                .unwrap_or(frac.len());
-            if digits > 0 {
-                end += 1 + digits;
+    let mut i = 0;
+    let mut copied = 0;
+    while i < bytes.len() {
+        if !bytes[i].is_ascii_digit() {
+            i += 1;
+            continue;
+        }
+        // digits glued to a word, a path or a name (run-17, /tmp/123, x1, v2.0) are left alone
+        let glued = i > 0 && {
+            let c = bytes[i - 1];
+            c.is_ascii_alphanumeric()
+                || matches!(c, b'_' | b'/' | b'.')
+                || (c == b'-' && i > 1 && bytes[i - 2].is_ascii_alphanumeric())
+        };
+        let start = i;
+        let run = |mut j: usize| {
+            while j < bytes.len() && bytes[j].is_ascii_digit() {
+                j += 1;
+            }
+            j
+        };
+        let int_end = run(i);
+        let mut end = int_end;
+        let mut leading_zeros = 0;
+        if end + 1 < bytes.len() && bytes[end] == b'.' && bytes[end + 1].is_ascii_digit() {
+            let frac_end = run(end + 1);
+            leading_zeros = bytes[end + 1..frac_end]
+                .iter()
+                .take_while(|&&c| c == b'0')
+                .count();
+            end = frac_end;
+        }
+        // an exponent is part of the number: it is short already
+        let exponent = end < bytes.len() && matches!(bytes[end], b'e' | b'E');
+        if exponent {
+            let mut j = end + 1;
+            if j < bytes.len() && matches!(bytes[j], b'+' | b'-') {
+                j += 1;
+            }
+            end = run(j);
+        }
+        let long = int_end - start > 15 || leading_zeros > 15;
+        if long && !glued && !exponent {
+            if let Ok(x) = text[start..end].parse::<f64>() {
+                out += &text[copied..start];
+                out += &format!("{x:e}");
+                copied = end;
             }
         }
-        let numeral = &tail[..end];
-        let digits = numeral.chars().filter(|c| c.is_ascii_digit()).count();
-        let preceded = rest[..start]
-            .chars()
-            .last()
-            .is_some_and(|c| c.is_alphanumeric() || c == '_');
-        out += &rest[..start];
-        match numeral.parse::<f64>() {
-            Ok(x) if digits > 15 && !preceded => out += &format!("{x:.3e}"),
-            _ => out += numeral,
-        }
-        rest = &tail[end..];
+        i = end.max(i + 1);
     }
-    out + rest
+    out + &text[copied..]
 }
 
 /// A byte count for people: kB, MB, GB or TB.
@@ -285,12 +308,19 @@ mod tests {
 
     #[test]
     fn long_numerals_in_messages_are_shortened() {
-        let long = format!("x = {}, the grid spans [0, {}]", 1e300, 1e-300);
+        let long = format!("x = {}, the grid spans [0, {}]", 1e300, -1.5e-300);
         assert_eq!(
             shorten_numbers(&long),
-            "x = 1.000e300, the grid spans [0, 1.000e-300]"
+            "x = 1e300, the grid spans [0, -1.5e-300]"
         );
-        let plain = "bodies[0].shape at (0.005000, 0.1): 4294967295 nodes, particles_000012.csv";
-        assert_eq!(shorten_numbers(plain), plain);
+        for plain in [
+            "bodies[0].shape at (0.005000, 0.1): 4294967295 nodes, particles_000012.csv",
+            "fixed dt = 3.3333333333333335e-4 s",
+            "spans [0, 0.4000000000000001], the grid [0, 0.4]",
+            "--resume /tmp/run-1700000000000000000/checkpoint.bin",
+            "version 0.1.0",
+        ] {
+            assert_eq!(shorten_numbers(plain), plain);
+        }
     }
 }

@@ -144,8 +144,8 @@ struct Allocator;
 /// failed): `write` and `_exit` are async-signal-safe system calls.
 #[cold]
 fn out_of_memory() -> ! {
-    const MESSAGE: &[u8] = b"error: out of memory (the machine's, or the address-space limit \
-of ulimit -v): pmpm stopped; a run's files up to its last checkpoint are whole. Free memory, raise \
+    const MESSAGE: &[u8] = b"error: out of memory (an allocation was refused: the address-space \
+limit of ulimit -v, or the machine's memory): pmpm stopped; a run's files up to its last checkpoint are whole. Free memory, raise \
 the limit, or use fewer --threads or a coarser grid, then go on with --resume \
 OUTDIR/checkpoint.bin (or run again where there is no checkpoint yet)\n";
     #[cfg(unix)]
@@ -297,16 +297,36 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
                     resume: None,
                 },
             );
-            if scratch {
-                let _ = std::fs::remove_dir_all(&dir);
-            }
+            let removed = scratch.then(|| std::fs::remove_dir_all(&dir));
+            // a message that points to a checkpoint or a file in the scratch folder says that
+            // the folder is gone (or that it could not be removed)
+            let scratch_note = match &removed {
+                Some(Ok(())) => "; the bench ran in a scratch folder, now removed: pmpm bench \
+                                 --output DIR keeps its files"
+                    .to_string(),
+                Some(Err(e)) => format!(
+                    "; the bench's scratch folder {} could not be removed ({e})",
+                    dir.display()
+                ),
+                None => String::new(),
+            };
             let summary = summary.map_err(|e| match e {
-                // the checkpoint the message points to was in the scratch folder
                 Error::Interrupted(_) if scratch => {
-                    Error::Interrupted("bench interrupted; its scratch folder is removed".into())
+                    Error::Interrupted(format!("bench interrupted{scratch_note}"))
                 }
+                Error::BlowUp(m) if scratch => Error::BlowUp(m + &scratch_note),
+                Error::Io { path, source } if scratch => Error::Io {
+                    path,
+                    source: std::io::Error::new(source.kind(), format!("{source}{scratch_note}")),
+                },
                 e => e,
             })?;
+            if let Some(Err(e)) = removed {
+                eprintln!(
+                    "warning: the bench's scratch folder {} could not be removed: {e}",
+                    dir.display()
+                );
+            }
             print!(
                 "{}",
                 run::bench_report(&d, &file, &summary, rayon::current_num_threads())

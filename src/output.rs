@@ -83,7 +83,11 @@ fn holds(dir: &Path) -> Result<Holds, Error> {
     if names.is_empty() {
         return Ok(Holds::Nothing);
     }
-    if names.iter().any(|n| n == MARKER) {
+    // the marker, or the part of it a run killed while writing it left
+    if names
+        .iter()
+        .any(|n| n.strip_suffix(".partial").unwrap_or(n) == MARKER)
+    {
         return Ok(Holds::Run);
     }
     let frames_ok = entries(&dir.join("frames"))?

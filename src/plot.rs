@@ -247,7 +247,11 @@ fn png_path(out: Option<&Path>, dir: &Path, name: &str) -> Result<PathBuf, Error
             p.display()
         )));
     }
-    if out.extension().and_then(|e| e.to_str()) != Some("png") {
+    if !out
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
         return Err(Error::Usage(format!(
             "--out {}: pmpm plot writes PNG pictures; give a name ending in .png, or a folder",
             out.display()

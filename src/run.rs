@@ -27,21 +27,42 @@ pub struct RunOptions {
 /// stops.
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
+/// Seconds after the first interrupt within which a second one is ignored.
+const FORCE_AFTER_SECONDS: f64 = 2.0;
+
 /// Makes SIGINT (Ctrl-C) and SIGTERM stop a run cleanly at the end of its current step instead
-/// of killing it: the run writes a frame and a checkpoint and exits with status 130. Later
-/// signals are ignored while it does (coreutils `timeout` and a shell's job control may send two
-/// at once; dying at the second would leave a frame without its series row); SIGKILL still
-/// stops it at once, and every file it writes survives that.
+/// of killing it: the run writes a frame and a checkpoint and exits with status 130. A second
+/// signal within [`FORCE_AFTER_SECONDS`] is ignored (coreutils `timeout` and a shell's job
+/// control may send two at once; dying at the second used to leave a frame without its series
+/// row); one after that stops the run at once, as SIGKILL would, which every file it writes
+/// survives.
 ///
 /// SIGXFSZ (a file-size limit, `ulimit -f`) is ignored too, so that a write past the limit
 /// fails with an error pmpm reports, naming the last good checkpoint, instead of killing it.
 pub fn catch_interrupts() {
-    let _ = ctrlc::set_handler(|| {
-        if !INTERRUPTED.swap(true, Ordering::SeqCst) {
-            eprintln!(
-                "\npmpm: interrupted: finishing this step, then writing a frame and a checkpoint \
-                 (further interrupts are ignored)"
-            );
+    let first = std::sync::Mutex::new(None::<Instant>);
+    let _ = ctrlc::set_handler(move || {
+        let mut first = first.lock().unwrap_or_else(|e| e.into_inner());
+        match *first {
+            None => {
+                *first = Some(Instant::now());
+                INTERRUPTED.store(true, Ordering::SeqCst);
+                eprintln!(
+                    "\npmpm: interrupted: finishing this step, then writing a frame and a \
+                     checkpoint (interrupt again after {FORCE_AFTER_SECONDS} s to stop at once)"
+                );
+            }
+            // the second of a pair sent at once: ignored
+            Some(t) if t.elapsed().as_secs_f64() < FORCE_AFTER_SECONDS => {}
+            Some(_) => {
+                // a step that does not end (a long solve): every file is whole at any
+                // instant, so stopping here loses only the work since the last checkpoint
+                eprintln!(
+                    "pmpm: interrupted again: stopping now; the run goes on from its last \
+                     checkpoint"
+                );
+                std::process::exit(130);
+            }
         }
     });
     #[cfg(unix)]
@@ -746,7 +767,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     let gnorm = g.norm();
     let estimate = crate::limits::estimate(deck);
     let flow = estimate.flow_steps;
-    let steps = (flow > 0.0 && flow.is_finite()).then_some(flow);
+    let steps = (estimate.steps > 0.0 && estimate.steps.is_finite()).then_some(estimate.steps);
     if let Some(n) = steps {
         out += &format!(
             "  steps            about {} to t = {} s{}\n",
@@ -803,7 +824,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     }
     // the viscous limit, where it binds: below the wave limit and asking for more steps than
     // the flow does (a yield-stress fluid's regularisation sets it; plain water never does)
-    if viscous.0 < wave && s.end_time / viscous.0 > steps.unwrap_or(0.0) {
+    if viscous.0 < wave && s.end_time / viscous.0 > flow {
         out += &format!(
             "  viscous limit    h^2 rho / (2 D mu) = {:.3e} s (material \"{}\"): about {:.0} steps or more to t = {}\n",
             viscous.0,
@@ -888,11 +909,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     out += &format!(
         "  memory           about {} ({} MB, {} B per particle and {} B per grid node, from \
          the benchmarks)\n",
-        bytes(
-            crate::limits::BYTES_BASE
-                + n * crate::limits::BYTES_PER_PARTICLE[k]
-                + geo.node_count() as f64 * crate::limits::BYTES_PER_NODE[k]
-        ),
+        bytes(crate::limits::memory(D, n, geo.node_count() as f64)),
         crate::limits::BYTES_BASE / 1e6,
         crate::limits::BYTES_PER_PARTICLE[k],
         crate::limits::BYTES_PER_NODE[k],

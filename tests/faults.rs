@@ -53,6 +53,14 @@ fn run_to_end(args: &[&str]) {
     );
 }
 
+/// The tests here time their signals against a run's length: one at a time, so that another
+/// test's load does not change the length in between.
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// A small deterministic generator for the kill instants (the test must repeat).
 struct Lcg(u64);
 impl Lcg {
@@ -113,18 +121,12 @@ fn finish(deck: &str, dir: &Path) {
 /// The finished run in `b` is the reference run `a`, bit for bit: every frame, series.csv (less
 /// the wall clock), probes.csv and rigid_bodies.csv.
 fn assert_same_run(a: &Path, b: &Path, what: &str) {
-    let frames = |d: &Path| {
-        let mut v: Vec<String> = std::fs::read_dir(d.join("frames"))
-            .unwrap()
-            .flatten()
-            .map(|e| e.file_name().to_string_lossy().into_owned())
-            .filter(|n| !n.ends_with(".partial"))
-            .collect();
-        v.sort();
-        v
-    };
-    assert_eq!(frames(a), frames(b), "{what}: the frame files differ");
-    for f in frames(a) {
+    assert_eq!(
+        frame_files(a),
+        frame_files(b),
+        "{what}: the frame files differ"
+    );
+    for f in frame_files(a) {
         assert!(
             read(a, &format!("frames/{f}")) == read(b, &format!("frames/{f}")),
             "{what}: frame {f} differs"
@@ -136,18 +138,44 @@ fn assert_same_run(a: &Path, b: &Path, what: &str) {
     }
 }
 
+/// A scratch folder with the deck, and the reference run never stopped in its `reference`
+/// folder: (folder, deck, reference, seconds the run took).
+fn reference_run(name: &str) -> (std::path::PathBuf, String, std::path::PathBuf, f64) {
+    let dir = scratch_dir(name);
+    let deck = deck(&dir);
+    let reference = dir.join("reference");
+    let t0 = Instant::now();
+    run_to_end(&[
+        "--threads",
+        "2",
+        "run",
+        &deck,
+        "-o",
+        reference.to_str().unwrap(),
+        "-q",
+    ]);
+    (dir, deck, reference, t0.elapsed().as_secs_f64())
+}
+
+/// The frame files of a run (`.partial` ones left by a kill aside), sorted.
+fn frame_files(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir.join("frames"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| !n.ends_with(".partial"))
+        .collect();
+    v.sort();
+    v
+}
+
 /// SIGKILL at 50 instants spread over the run: after each, particles.pvd is whole and lists
 /// only frames that exist, and the run, resumed from what the kill left, ends equal to the run
 /// that was never stopped.
 #[test]
 fn a_run_killed_at_any_instant_resumes_to_the_same_bits() {
-    let dir = scratch_dir("faults-kill");
-    let deck = deck(&dir);
-    let reference = dir.join("reference");
-    let r = reference.to_str().unwrap();
-    let t0 = Instant::now();
-    run_to_end(&["--threads", "2", "run", &deck, "-o", r, "-q"]);
-    let length = t0.elapsed().as_secs_f64();
+    let _serial = serial();
+    let (dir, deck, reference, length) = reference_run("faults-kill");
     let mut rng = Lcg(20261126);
     let mut killed_mid_run = 0;
     for k in 0..50 {
@@ -181,13 +209,8 @@ fn a_run_killed_at_any_instant_resumes_to_the_same_bits() {
 /// run goes on from there to the reference run's last state.
 #[test]
 fn a_double_signal_stops_cleanly_and_the_run_goes_on() {
-    let dir = scratch_dir("faults-term");
-    let deck = deck(&dir);
-    let reference = dir.join("reference");
-    let r = reference.to_str().unwrap();
-    let t0 = Instant::now();
-    run_to_end(&["--threads", "2", "run", &deck, "-o", r, "-q"]);
-    let length = t0.elapsed().as_secs_f64();
+    let _serial = serial();
+    let (dir, deck, reference, length) = reference_run("faults-term");
     let last = "frames/particles_000012.csv";
     let mut rng = Lcg(7);
     let mut stopped = 0;
@@ -218,10 +241,9 @@ fn a_double_signal_stops_cleanly_and_the_run_goes_on() {
         stopped += 1;
         assert_eq!(o_.status.code(), Some(130), "signal pair {k}: {err}");
         assert!(err.contains("To go on: pmpm run"), "{err}");
-        let frames = std::fs::read_dir(out.join("frames"))
-            .unwrap()
-            .flatten()
-            .filter(|e| e.file_name().to_string_lossy().ends_with(".csv"))
+        let frames = frame_files(&out)
+            .iter()
+            .filter(|n| n.ends_with(".csv"))
             .count();
         let rows = series(&out).lines().count() - 1;
         assert_eq!(
@@ -231,13 +253,10 @@ fn a_double_signal_stops_cleanly_and_the_run_goes_on() {
         finish(&deck, &out);
         // the stopped run wrote one frame more, at the time it stopped, unless that was a
         // frame's time
-        let mut csv: Vec<String> = std::fs::read_dir(out.join("frames"))
-            .unwrap()
-            .flatten()
-            .map(|e| e.file_name().to_string_lossy().into_owned())
+        let csv: Vec<String> = frame_files(&out)
+            .into_iter()
             .filter(|n| n.ends_with(".csv"))
             .collect();
-        csv.sort();
         let end = format!("frames/{}", csv.last().unwrap());
         assert!(
             read(&reference, last) == read(&out, &end),
@@ -259,6 +278,7 @@ fn a_double_signal_stops_cleanly_and_the_run_goes_on() {
 /// the file, not with SIGXFSZ (status 153 and no word), and leaves no part-written file.
 #[test]
 fn a_file_size_limit_is_reported() {
+    let _serial = serial();
     let dir = scratch_dir("faults-fsize");
     let deck = dir.join("deck.toml");
     std::fs::write(&deck, SMALL_2D).unwrap();
@@ -291,14 +311,15 @@ fn a_file_size_limit_is_reported() {
 /// with exit 1 and pmpm's message, not an abort (134).
 #[test]
 fn an_address_space_limit_is_reported() {
+    let _serial = serial();
     let dir = scratch_dir("faults-vlimit");
     let deck = dir.join("deck.toml");
-    // 160,000 particles: about 200 MB
-    std::fs::write(
-        &deck,
-        SMALL_2D.replace("cell_size = 0.02", "cell_size = 0.0005"),
-    )
-    .unwrap();
+    // 640,000 particles: about 0.8 GB, well past the limit, and one step
+    let text = SMALL_2D
+        .replace("cell_size = 0.02", "cell_size = 0.00025")
+        .replace("cfl = 0.4", "dt = 1.0e-6")
+        .replace("end_time = 0.05", "end_time = 1.0e-6");
+    std::fs::write(&deck, text).unwrap();
     for (extra, status, message) in [
         ("", 2, "(ulimit -v): raise the limit"),
         ("--allow-large", 1, "error: out of memory"),
@@ -324,6 +345,7 @@ fn an_address_space_limit_is_reported() {
 /// (bench used to ignore the signal and leave the folder).
 #[test]
 fn bench_stops_on_sigterm_and_removes_its_scratch_folder() {
+    let _serial = serial();
     let dir = scratch_dir("faults-bench");
     let deck = deck(&dir);
     let text = std::fs::read_to_string(&deck)
@@ -331,7 +353,7 @@ fn bench_stops_on_sigterm_and_removes_its_scratch_folder() {
         .replace("end_time = 0.3", "end_time = 100.0")
         .replace("interval = 0.025", "interval = 1.0");
     std::fs::write(&deck, text).unwrap();
-    let child = spawn(&["--threads", "2", "bench", &deck]);
+    let mut child = spawn(&["--threads", "2", "bench", &deck]);
     let scratch = std::env::temp_dir().join(format!("pmpm-bench-{}", child.id()));
     let start = Instant::now();
     while !scratch.join("frames/particles_000000.csv").exists()
@@ -339,7 +361,10 @@ fn bench_stops_on_sigterm_and_removes_its_scratch_folder() {
     {
         std::thread::sleep(Duration::from_millis(5));
     }
-    assert!(scratch.exists(), "bench runs in {}", scratch.display());
+    if !scratch.exists() {
+        let _ = child.kill();
+        panic!("bench does not run in {}", scratch.display());
+    }
     let _ = Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
         .status();
@@ -347,7 +372,7 @@ fn bench_stops_on_sigterm_and_removes_its_scratch_folder() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(130), "{err}");
     assert!(
-        err.contains("bench interrupted; its scratch folder is removed"),
+        err.contains("bench interrupted; the bench ran in a scratch folder, now removed"),
         "{err}"
     );
     assert!(!scratch.exists(), "{} is left", scratch.display());
