@@ -377,3 +377,69 @@ fn bench_stops_on_sigterm_and_removes_its_scratch_folder() {
     );
     assert!(!scratch.exists(), "{} is left", scratch.display());
 }
+
+/// Unmounts the test's small file system when the test ends, passed or not.
+struct Mounted(std::path::PathBuf);
+impl Drop for Mounted {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg(&self.0).status();
+    }
+}
+
+/// A full disk stops the run with exit status 1 and a message that names the file and the
+/// command that goes on; once there is room, the run goes on from its last checkpoint to the
+/// bits of a run that never ran out (frames, series.csv less the wall clock, probes.csv). It
+/// needs a small tmpfs, which only root may mount: elsewhere it says that it did not run.
+#[test]
+fn a_full_disk_stops_the_run_and_it_goes_on_once_there_is_room() {
+    let _serial = serial();
+    let dir = scratch_dir("faults-full");
+    let deck = dir.join("deck.toml");
+    std::fs::write(&deck, SMALL_2D.replace("end_time = 0.05", "end_time = 0.2")).unwrap();
+    let deck = deck.to_str().unwrap();
+    let disk = dir.join("disk");
+    std::fs::create_dir_all(&disk).unwrap();
+    let mounted = Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=200k", "tmpfs"])
+        .arg(&disk)
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !mounted {
+        eprintln!("not run: this machine does not let the test mount a small tmpfs");
+        return;
+    }
+    let _unmount = Mounted(disk.clone());
+    let reference = dir.join("reference");
+    run_to_end(&[
+        "--threads",
+        "2",
+        "run",
+        deck,
+        "-o",
+        reference.to_str().unwrap(),
+        "-q",
+    ]);
+    let out = disk.join("run");
+    let o = out.to_str().unwrap();
+    let r = pmpm(&["--threads", "2", "run", deck, "-o", o, "-q"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("No space left on device") && err.contains("and go on: pmpm run"),
+        "{err}"
+    );
+    let grown = Command::new("mount")
+        .args(["-o", "remount,size=8m", "tmpfs"])
+        .arg(&disk)
+        .status()
+        .unwrap();
+    assert!(grown.success());
+    finish(deck, &out);
+    for f in frame_files(&reference) {
+        let name = format!("frames/{f}");
+        assert!(read(&reference, &name) == read(&out, &name), "{f} differs");
+    }
+    assert_eq!(series(&reference), series(&out));
+    assert!(read(&reference, "probes.csv") == read(&out, "probes.csv"));
+}
