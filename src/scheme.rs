@@ -350,17 +350,17 @@ impl<const D: usize> Simulation<D> {
         }
         self.timers.lap(Phase::Constitutive);
         // 6. projection: the particles moved back towards their rest volumes, at the pace of
-        //    the flow: the volume error is given back over the time h / max |v| a particle
-        //    takes to cross a cell, and at most in one step. Where the viscous limit sets a
-        //    step far below that (a slump: 5e-5 s against 1e-2 s), correcting the whole error
-        //    every step stirs the correction's own error 200 times as often, and that threw
-        //    the slump apart.
+        //    the flow (a few corrections per cell crossing)
         let corrects = self
             .projection
             .as_ref()
             .is_some_and(|p| p.corrects_density());
         let rate = if corrects {
-            (dt * self.max_speed() / self.grid.geo.h).min(1.0)
+            crate::pressure::density::DensityCorrection::<D>::rate(
+                dt,
+                self.max_speed(),
+                self.grid.geo.h,
+            )
         } else {
             0.0
         };

@@ -42,7 +42,12 @@ use rayon::prelude::*;
 const MAX_SHIFT: f64 = 0.25;
 
 /// Largest share of a particle's volume one correction gives back or takes.
-const MAX_RATE: f64 = 0.05;
+const MAX_RATE: f64 = 0.2;
+
+/// Corrections per cell crossing: the volume error is given back over the time
+/// h / (PACE max |v|), a third of the time a particle takes to cross a cell (see
+/// [`DensityCorrection::rate`]).
+pub const PACE: f64 = 3.0;
 
 /// State and buffers of the density correction, reused from step to step.
 pub struct DensityCorrection<const D: usize> {
@@ -82,6 +87,15 @@ pub struct DensityCorrection<const D: usize> {
 }
 
 impl<const D: usize> DensityCorrection<D> {
+    /// The share r of the volume error given back in a step of `dt`: r = min(1, PACE dt
+    /// max|v| / h), [`PACE`] corrections per cell crossing, however small the step (where the
+    /// viscous limit sets a step far below the crossing time, correcting the whole error every
+    /// step stirs the correction's own error that much more often: it threw a Bingham slump
+    /// apart).
+    pub fn rate(dt: f64, max_speed: f64, h: f64) -> f64 {
+        (PACE * dt * max_speed / h).min(1.0)
+    }
+
     /// The correction with the pressure's solver settings and free surface.
     pub fn new(pd: &PressureDeck, shape: ShapeFunction, boundary: &Boundary<D>) -> Self {
         Self {
