@@ -59,6 +59,21 @@ impl Error {
 }
 
 impl Error {
+    /// The same error with `note` added to the end of its message: a file it could not write,
+    /// a blow-up or an interrupt says where the run's files stand. Other errors are returned
+    /// as they are.
+    pub fn with_note(self, note: &str) -> Self {
+        match self {
+            Error::Io { path, source } => Error::Io {
+                path,
+                source: std::io::Error::new(source.kind(), format!("{source}{note}")),
+            },
+            Error::BlowUp(m) => Error::BlowUp(m + note),
+            Error::Interrupted(m) => Error::Interrupted(m + note),
+            e => e,
+        }
+    }
+
     /// Names the deck file in an error raised where it was not known.
     pub fn with_file(mut self, name: &str) -> Self {
         match &mut self {

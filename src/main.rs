@@ -311,15 +311,11 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
                 None => String::new(),
             };
             let summary = summary.map_err(|e| match e {
+                // its resume command points into the removed folder
                 Error::Interrupted(_) if scratch => {
                     Error::Interrupted(format!("bench interrupted{scratch_note}"))
                 }
-                Error::BlowUp(m) if scratch => Error::BlowUp(m + &scratch_note),
-                Error::Io { path, source } if scratch => Error::Io {
-                    path,
-                    source: std::io::Error::new(source.kind(), format!("{source}{scratch_note}")),
-                },
-                e => e,
+                e => e.with_note(&scratch_note),
             })?;
             if let Some(Err(e)) = removed {
                 eprintln!(

@@ -343,25 +343,19 @@ fn resume_command(file: &str, checkpoint: &Path, dir: &Path, deck: &Deck) -> Str
 /// Adds to a failed write (a full disk, a file-size limit) where the last good state is and
 /// how to go on from it once there is room.
 fn write_failure_hint(e: Error, checkpoint: Option<f64>, resume: &str) -> Error {
-    match e {
-        Error::Io { path, source } => {
-            let kind = source.kind();
-            let hint = match checkpoint {
-                Some(t) => format!(
-                    "the run stopped there; its files up to the last checkpoint, at t = {t:.6} \
-                     s, are whole. Make room (or raise the file-size limit) and go on: {resume}"
-                ),
-                None => "the run stopped there, before its first checkpoint; make room (or \
-                         raise the file-size limit) and run it again"
-                    .to_string(),
-            };
-            Error::Io {
-                path,
-                source: std::io::Error::new(kind, format!("{source}; {hint}")),
-            }
-        }
-        e => e,
+    if !matches!(e, Error::Io { .. }) {
+        return e;
     }
+    let hint = match checkpoint {
+        Some(t) => format!(
+            "; the run stopped there; its files up to the last checkpoint, at t = {t:.6} s, are \
+             whole. Make room (or raise the file-size limit) and go on: {resume}"
+        ),
+        None => "; the run stopped there, before its first checkpoint; make room (or raise the \
+                 file-size limit) and run it again"
+            .to_string(),
+    };
+    e.with_note(&hint)
 }
 
 /// Adds to a blow-up message where the last good state is and how to go on from it.
