@@ -286,6 +286,8 @@ pub struct Grid<const D: usize> {
     pub velocity_new: Vec<Vector<D>>,
     /// f_i: internal and body forces.
     pub force: Vec<Vector<D>>,
+    /// The body force's part of f_i, sum_p N_ip m_p b_p.
+    pub body: Vec<Vector<D>>,
     /// Mass-weighted particle pressure, sum N m p; divided by m_i after P2G.
     pub pressure: Vec<f64>,
 }
@@ -301,6 +303,7 @@ impl<const D: usize> Grid<D> {
             velocity: vec![Vector::<D>::zeros(); n],
             velocity_new: vec![Vector::<D>::zeros(); n],
             force: vec![Vector::<D>::zeros(); n],
+            body: vec![Vector::<D>::zeros(); n],
             pressure: vec![0.0; n],
         }
     }

@@ -28,6 +28,10 @@ pub struct TransferSettings<const D: usize> {
     pub pressure_weight: f64,
     /// Nodes lighter than this are treated as empty.
     pub mass_epsilon: f64,
+    /// The least mass the projection's predictor divides a node's internal force by
+    /// ([`Grid::predict`](crate::grid::Grid)); 0 for the explicit scheme and for one pressure
+    /// per cell.
+    pub mass_floor: f64,
     /// APIC's affine matrix C_p kept trace free ([`affine`]): true under the projection.
     pub isochoric_affine: bool,
 }
@@ -61,6 +65,7 @@ struct NodeSums<const D: usize> {
     pressure: f64,
     momentum: Vector<D>,
     force: Vector<D>,
+    body: Vector<D>,
 }
 
 impl<const D: usize> NodeSums<D> {
@@ -69,6 +74,7 @@ impl<const D: usize> NodeSums<D> {
         pressure: 0.0,
         momentum: Vector::<D>::from_array_storage(nalgebra::ArrayStorage([[0.0; D]; 1])),
         force: Vector::<D>::from_array_storage(nalgebra::ArrayStorage([[0.0; D]; 1])),
+        body: Vector::<D>::from_array_storage(nalgebra::ArrayStorage([[0.0; D]; 1])),
     };
 }
 
@@ -241,6 +247,7 @@ fn scatter_p2g<const D: usize, const S: u8>(
                 a.mass += nm;
                 a.momentum += mom * nm;
                 a.force += b * nm - stress_vol * nw.grad;
+                a.body += b * nm;
                 a.pressure += nm * pp;
             });
         }
@@ -254,19 +261,22 @@ fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bands: &[Band<NodeSums<D>>], e
         grid.mass.par_iter_mut(),
         grid.momentum.par_iter_mut(),
         grid.force.par_iter_mut(),
+        grid.body.par_iter_mut(),
         grid.pressure.par_iter_mut(),
     )
         .into_par_iter()
         .enumerate()
-        .for_each(|(i, (m, mom, f, pr))| {
+        .for_each(|(i, (m, mom, f, body, pr))| {
             *m = 0.0;
             *mom = Vector::<D>::zeros();
             *f = Vector::<D>::zeros();
+            *body = Vector::<D>::zeros();
             *pr = 0.0;
             for b in bands.iter().filter_map(|b| b.at(i)) {
                 *m += b.mass;
                 *mom += b.momentum;
                 *f += b.force;
+                *body += b.body;
                 *pr += b.pressure;
             }
         });
@@ -274,6 +284,7 @@ fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bands: &[Band<NodeSums<D>>], e
         geo.fold(&mut grid.mass);
         geo.fold(&mut grid.momentum);
         geo.fold(&mut grid.force);
+        geo.fold(&mut grid.body);
         geo.fold(&mut grid.pressure);
     }
     (
@@ -561,6 +572,7 @@ mod tests {
             gravity: Vector::<D>::zeros(),
             pressure_weight: 1.0,
             mass_epsilon: 1e-300,
+            mass_floor: 0.0,
             isochoric_affine: false,
         }
     }

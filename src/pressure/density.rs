@@ -87,13 +87,20 @@ pub struct DensityCorrection<const D: usize> {
 }
 
 impl<const D: usize> DensityCorrection<D> {
-    /// The share r of the volume error given back in a step of `dt`: r = min(1, PACE dt
-    /// max|v| / h), [`PACE`] corrections per cell crossing, however small the step (where the
-    /// viscous limit sets a step far below the crossing time, correcting the whole error every
-    /// step stirs the correction's own error that much more often: it threw a Bingham slump
-    /// apart).
-    pub fn rate(dt: f64, max_speed: f64, h: f64) -> f64 {
-        (PACE * dt * max_speed / h).min(1.0)
+    /// The share r of the volume error given back in a step of `dt`:
+    /// r = min(1, max(PACE dt max|v| / h, dt / sqrt(2 h / |g|))), [`PACE`] corrections per
+    /// cell crossing, however small the step (where the viscous limit sets a step far below
+    /// the crossing time, correcting the whole error every step stirs the correction's own
+    /// error that much more often: it threw a Bingham slump apart).
+    ///
+    /// The error is given back at least over sqrt(2 h / |g|), the time a particle takes to
+    /// fall one cell from rest (|g| the body force at the grid's origin at the start): a flow
+    /// that creeps under gravity (a slump's front settling at millimetres per second) drifts
+    /// at the pace of its stresses, not of its speed, and a pace set by its speed alone let
+    /// that drift pile up.
+    pub fn rate(dt: f64, max_speed: f64, gravity: f64, h: f64) -> f64 {
+        let fall = dt * (gravity.abs() / (2.0 * h)).sqrt();
+        (PACE * dt * max_speed / h).max(fall).min(1.0)
     }
 
     /// The correction with the pressure's solver settings and free surface.
