@@ -368,7 +368,18 @@ fn render(opts: &Options, sections: &[Section], wall: f64) -> String {
     };
     let date = command_output("date", &["-u", "+%Y-%m-%d %H:%M UTC"]).unwrap_or_default();
     let commit = command_output("git", &["rev-parse", "--short", "HEAD"]).map(|c| {
-        let dirty = command_output("git", &["status", "--porcelain", "--untracked-files=no"])
+        // the report's own files, written before this line, do not count
+        let mut args = vec!["status", "--porcelain", "--untracked-files=no"];
+        let out = opts
+            .out
+            .strip_prefix(".")
+            .unwrap_or(&opts.out)
+            .to_string_lossy();
+        let exclude = format!(":(exclude){}", out.trim_end_matches('/'));
+        if opts.out.is_relative() {
+            args.extend(["--", ".", &exclude]);
+        }
+        let dirty = command_output("git", &args)
             .map(|s| !s.is_empty())
             .unwrap_or(false);
         if dirty {
