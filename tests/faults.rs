@@ -7,7 +7,7 @@ mod common;
 
 use common::{pmpm, scratch_dir, SMALL_2D};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 /// A closed tank under the projection with a fixed step, a probe and a rigid body: a frame every
@@ -283,16 +283,7 @@ fn a_file_size_limit_is_reported() {
     let deck = dir.join("deck.toml");
     std::fs::write(&deck, SMALL_2D).unwrap();
     let out = dir.join("out");
-    let o = Command::new("sh")
-        .arg("-c")
-        .arg(format!(
-            "ulimit -f 10 && exec {} run {} -o {} -q",
-            env!("CARGO_BIN_EXE_pmpm"),
-            deck.display(),
-            out.display()
-        ))
-        .output()
-        .unwrap();
+    let o = under_ulimit("-f 10", "", &deck, &out, "");
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
@@ -304,6 +295,20 @@ fn a_file_size_limit_is_reported() {
         .flatten()
         .any(|e| e.file_name().to_string_lossy().ends_with(".partial"));
     assert!(!partial, "a part-written frame was left behind");
+}
+
+/// `pmpm [global] run DECK -o OUT -q [extra]` in a shell under `ulimit LIMIT`.
+fn under_ulimit(limit: &str, global: &str, deck: &Path, out: &Path, extra: &str) -> Output {
+    Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit {limit} && exec {} {global} run {} -o {} -q {extra}",
+            env!("CARGO_BIN_EXE_pmpm"),
+            deck.display(),
+            out.display()
+        ))
+        .output()
+        .unwrap()
 }
 
 /// Under an address-space limit (`ulimit -v`) a deck that needs more is refused before it
@@ -325,16 +330,7 @@ fn an_address_space_limit_is_reported() {
         ("--allow-large", 1, "error: out of memory"),
     ] {
         let out = dir.join(format!("out{status}"));
-        let o = Command::new("sh")
-            .arg("-c")
-            .arg(format!(
-                "ulimit -v 300000 && exec {} --threads 2 run {} -o {} -q {extra}",
-                env!("CARGO_BIN_EXE_pmpm"),
-                deck.display(),
-                out.display()
-            ))
-            .output()
-            .unwrap();
+        let o = under_ulimit("-v 300000", "--threads 2", &deck, &out, extra);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(status), "{extra}: {err}");
         assert!(err.contains(message), "{extra}: {err}");

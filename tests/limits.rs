@@ -93,28 +93,33 @@ fn too_many_threads_are_refused() {
     assert!(t.elapsed() < Duration::from_secs(5));
 }
 
+/// `pmpm check` on the small deck with `from` replaced by `to`: asserts exit 2 and returns
+/// the message.
+fn refused_by_check(name: &str, from: &str, to: &str) -> String {
+    let (_dir, d) = deck(name, from, to);
+    let (status, err, _) = run(&["check", &d]);
+    assert_eq!(status, 2, "{err}");
+    err
+}
+
 /// An initial velocity or a body force that is not a number where the run reads it is a deck
 /// error from check (it used to pass check and stop the run after frame 0).
 #[test]
 fn an_expression_that_is_not_a_number_at_the_start_is_refused() {
-    let (_dir, v) = deck(
+    let err = refused_by_check(
         "limits-nan-v",
         "particles_per_cell = 2",
         "particles_per_cell = 2\nvelocity = [\"log(x - 0.05)\", \"0\"]",
     );
-    let (status, err, _) = run(&["check", &v]);
-    assert_eq!(status, 2, "{err}");
     assert!(
         err.contains("bodies[0].velocity: is not a finite number at (0.005000, 0.005000)"),
         "{err}"
     );
-    let (_dir, g) = deck(
+    let err = refused_by_check(
         "limits-nan-g",
         "gravity = [0.0, -9.81]",
         "gravity = [\"0\", \"-9.81 / x\"]",
     );
-    let (status, err, _) = run(&["check", &g]);
-    assert_eq!(status, 2, "{err}");
     assert!(
         err.contains("simulation.gravity: is not a finite number at (0.000000, 0.000000)"),
         "{err}"
@@ -124,13 +129,11 @@ fn an_expression_that_is_not_a_number_at_the_start_is_refused() {
 /// A long number in a message is printed short: a probe at x = 1e300.
 #[test]
 fn numbers_in_messages_are_short() {
-    let (_dir, d) = deck(
+    let err = refused_by_check(
         "limits-short",
         "position = [0.01, 0.01]",
         "position = [1e300, 0.01]",
     );
-    let (status, err, _) = run(&["check", &d]);
-    assert_eq!(status, 2, "{err}");
     assert!(
         err.ends_with("lies outside the grid along x: x = 1e300, the grid spans [0, 0.4]\n"),
         "{err}"
