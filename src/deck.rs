@@ -469,6 +469,11 @@ pub struct PressureDeck {
     pub tolerance: f64,
     #[serde(default = "default_max_iterations")]
     pub max_iterations: usize,
+    /// Most pressure solves per step with nodal unknowns: the first projects v*, each further
+    /// one the divergence the corrector and the wall conditions left (1: the paper's single
+    /// solve).
+    #[serde(default = "default_passes")]
+    pub passes: usize,
     /// How p = 0 is imposed; `validate` fills it in (the level set).
     #[serde(default)]
     pub free_surface: Option<FreeSurface>,
@@ -507,6 +512,9 @@ fn default_tolerance() -> f64 {
 fn default_max_iterations() -> usize {
     2000
 }
+fn default_passes() -> usize {
+    3
+}
 /// Gaps of up to 8 cells inside the fluid are closed (at h = a / 20 in the dam break 1 to 2
 /// cell gaps open; 8, 16 and 64 behave the same there).
 fn default_bubble_cells() -> usize {
@@ -527,6 +535,7 @@ impl Default for PressureDeck {
             preconditioner: Preconditioner::default(),
             tolerance: default_tolerance(),
             max_iterations: default_max_iterations(),
+            passes: default_passes(),
             free_surface: None,
             volume_fraction_tolerance: default_vf_tolerance(),
             beta: default_beta(),
@@ -1579,6 +1588,12 @@ impl Deck {
         c.positive("pressure.tolerance", p.tolerance)?;
         if p.max_iterations == 0 {
             return Err(c.err("pressure.max_iterations", "must be > 0, got 0"));
+        }
+        if p.passes == 0 {
+            return Err(c.err(
+                "pressure.passes",
+                "must be >= 1 (1: one solve per step), got 0",
+            ));
         }
         if !(p.volume_fraction_tolerance > 0.0 && p.volume_fraction_tolerance < 1.0) {
             return Err(c.err(

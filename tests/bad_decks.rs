@@ -309,6 +309,11 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             format!("{SMALL_2D}\n[pressure]\nvolume_correction = 1.5\n"),
             "bad.toml: pressure.volume_correction: must be >= 0 and < 1 (a fraction of the drift given back per step), got 1.5",
         ),
+        (
+            "no pressure pass",
+            format!("{SMALL_2D}\n[pressure]\npasses = 0\n"),
+            "bad.toml: pressure.passes: must be >= 1 (1: one solve per step), got 0",
+        ),
         // one pressure per cell
         (
             "cell pressure with a fluid",

@@ -92,6 +92,18 @@ pub struct ParticleQuadrature<'a, const D: usize> {
 }
 
 impl<const D: usize> ParticleQuadrature<'_, D> {
+    /// Point p's share of node i's source, V_p N_ip (div v*)_p, less V_p G_ip . w_p with the
+    /// flux form; `n_i` and `g_i` are N_ip and G_ip.
+    #[inline]
+    fn source(&self, p: usize, n_i: f64, g_i: &Vector<D>) -> f64 {
+        let s = self.volume[p] * n_i * self.divergence[p];
+        if self.flux {
+            s - self.volume[p] * g_i.dot(&self.velocity[p])
+        } else {
+            s
+        }
+    }
+
     /// The stencil of point `p`.
     #[inline]
     pub fn stencil(&self, geo: &GridGeometry<D>, shape: ShapeFunction, p: usize) -> Stencil<D> {
@@ -152,10 +164,7 @@ pub fn assemble<const D: usize>(
                         return;
                     };
                     let (n_i, g_i) = st.at(&o);
-                    source += q.volume[p] * n_i * q.divergence[p];
-                    if q.flux {
-                        source -= q.volume[p] * g_i.dot(&q.velocity[p]);
-                    }
+                    source += q.source(p, n_i, &g_i);
                     let c = q.volume_over_density[p];
                     st.for_each(|nw| {
                         // slot of node j relative to node i: (j - i + w - 1) per direction
@@ -214,5 +223,37 @@ pub fn assemble<const D: usize>(
             }
             vals[centre] += ghost_diagonal;
             *b = -source / dt - known;
+        });
+}
+
+/// The right-hand side of [`assemble`] alone, -(1/dt) times the source, for rows whose
+/// free-surface values are all 0 (a further pass of the projection solves for an increment that
+/// vanishes there, so no column moves a known value across).
+#[allow(clippy::too_many_arguments)]
+pub fn right_hand_side<const D: usize>(
+    geo: &GridGeometry<D>,
+    shape: ShapeFunction,
+    bins: &CellBins,
+    q: &ParticleQuadrature<D>,
+    node_of_row: &[u32],
+    dt: f64,
+    rhs: &mut Vec<f64>,
+) {
+    rhs.resize(node_of_row.len(), 0.0);
+    rhs.par_iter_mut()
+        .zip(node_of_row.par_iter())
+        .for_each(|(b, &i)| {
+            let node = geo.multi(i as usize);
+            let mut source = 0.0;
+            geo.for_each_image(&node, |image| {
+                for_particles_near(geo, bins, shape, &image, |p| {
+                    let st = q.stencil(geo, shape, p);
+                    if let Some(o) = st.offset_of(&image) {
+                        let (n_i, g_i) = st.at(&o);
+                        source += q.source(p, n_i, &g_i);
+                    }
+                });
+            });
+            *b = -source / dt;
         });
 }

@@ -34,6 +34,8 @@ use solve::{Direct, EllMatrix, Jacobi, LinearSolver, Pcg, SolveError, SolveStats
 pub struct Projection<const D: usize> {
     tolerance: f64,
     max_iterations: usize,
+    /// Most solves per step (`pressure.passes`, [`Projection::pass`]).
+    passes: usize,
     /// Share of p^n in the predictor (0: Chorin, 1: incremental).
     pub beta: f64,
     shape: ShapeFunction,
@@ -48,8 +50,9 @@ pub struct Projection<const D: usize> {
     /// The last right-hand side.
     pub rhs: Vec<f64>,
     solution: Vec<f64>,
-    /// Solved pressure increment p^{n+1} - beta p^n per node (the Dirichlet values on the free
-    /// surface, 0 on empty nodes).
+    /// The last pass's solved pressure increment per node: p^{n+1} - beta p^n after the first
+    /// (the Dirichlet values on the free surface, 0 on empty nodes), the increment of a further
+    /// one (0 on the free surface).
     pub node_pressure: Vec<f64>,
     /// Node pressure p^{n+1} of the last solve (the free-surface value on free-surface nodes, 0
     /// on empty ones).
@@ -104,6 +107,7 @@ impl<const D: usize> Projection<D> {
         Self {
             tolerance: pd.tolerance,
             max_iterations: pd.max_iterations,
+            passes: pd.passes,
             beta: pd.beta,
             shape: deck.simulation.shape_function,
             solver,
@@ -323,9 +327,77 @@ impl<const D: usize> Projection<D> {
                     }
                 });
         }
+        // 4. and 5. in passes: the first projects v*; each further one projects the
+        //    divergence the corrector and the wall conditions left, until it is below the
+        //    solver's tolerance relative to the first or `passes` are done
+        self.singular = free == 0 && !self.unknowns.node_of_row.is_empty();
+        let mut first_norm = 0.0;
+        let mut iterations = 0;
+        for pass in 0..self.passes {
+            let first = pass == 0;
+            let skip_below = self.tolerance * first_norm;
+            match self.pass(
+                ps,
+                grid,
+                boundary,
+                mass_epsilon,
+                dt,
+                first,
+                skip_below,
+                timers,
+            )? {
+                Some((norm, stats)) => {
+                    if first {
+                        first_norm = norm;
+                        self.stats = stats;
+                    }
+                    iterations += stats.iterations;
+                }
+                None => break,
+            }
+        }
+        self.stats.iterations = iterations;
+        Ok(self.stats)
+    }
+
+    /// One pass of steps 4 and 5 on the node velocities in `grid.velocity_new`: the
+    /// right-hand side from them, the solve and the corrector.
+    ///
+    /// The first pass assembles L and solves for p^{n+1} - beta p^n. L is the Laplacian
+    /// sum_q (V_q / rho_q) G_iq . G_jq, not the operator the corrector and the wall conditions
+    /// apply (the divergence of M^-1 times the pressure force, with the walls' components
+    /// removed), so the corrected velocity keeps a divergence, largest next to the walls: the
+    /// wall nodes' normal velocity after the corrector is 5 to 15 % of the next row's before
+    /// the wall condition removes it. A further pass solves L dq = b(v) for that divergence,
+    /// with L and its preconditioner kept and dq = 0 on the free surface, and corrects again:
+    /// the fixed-point iteration p <- p + L^-1 (b - A p) towards the operator A the corrector
+    /// applies. Returns the right-hand side's norm and the solve's statistics, or `None`
+    /// without solving when that norm is at most `skip_below` (never on the first pass);
+    /// a further pass solves to the residual `skip_below`.
+    #[allow(clippy::too_many_arguments)]
+    fn pass(
+        &mut self,
+        ps: &mut Particles<D>,
+        grid: &mut Grid<D>,
+        boundary: &Boundary<D>,
+        mass_epsilon: f64,
+        dt: f64,
+        first: bool,
+        skip_below: f64,
+        timers: &mut PhaseTimers,
+    ) -> Result<Option<(f64, SolveStats)>, SolveError> {
         // 4. (div v*)_p after the wall conditions and, for the flux form, w_p: the part of v*
         //    the walls removed; then L and the right-hand side
+        let shape = self.shape;
+        let beta = self.beta;
+        let n_nodes = grid.geo.node_count();
         let flux = self.rhs_form == PoissonRhs::Flux;
+        if !first {
+            // a further pass measures the divergence of the velocity the particles will take,
+            // with the wall conditions: what the walls remove from the corrector's velocity is
+            // not flow through them
+            boundary.apply(&mut grid.velocity_new);
+        }
         self.unconstrained.clone_from(&grid.velocity_new);
         if flux {
             // only the normal part enters the wall flux: a no-slip wall's tangential condition
@@ -340,7 +412,7 @@ impl<const D: usize> Projection<D> {
         // the ghost-fluid condition needs the matrix over whole cells: the cell quadrature
         let level_set = self.surface.level_set().is_some();
         let cell = self.quadrature == Quadrature::Cell || level_set;
-        if cell {
+        if cell && first {
             let domain = level_set.then(|| FluidDomain {
                 shape,
                 kinds: &self.surface.kinds,
@@ -375,7 +447,7 @@ impl<const D: usize> Projection<D> {
             )
         };
         velocity_at_points(geo, shape, v_star, v_free, qx, qhw, qdiv, qw);
-        if self.volume_correction > 0.0 {
+        if self.volume_correction > 0.0 && first {
             // the discrete projection keeps the grid velocity divergence free in the weak
             // sense, not each particle's: the particles' J drifts, and a solid under a steady
             // load creeps with it. Aim at div v = alpha (1 - J) / dt, which gives back the
@@ -427,46 +499,79 @@ impl<const D: usize> Projection<D> {
             }
         };
         let bins = if cell { &self.gauss.bins } else { &self.bins };
-        assemble::assemble(
-            geo,
-            shape,
-            bins,
-            &quadrature,
-            &self.surface.kinds,
-            self.surface.level_set(),
-            &self.unknowns.row_of,
-            &self.unknowns.node_of_row,
-            &self.node_pressure,
-            dt,
-            &mut self.matrix,
-            &mut self.rhs,
-        );
+        if first {
+            assemble::assemble(
+                geo,
+                shape,
+                bins,
+                &quadrature,
+                &self.surface.kinds,
+                self.surface.level_set(),
+                &self.unknowns.row_of,
+                &self.unknowns.node_of_row,
+                &self.node_pressure,
+                dt,
+                &mut self.matrix,
+                &mut self.rhs,
+            );
+        } else {
+            assemble::right_hand_side(
+                geo,
+                shape,
+                bins,
+                &quadrature,
+                &self.unknowns.node_of_row,
+                dt,
+                &mut self.rhs,
+            );
+        }
         timers.lap(Phase::Assembly);
-        // solve; Chorin's form starts from the last step's pressure at the same nodes
+        // a sequential sum: the same bits on any number of threads
+        let norm = self.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
+        if !first && norm <= skip_below {
+            return Ok(None);
+        }
+        // solve; Chorin's form starts from the last step's pressure at the same nodes, a
+        // further pass from zero
         self.solution.resize(self.unknowns.node_of_row.len(), 0.0);
         {
             let prev = &self.previous;
-            let warm = beta == 0.0;
+            let warm = first && beta == 0.0;
             self.solution
                 .par_iter_mut()
                 .zip(self.unknowns.node_of_row.par_iter())
                 .for_each(|(x, &i)| *x = if warm { prev[i as usize] } else { 0.0 });
         }
-        self.singular = free == 0 && !self.unknowns.node_of_row.is_empty();
-        describe_layout(
-            &mut self.solver,
-            &grid.geo,
-            shape,
-            &self.unknowns.node_of_row,
-        );
-        self.stats = self.solver.solve(
-            &self.matrix,
-            &self.rhs,
-            &mut self.solution,
-            self.tolerance,
-            self.max_iterations,
-            self.singular,
-        )?;
+        if !first {
+            // the increment vanishes on the free surface and off the fluid
+            self.node_pressure.fill(0.0);
+        }
+        let stats = if first {
+            describe_layout(
+                &mut self.solver,
+                &grid.geo,
+                shape,
+                &self.unknowns.node_of_row,
+            );
+            self.solver.solve(
+                &self.matrix,
+                &self.rhs,
+                &mut self.solution,
+                self.tolerance,
+                self.max_iterations,
+                self.singular,
+            )?
+        } else {
+            // to the first solve's accuracy: its tolerance relative to the first right-hand side
+            self.solver.solve_again(
+                &self.matrix,
+                &self.rhs,
+                &mut self.solution,
+                skip_below / norm,
+                self.max_iterations,
+                self.singular,
+            )?
+        };
         {
             let (sol, node_of_row) = (&self.solution, &self.unknowns.node_of_row);
             let dp = &mut self.node_pressure;
@@ -482,8 +587,10 @@ impl<const D: usize> Projection<D> {
                 std::mem::swap(dp, out);
                 grid.geo.copy_to_images(dp);
             }
-            // p^{n+1} = beta p^n + dp on the fluid's nodes, the memory of the next step (on the
-            // free surface its own value, or the ghost value)
+            // p^{n+1} = beta p^n + dp on the fluid's nodes after the first pass, plus dp after
+            // each further one: the memory of the next step (on the free surface its own
+            // value, or the ghost value)
+            let keep = if first { beta } else { 1.0 };
             let kinds = &self.surface.kinds;
             self.previous
                 .par_iter_mut()
@@ -491,7 +598,7 @@ impl<const D: usize> Projection<D> {
                 .enumerate()
                 .for_each(|(i, (p, &d))| {
                     *p = match kinds[i] {
-                        NodeKind::Interior | NodeKind::FreeSurface => beta * *p + d,
+                        NodeKind::Interior | NodeKind::FreeSurface => keep * *p + d,
                         NodeKind::Empty => 0.0,
                     }
                 });
@@ -515,7 +622,7 @@ impl<const D: usize> Projection<D> {
             );
         }
         timers.lap(Phase::Corrector);
-        Ok(self.stats)
+        Ok(Some((norm, stats)))
     }
 
     /// Interpolates to the particles: with `after_solve` the new pressure

@@ -178,6 +178,9 @@ impl Pcg {
         }
     }
 
+    /// With `setup` false the preconditioner is the one set up for the last matrix, which
+    /// must be `a`.
+    #[allow(clippy::too_many_arguments)]
     fn solve(
         &mut self,
         a: &EllMatrix,
@@ -186,12 +189,15 @@ impl Pcg {
         tol: f64,
         max_iterations: usize,
         singular: bool,
+        setup: bool,
     ) -> Result<SolveStats, SolveError> {
         let n = a.n;
         for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
             v.resize(n, 0.0);
         }
-        self.preconditioner.setup(a);
+        if setup {
+            self.preconditioner.setup(a);
+        }
         let Self {
             preconditioner,
             r,
@@ -388,7 +394,24 @@ impl LinearSolver {
         singular: bool,
     ) -> Result<SolveStats, SolveError> {
         match self {
-            LinearSolver::Pcg(s) => s.solve(a, b, x, tol, max_iterations, singular),
+            LinearSolver::Pcg(s) => s.solve(a, b, x, tol, max_iterations, singular, true),
+            LinearSolver::Direct(s) => s.solve(a, b, x, singular),
+        }
+    }
+
+    /// [`LinearSolver::solve`] for the matrix of the last solve, with a new right-hand side:
+    /// the preconditioner is not set up again (the direct solver factorises again).
+    pub fn solve_again(
+        &mut self,
+        a: &EllMatrix,
+        b: &[f64],
+        x: &mut [f64],
+        tol: f64,
+        max_iterations: usize,
+        singular: bool,
+    ) -> Result<SolveStats, SolveError> {
+        match self {
+            LinearSolver::Pcg(s) => s.solve(a, b, x, tol, max_iterations, singular, false),
             LinearSolver::Direct(s) => s.solve(a, b, x, singular),
         }
     }
