@@ -329,28 +329,20 @@ impl<const D: usize> Projection<D> {
         }
         // 4. and 5. in passes: the first projects v*; each further one projects the
         //    divergence the corrector and the wall conditions left, until it is below the
-        //    solver's tolerance relative to the first or `passes` are done
+        //    solver's tolerance relative to the first, stops shrinking, or `passes` are done
         self.singular = free == 0 && !self.unknowns.node_of_row.is_empty();
-        let mut first_norm = 0.0;
+        let (mut first_norm, mut last_norm) = (0.0, f64::INFINITY);
         let mut iterations = 0;
         for pass in 0..self.passes {
             let first = pass == 0;
-            let skip_below = self.tolerance * first_norm;
-            match self.pass(
-                ps,
-                grid,
-                boundary,
-                mass_epsilon,
-                dt,
-                first,
-                skip_below,
-                timers,
-            )? {
+            let skip = (self.tolerance * first_norm, last_norm);
+            match self.pass(ps, grid, boundary, mass_epsilon, dt, first, skip, timers)? {
                 Some((norm, stats)) => {
                     if first {
                         first_norm = norm;
                         self.stats = stats;
                     }
+                    last_norm = norm;
                     iterations += stats.iterations;
                 }
                 None => break,
@@ -372,8 +364,9 @@ impl<const D: usize> Projection<D> {
     /// with L and its preconditioner kept and dq = 0 on the free surface, and corrects again:
     /// the fixed-point iteration p <- p + L^-1 (b - A p) towards the operator A the corrector
     /// applies. Returns the right-hand side's norm and the solve's statistics, or `None`
-    /// without solving when that norm is at most `skip_below` (never on the first pass);
-    /// a further pass solves to the residual `skip_below`.
+    /// without solving (never on the first pass) when that norm is at most `skip.0` or at
+    /// least `skip.1`, the last pass's: where the iteration would not converge, it stops. A
+    /// further pass solves to the residual `skip.0`.
     #[allow(clippy::too_many_arguments)]
     fn pass(
         &mut self,
@@ -383,7 +376,7 @@ impl<const D: usize> Projection<D> {
         mass_epsilon: f64,
         dt: f64,
         first: bool,
-        skip_below: f64,
+        skip: (f64, f64),
         timers: &mut PhaseTimers,
     ) -> Result<Option<(f64, SolveStats)>, SolveError> {
         // 4. (div v*)_p after the wall conditions and, for the flux form, w_p: the part of v*
@@ -528,7 +521,8 @@ impl<const D: usize> Projection<D> {
         timers.lap(Phase::Assembly);
         // a sequential sum: the same bits on any number of threads
         let norm = self.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
-        if !first && norm <= skip_below {
+        let skip_below = skip.0;
+        if !first && (norm <= skip_below || norm >= skip.1) {
             return Ok(None);
         }
         // solve; Chorin's form starts from the last step's pressure at the same nodes, a
