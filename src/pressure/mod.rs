@@ -358,9 +358,8 @@ impl<const D: usize> Projection<D> {
     /// The first pass assembles L and solves for p^{n+1} - beta p^n. L is the Laplacian
     /// sum_q (V_q / rho_q) G_iq . G_jq, not the operator the corrector and the wall conditions
     /// apply (the divergence of M^-1 times the pressure force, with the walls' components
-    /// removed), so the corrected velocity keeps a divergence, largest next to the walls: the
-    /// wall nodes' normal velocity after the corrector is 5 to 15 % of the next row's before
-    /// the wall condition removes it. A further pass solves L dq = b(v) for that divergence,
+    /// removed), so the corrected velocity keeps a divergence, largest next to the walls
+    /// (docs/method.md, "Passes"). A further pass solves L dq = b(v) for that divergence,
     /// with L and its preconditioner kept and dq = 0 on the free surface, and corrects again:
     /// the fixed-point iteration p <- p + L^-1 (b - A p) towards the operator A the corrector
     /// applies. Returns the right-hand side's norm and the solve's statistics, or `None`
