@@ -608,6 +608,45 @@ position = {probe}
     ))
 }
 
+/// The further pressure passes shrink the divergence the corrector leaves: in the dam break
+/// run past its impact on the far wall (a/10, 0.4 s), each step's second pass starts from a
+/// right-hand side below the first's, and the third from one below the second's: the
+/// iteration contracts at every step. Measured: the second at most 0.66 of the first (0.22 on
+/// average), the third at most 0.80 of the second (0.60). A further pass that corrected with
+/// the wrong sign would grow it.
+#[test]
+fn further_pressure_passes_shrink_the_divergence_left() {
+    let d = dam_break_deck(2, "projection", A / 10.0, 0.4);
+    let (second, third) = in_pool(2, || {
+        let mut sim = Simulation::<2>::new(&d).unwrap();
+        let (mut second, mut third) = (Vec::new(), Vec::new());
+        while sim.time < d.simulation.end_time - 1e-12 {
+            let dt = sim.stable_dt(0.5).min(d.simulation.end_time - sim.time);
+            sim.step(dt).unwrap();
+            let n = &sim.projection.as_ref().unwrap().pass_norms;
+            assert!(n.len() >= 2, "step {}: {n:?}", sim.steps);
+            second.push(n[1] / n[0]);
+            if n.len() == 3 {
+                third.push(n[2] / n[1]);
+            }
+        }
+        (second, third)
+    });
+    let stats = |r: &[f64]| {
+        let max = r.iter().copied().fold(0.0, f64::max);
+        (max, r.iter().sum::<f64>() / r.len() as f64)
+    };
+    let (s, t) = (stats(&second), stats(&third));
+    println!("second / first: max {:.3}, mean {:.3}; third / second: max {:.3}, mean {:.3} ({} of {} steps)", s.0, s.1, t.0, t.1, third.len(), second.len());
+    assert!(s.0 < 1.0 && s.1 < 0.5, "second / first {s:?}");
+    assert_eq!(
+        third.len(),
+        second.len(),
+        "a second pass stopped the passes"
+    );
+    assert!(t.0 < 1.0 && t.1 < 0.8, "third / second {t:?}");
+}
+
 /// A dam-break run: per step (time, front x_front / a, height at the wall / 2a, wall probe p).
 struct DamBreak {
     t: Vec<f64>,

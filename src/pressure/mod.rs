@@ -77,6 +77,9 @@ pub struct Projection<const D: usize> {
     pressure_gradient: Vec<Vector<D>>,
     /// Statistics of the last solve.
     pub stats: SolveStats,
+    /// The last step's right-hand-side norm per pass, solved or not: what divergence each pass
+    /// started from.
+    pub pass_norms: Vec<f64>,
     /// Whether the last system had no free-surface node (pressure fixed up to a constant).
     pub singular: bool,
     /// A material is a solid (shear modulus > 0): the free surface carries p = n . tau . n
@@ -138,6 +141,7 @@ impl<const D: usize> Projection<D> {
                 iterations: 0,
                 relative_residual: 0.0,
             },
+            pass_norms: Vec::with_capacity(pd.passes),
             singular: false,
             traction_free: deck
                 .materials
@@ -332,6 +336,7 @@ impl<const D: usize> Projection<D> {
         //    solver's tolerance relative to the first, stops shrinking, or `passes` are done
         self.singular = free == 0 && !self.unknowns.node_of_row.is_empty();
         let (mut first_norm, mut last_norm) = (0.0, f64::INFINITY);
+        self.pass_norms.clear();
         let mut iterations = 0;
         for pass in 0..self.passes {
             let first = pass == 0;
@@ -520,6 +525,7 @@ impl<const D: usize> Projection<D> {
         timers.lap(Phase::Assembly);
         // a sequential sum: the same bits on any number of threads
         let norm = self.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
+        self.pass_norms.push(norm);
         let skip_below = skip.0;
         if !first && (norm <= skip_below || norm >= skip.1) {
             return Ok(None);
