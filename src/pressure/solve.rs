@@ -393,10 +393,7 @@ impl LinearSolver {
         max_iterations: usize,
         singular: bool,
     ) -> Result<SolveStats, SolveError> {
-        match self {
-            LinearSolver::Pcg(s) => s.solve(a, b, x, tol, max_iterations, singular, true),
-            LinearSolver::Direct(s) => s.solve(a, b, x, singular),
-        }
+        self.solve_with(a, b, x, tol, max_iterations, singular, true)
     }
 
     /// [`LinearSolver::solve`] for the matrix of the last solve, with a new right-hand side:
@@ -410,8 +407,23 @@ impl LinearSolver {
         max_iterations: usize,
         singular: bool,
     ) -> Result<SolveStats, SolveError> {
+        self.solve_with(a, b, x, tol, max_iterations, singular, false)
+    }
+
+    /// Both solves: `setup` false keeps the preconditioner of the last matrix.
+    #[allow(clippy::too_many_arguments)]
+    fn solve_with(
+        &mut self,
+        a: &EllMatrix,
+        b: &[f64],
+        x: &mut [f64],
+        tol: f64,
+        max_iterations: usize,
+        singular: bool,
+        setup: bool,
+    ) -> Result<SolveStats, SolveError> {
         match self {
-            LinearSolver::Pcg(s) => s.solve(a, b, x, tol, max_iterations, singular, false),
+            LinearSolver::Pcg(s) => s.solve(a, b, x, tol, max_iterations, singular, setup),
             LinearSolver::Direct(s) => s.solve(a, b, x, singular),
         }
     }
