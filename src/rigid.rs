@@ -389,7 +389,7 @@ impl<const D: usize> RigidBodies<D> {
         for f in &mut self.force {
             *f /= -dt;
         }
-        let (ps, shape) = match pressure {
+        let (ps, shape, node_pressure) = match pressure {
             PressureForce::None => return,
             PressureForce::Nodal(f) => {
                 for &(i, b, h) in &self.nodes {
@@ -397,9 +397,32 @@ impl<const D: usize> RigidBodies<D> {
                 }
                 return;
             }
-            PressureForce::Particles(ps, shape) => (ps, shape),
+            PressureForce::Particles(ps, shape, node_pressure) => (ps, shape, node_pressure),
         };
         let geo = &grid.geo;
+        // a node within the support of a body's face but outside the body (the first fluid
+        // row before a face that lies between node rows) carries the rest of the face's
+        // pressure: its share int_face p N_i n of the boundary term
+        let reach = 0.5 * shape.width() as f64 * geo.h * (1.0 - 1e-9);
+        let (lo_0, hi_0, velocity, time) = (&self.lo, &self.hi, &self.velocity, self.time);
+        let apron = |b: usize, x: &Vector<D>| -> u8 {
+            let v = velocity[b];
+            let (lo, hi) = (lo_0[b] + v * time, hi_0[b] + v * time);
+            let mut outside = 0u8;
+            for d in 0..D {
+                let (below, above) = (lo[d] - x[d], x[d] - hi[d]);
+                let gap = below.max(above);
+                if gap >= reach {
+                    return 0;
+                }
+                // beyond a leading face the rows a cell ahead are the body's already
+                let leading = (below > 0.0 && v[d] < 0.0) || (above > 0.0 && v[d] > 0.0);
+                if gap > 1e-9 * geo.h && !leading {
+                    outside |= 1 << d;
+                }
+            }
+            outside
+        };
         // serial: the particles near the bodies are few, and a fixed order keeps the sum's
         // bits the same on any number of threads
         for p in 0..ps.len() {
@@ -411,11 +434,26 @@ impl<const D: usize> RigidBodies<D> {
             if !near {
                 continue;
             }
-            let pv = ps.pressure[p] * ps.volume(p);
-            Stencil::<D>::new(shape, &xc, geo.h, ps.half_width[p]).for_each(|nw| {
+            let vol = ps.volume(p);
+            let pv = ps.pressure[p] * vol;
+            let stencil = Stencil::<D>::new(shape, &xc, geo.h, ps.half_width[p]);
+            let mut grad_p = Vector::<D>::zeros();
+            stencil.for_each(|nw| grad_p += nw.grad * node_pressure[geo.flat(&nw.node)]);
+            stencil.for_each(|nw| {
                 let (b, h) = self.owner[geo.flat(&nw.node)];
                 if b != usize::MAX {
                     self.force[b] += masked(nw.grad * pv, h);
+                    return;
+                }
+                // V_p grad(N_i p)_p: the weak form less the corrector's gradient form, the
+                // boundary term, in the normals of the faces the node lies beyond (a wall or
+                // floor the node also touches has other normals)
+                let x = geo.node_position(&nw.node);
+                for (b, force) in self.force.iter_mut().enumerate() {
+                    let outside = apron(b, &x);
+                    if outside != 0 {
+                        *force += masked((nw.grad * pv) + grad_p * (nw.n * vol), outside);
+                    }
                 }
             });
         }
@@ -432,11 +470,17 @@ pub enum PressureForce<'a, const D: usize> {
     /// The explicit scheme: the pressure is in the particle stress, already in the nodes'
     /// force.
     None,
-    /// The nodal projection: from the particles, with their new pressure, and the shape
-    /// functions, in the weak form sum_p V_p p_p grad N_ip, as the explicit scheme's stress
-    /// carries it (the corrector's form sum_p V_p N_ip grad p_p leaves out the boundary term
-    /// p n, which on a body's face is the very pressure it bears).
-    Particles(&'a Particles<D>, ShapeFunction),
+    /// The nodal projection: from the particles, with their new pressure, the nodes' new
+    /// pressure (the third field) and the shape functions. On a body's nodes, the weak form
+    /// sum_p V_p p_p grad N_ip, as the explicit scheme's stress carries it (the corrector's
+    /// form sum_p V_p N_ip grad p_p leaves out the boundary term p n, which on a body's face is
+    /// the very pressure it bears). That holds only the body nodes' share of the face's
+    /// pressure, int_face N_i p n over the nodes inside: on a face midway between node rows,
+    /// half of it. The fluid nodes whose support reaches the face hold the rest, their
+    /// boundary term sum_p V_p grad(N_i p)_p, taken in the face's normal. (The explicit scheme
+    /// has no such gap: the first fluid node row pushes the particles against the face until
+    /// their pressure doubles.)
+    Particles(&'a Particles<D>, ShapeFunction, &'a [f64]),
     /// The cell projection: the weak force sum_c p_c D_cj per node, the corrector's own.
     Nodal(&'a [Vector<D>]),
 }

@@ -297,9 +297,11 @@ impl<const D: usize> Simulation<D> {
                 let projection = self.projection.as_ref().expect("set up for this scheme");
                 let pressure = match projection.cell_pressure_force() {
                     Some(f) => crate::rigid::PressureForce::Nodal(f),
-                    None => {
-                        crate::rigid::PressureForce::Particles(&self.particles, self.settings.shape)
-                    }
+                    None => crate::rigid::PressureForce::Particles(
+                        &self.particles,
+                        self.settings.shape,
+                        &projection.previous,
+                    ),
                 };
                 self.boundary.rigid.end_step(&self.grid, dt, pressure);
                 self.boundary.apply(&mut self.grid.velocity_new);
