@@ -404,10 +404,11 @@ impl<const D: usize> RigidBodies<D> {
         // row before a face that lies between node rows) carries the rest of the face's
         // pressure: its share int_face p N_i n of the boundary term
         let reach = 0.5 * shape.width() as f64 * geo.h * (1.0 - 1e-9);
-        let (lo_0, hi_0, velocity, time) = (&self.lo, &self.hi, &self.velocity, self.time);
+        // the sums go into `forces`, moved out of `self` so that `apron` may read the bodies
+        let mut forces = std::mem::take(&mut self.force);
         let apron = |b: usize, x: &Vector<D>| -> u8 {
-            let v = velocity[b];
-            let (lo, hi) = (lo_0[b] + v * time, hi_0[b] + v * time);
+            let v = self.velocity[b];
+            let (lo, hi) = self.bounds(b);
             let mut outside = 0u8;
             for d in 0..D {
                 let (below, above) = (lo[d] - x[d], x[d] - hi[d]);
@@ -442,14 +443,14 @@ impl<const D: usize> RigidBodies<D> {
             stencil.for_each(|nw| {
                 let (b, h) = self.owner[geo.flat(&nw.node)];
                 if b != usize::MAX {
-                    self.force[b] += masked(nw.grad * pv, h);
+                    forces[b] += masked(nw.grad * pv, h);
                     return;
                 }
                 // V_p grad(N_i p)_p: the weak form less the corrector's gradient form, the
                 // boundary term, in the normals of the faces the node lies beyond (a wall or
                 // floor the node also touches has other normals)
                 let x = geo.node_position(&nw.node);
-                for (b, force) in self.force.iter_mut().enumerate() {
+                for (b, force) in forces.iter_mut().enumerate() {
                     let outside = apron(b, &x);
                     if outside != 0 {
                         *force += masked((nw.grad * pv) + grad_p * (nw.n * vol), outside);
@@ -457,6 +458,7 @@ impl<const D: usize> RigidBodies<D> {
                 }
             });
         }
+        self.force = forces;
     }
 }
 
