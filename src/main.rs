@@ -95,7 +95,7 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
         /// Only these cases (hydrostatic, martin_moyce, conservation, lobovsky, cavity,
-        /// poiseuille, couette, taylor_green).
+        /// poiseuille, couette, taylor_green, bingham_poiseuille, strip_footing, elastic).
         #[arg(long = "case", num_args = 1..)]
         case: Vec<String>,
     },

@@ -503,3 +503,14 @@ fn projection_defaults_to_apic_and_check_warns_of_flip() {
     let flip = check(deck.to_str().unwrap());
     assert!(flip.contains(warning), "{flip}");
 }
+
+/// `pmpm validate --help` names every case `--case` accepts.
+#[test]
+fn validate_help_names_every_case() {
+    let out = pmpm(&["validate", "--help"]);
+    assert!(out.status.success());
+    let help = String::from_utf8_lossy(&out.stdout).replace(char::is_whitespace, "");
+    for case in pmpm::validation::case_names() {
+        assert!(help.contains(case), "{case} missing from: {help}");
+    }
+}
