@@ -178,11 +178,15 @@ impl<const D: usize> RigidBodies<D> {
                         ahead |= 1 << d;
                         continue;
                     }
-                    let on_lo = (x - face_lo[d]) / geo.h < eps;
-                    let on_hi = (face_hi[d] - x) / geo.h < eps;
-                    if (on_lo && v[d] < 0.0) || (on_hi && v[d] > 0.0) {
+                    let (in_lo, in_hi) = ((x - face_lo[d]) / geo.h, (face_hi[d] - x) / geo.h);
+                    if (in_lo < eps && v[d] < 0.0) || (in_hi < eps && v[d] > 0.0) {
                         leading = true;
-                    } else if on_lo || on_hi {
+                    } else if (in_lo < 1.0 - eps && v[d] >= 0.0)
+                        || (in_hi < 1.0 - eps && v[d] <= 0.0)
+                    {
+                        // on a face that does not lead, or in the first row of nodes inside
+                        // it (a face midway between node rows, as the docs advise, has no
+                        // node on it)
                         normals |= 1 << d;
                     }
                 }
@@ -567,6 +571,17 @@ mod tests {
         r.apply(&mut v);
         assert_eq!(v[node(0.3, 0.8)], Vector::<2>::new(0.0, 5.0));
         assert_eq!(v[node(0.1, 0.7)], Vector::<2>::new(5.0, -1.0));
+        // at rest with its faces midway between node rows: no node lies on a face, and the
+        // first row inside each face holds that face's normal only
+        let mut r = bodies([0.05, 0.05], [0.45, 0.45], [0.0, 0.0]);
+        r.smooth = vec![true];
+        r.set_time(0.0, &g);
+        let held = |x: f64, y: f64| r.nodes.iter().find(|n| n.0 == node(x, y)).map(|n| n.2);
+        assert_eq!(held(0.1, 0.2), Some(0b01));
+        assert_eq!(held(0.4, 0.3), Some(0b01));
+        assert_eq!(held(0.2, 0.1), Some(0b10));
+        assert_eq!(held(0.3, 0.4), Some(0b10));
+        assert_eq!(held(0.2, 0.3), Some(0b11));
         // rough (the default): every node in the box the whole velocity; ahead, the push
         let mut r = bodies([0.0, 0.72], [0.3, 1.0], [0.0, -1.0]);
         r.set_time(0.0, &g);
