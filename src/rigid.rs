@@ -5,7 +5,8 @@
 //! component along the motion: they push the material the body is reaching. The force the
 //! material exerts on it is measured from the momentum that imposing that velocity adds.
 //! With smooth sides ([`RigidSides::Smooth`]) the nodes on the faces that do not lead the
-//! motion take only the velocity's normal component, as slip wall nodes do.
+//! motion, or less than a cell inside them, take only the velocity's normal component, as slip
+//! wall nodes do.
 //!
 //! The force: on a body's nodes the grid momentum without the body would be, at the step's
 //! end, P = sum_i (m_i v_i^n + dt f_i) (the predictor of P2G's velocity and forces, the
@@ -167,7 +168,8 @@ impl<const D: usize> RigidBodies<D> {
             // the components a node holds. Ahead of a leading face, the components along which
             // it leads: the body pushes the material there, but has not reached it and does
             // not drag it sideways. On or inside the box, all; but with smooth sides, a node
-            // on faces that do not lead (and on none that does) holds their normals only.
+            // on faces that do not lead or less than a cell inside them (and on no leading
+            // face) holds their normals only.
             let v = self.velocity[b];
             let held = |idx: &[usize; D]| -> u8 {
                 let (mut normals, mut ahead, mut leading) = (0u8, 0u8, false);
