@@ -426,6 +426,17 @@ pub enum PoissonRhs {
     Divergence,
 }
 
+/// How the nodal projection sees the rigid bodies' faces (`pressure.rigid_faces`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RigidFaces {
+    /// The body's nodes hold its velocity: the face acts at node resolution.
+    Nodes,
+    /// Cut cells: a face acts where it lies (src/rigid.rs). Needs linear or GIMP shape
+    /// functions, the level-set free surface and nodal unknowns.
+    Cut,
+}
+
 /// Where the projection's pressure unknowns sit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -504,6 +515,10 @@ pub struct PressureDeck {
     /// Where the pressure unknowns sit: "nodes" (METHOD.md, the default) or "cells".
     #[serde(default)]
     pub unknowns: PressureUnknowns,
+    /// How the nodal projection sees the rigid bodies' faces; left out, cut cells where they
+    /// apply ([`PressureDeck::cuts_cells`]), the nodes elsewhere.
+    #[serde(default)]
+    pub rigid_faces: Option<RigidFaces>,
 }
 
 fn default_tolerance() -> f64 {
@@ -528,6 +543,27 @@ fn default_vf_tolerance() -> f64 {
     0.3
 }
 
+impl PressureDeck {
+    /// Whether cut-cell rigid faces can apply with these settings: linear or GIMP shape
+    /// functions (with the B-splines a plate pushed into water let it through its face), the
+    /// level-set free surface and nodal unknowns.
+    pub fn cut_cells_apply(&self, shape: ShapeFunction) -> bool {
+        matches!(shape, ShapeFunction::Linear | ShapeFunction::Gimp)
+            && self.free_surface.unwrap_or_default() == FreeSurface::LevelSet
+            && self.unknowns == PressureUnknowns::Nodes
+    }
+
+    /// Whether the projection sees the rigid bodies' faces where they lie: asked for, or left
+    /// out where cut cells apply.
+    pub fn cuts_cells(&self, shape: ShapeFunction) -> bool {
+        match self.rigid_faces {
+            Some(RigidFaces::Cut) => true,
+            Some(RigidFaces::Nodes) => false,
+            None => self.cut_cells_apply(shape),
+        }
+    }
+}
+
 impl Default for PressureDeck {
     fn default() -> Self {
         Self {
@@ -545,6 +581,7 @@ impl Default for PressureDeck {
             volume_correction: 0.0,
             density_correction: None,
             unknowns: PressureUnknowns::default(),
+            rigid_faces: None,
         }
     }
 }
@@ -1012,6 +1049,11 @@ pub fn nearest<'a>(given: &str, valid: impl IntoIterator<Item = &'a str>) -> Opt
 }
 
 /// The values an enum of the deck accepts, in order (read from serde's own error message).
+/// How a deck spells a setting's value, quoted (`"bspline2"`).
+fn spelling<T: Serialize>(value: &T) -> String {
+    toml::Value::try_from(value).map_or_else(|_| String::from("?"), |v| v.to_string())
+}
+
 fn variants<'de, T: Deserialize<'de>>() -> Vec<String> {
     use serde::de::IntoDeserializer;
     let probe: serde::de::value::StrDeserializer<'_, serde::de::value::Error> =
@@ -1043,6 +1085,7 @@ fn allowed_values(key: &str) -> Option<Vec<String>> {
         "rhs" => variants::<PoissonRhs>(),
         "quadrature" => variants::<Quadrature>(),
         "unknowns" => variants::<PressureUnknowns>(),
+        "rigid_faces" => variants::<RigidFaces>(),
         "model" => variants::<Model>(),
         "formats" => variants::<Format>(),
         "stress" => variants::<InitialStress>(),
@@ -1593,6 +1636,20 @@ impl Deck {
             return Err(c.err(
                 "pressure.passes",
                 "must be >= 1 (1: one solve per step), got 0",
+            ));
+        }
+        if p.rigid_faces == Some(RigidFaces::Cut)
+            && self.simulation.scheme == Scheme::Projection
+            && !p.cut_cells_apply(self.simulation.shape_function)
+        {
+            return Err(c.err(
+                "pressure.rigid_faces",
+                format!(
+                    "\"cut\" needs shape_function = \"linear\" or \"gimp\", free_surface = \"level_set\" and unknowns = \"nodes\" (this deck has {}, {}, {}); use \"nodes\" or leave the key out",
+                    spelling(&self.simulation.shape_function),
+                    spelling(&p.free_surface.unwrap_or_default()),
+                    spelling(&p.unknowns)
+                ),
             ));
         }
         if !(p.volume_fraction_tolerance > 0.0 && p.volume_fraction_tolerance < 1.0) {

@@ -2,23 +2,31 @@
 //! clay, a penetrometer, a gate lifted from a dam. Each is an axis-aligned box; its grid
 //! nodes inside the box as it is now take its velocity, as no-slip wall nodes take a wall's,
 //! and the nodes less than a cell ahead of the faces it moves towards take the velocity's
-//! component along the motion: they push the material the body is reaching. The force the
-//! material exerts on it is measured from the momentum that imposing that velocity adds.
-//! With smooth sides ([`RigidSides::Smooth`]) the nodes on the faces that do not lead the
-//! motion, or less than a cell inside them, take only the velocity's normal component, as slip
-//! wall nodes do.
+//! component along the motion: they push the material the body is reaching. With smooth sides
+//! ([`RigidSides::Smooth`]) the nodes on the faces that do not lead the motion, or less than a
+//! cell inside them, take only the velocity's normal component, as slip wall nodes do.
+//!
+//! With cut cells (`pressure.rigid_faces = "cut"`, the nodal projection with the level-set
+//! free surface and linear or GIMP shape functions) the faces act where they lie: no rows are
+//! held ahead; a node less than half a cell inside a face holds the ghost normal velocity that
+//! puts the body's on the face; one between half a cell and a cell inside leaves its normal to
+//! the pressure, whose right-hand side takes the jump of the normal velocity across the face
+//! ([`RigidBodies::add_face_flux`]); the cells a face cuts are integrated over their open part.
 //!
 //! The force: on a body's nodes the grid momentum without the body would be, at the step's
 //! end, P = sum_i (m_i v_i^n + dt f_i) (the predictor of P2G's velocity and forces, the
-//! explicit scheme's pressure in f), plus with the projection dt f^p_i, the pressure's force.
-//! The body sets every one of its nodes to its own velocity V, so the impulse it gives the
-//! material over the step is I = sum_i m_i V - P - dt sum_i f^p_i, and the force on the body is
-//! -I / dt: the material's stress, pressure, weight and inertia at the body's nodes. Where a
-//! node holds only some components, the sums run over those.
+//! explicit scheme's pressure in f), plus with the projection dt f^p_i, the pressure's force
+//! on the node as the corrector applies it. The body sets its nodes' held components to the
+//! values it holds, so the impulse it gives the material over the step is
+//! I = sum_i m_i V_i - P - dt sum_i f^p_i over those components, and the force on the body is
+//! -I / dt: the material's stress, weight and inertia at the body's nodes. With the projection,
+//! the pressure on the wet faces, int p n dS, is added: the corrector's gradient form pushes the
+//! material away from a face with it, whichever nodes carry the push.
 
 use crate::deck::{Deck, RigidSides, ShapeFunction};
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::Particles;
+use crate::pressure::free_surface::NodeKind;
 use crate::shape::{Stencil, PAD};
 use rayon::prelude::*;
 
@@ -51,6 +59,32 @@ pub struct RigidBodies<const D: usize> {
     /// none), and the impulse that took.
     hit: Vec<u32>,
     impulse: Vec<Vector<D>>,
+    /// Cut cells: the nodal projection with the level-set free surface sees each face where it
+    /// lies ([`RigidBodies::add_face_flux`]), and the nodes less than a cell inside a face
+    /// leave its normal velocity free.
+    cut: bool,
+    /// Quadrature points on the faces that can meet the material, at the time of
+    /// [`RigidBodies::set_time`].
+    faces: Vec<FacePoint<D>>,
+    /// Cut cells: (node, body, axis, the node beyond the face along the axis, c) for each node
+    /// less than half a cell inside a face, whose normal component takes the ghost value
+    /// V + c (V - v_beyond) that puts the body's velocity V on the face ([`RigidBodies::apply`]).
+    ghosts: Vec<(usize, usize, usize, usize, f64)>,
+    /// Scratch: the Gauss points along each tangential axis of a face, (position, weight).
+    lines: [Vec<(f64, f64)>; 2],
+}
+
+/// A quadrature point on a rigid body's face.
+#[derive(Debug, Clone, Copy)]
+struct FacePoint<const D: usize> {
+    x: Vector<D>,
+    /// The area (in 2D the length) it stands for.
+    weight: f64,
+    /// The face's normal axis, and the sign of the normal out of the material into the body
+    /// (+1 on a lower face).
+    axis: usize,
+    sign: f64,
+    body: usize,
 }
 
 impl<const D: usize> RigidBodies<D> {
@@ -87,6 +121,11 @@ impl<const D: usize> RigidBodies<D> {
             force: vec![Vector::<D>::zeros(); n],
             hit: Vec::new(),
             impulse: Vec::new(),
+            cut: deck.simulation.scheme == crate::deck::Scheme::Projection
+                && deck.pressure.cuts_cells(deck.simulation.shape_function),
+            faces: Vec::new(),
+            ghosts: Vec::new(),
+            lines: [Vec::new(), Vec::new()],
         }
     }
 
@@ -117,7 +156,7 @@ impl<const D: usize> RigidBodies<D> {
     }
 
     /// Moves the bodies to time `t` and finds their nodes (a node on a body's face is the
-    /// body's; nodes beyond the walls stay the walls').
+    /// body's; nodes beyond the walls stay the walls') and the quadrature points on their faces.
     pub fn set_time(&mut self, t: f64, geo: &GridGeometry<D>) {
         if self.is_empty() || t == self.time {
             return;
@@ -128,7 +167,10 @@ impl<const D: usize> RigidBodies<D> {
         }
         self.owner.resize(geo.node_count(), (usize::MAX, 0));
         self.nodes.clear();
+        self.ghosts.clear();
         let all = (1u8 << D) - 1;
+        let eps = 1e-9;
+        let (grid_lo, grid_hi) = (geo.origin, geo.upper());
         for b in 0..self.len() {
             let (face_lo, face_hi) = self.bounds(b);
             let (mut lo, mut hi) = (face_lo, face_hi);
@@ -139,9 +181,13 @@ impl<const D: usize> RigidBodies<D> {
             // not enough with the nodal pressure: a plate pushed into water then bears a third
             // to a half of its hydrostatic load (the water under it packs into a layer a cell
             // below the face, the cell between reads as a free surface and takes p = 0; the
-            // notes of src/validation/footing.rs)
-            let eps = 1e-9;
-            let lead = geo.h * (1.0 - 2.0 * eps);
+            // notes of src/validation/footing.rs). With cut cells the face's flux pushes the
+            // material instead.
+            let lead = if self.cut {
+                0.0
+            } else {
+                geo.h * (1.0 - 2.0 * eps)
+            };
             for d in 0..D {
                 let v = self.velocity[b][d];
                 if v < 0.0 {
@@ -165,12 +211,18 @@ impl<const D: usize> RigidBodies<D> {
                 Vector::<D>::from_fn(|d, _| first[d] as f64 - PAD as f64),
                 Vector::<D>::from_fn(|d, _| last[d] as f64 - PAD as f64),
             );
+            // a face on a wall, or beyond it, meets no material
+            let live_lo: [bool; D] = std::array::from_fn(|d| face_lo[d] > grid_lo[d] + eps * geo.h);
+            let live_hi: [bool; D] = std::array::from_fn(|d| face_hi[d] < grid_hi[d] - eps * geo.h);
             // the components a node holds. Ahead of a leading face, the components along which
             // it leads: the body pushes the material there, but has not reached it and does
             // not drag it sideways. On or inside the box, all; but with smooth sides, a node
             // on faces that do not lead or less than a cell inside them (and on no leading
-            // face) holds their normals only.
+            // face) holds their normals only. With cut cells a node on a face or less than a
+            // cell inside it leaves that face's normal to the pressure (rough sides hold the
+            // other components, smooth ones none).
             let v = self.velocity[b];
+            let (cut, smooth) = (self.cut, self.smooth[b]);
             let held = |idx: &[usize; D]| -> u8 {
                 let (mut normals, mut ahead, mut leading) = (0u8, 0u8, false);
                 let xn = geo.node_position(idx);
@@ -181,7 +233,11 @@ impl<const D: usize> RigidBodies<D> {
                         continue;
                     }
                     let (in_lo, in_hi) = ((x - face_lo[d]) / geo.h, (face_hi[d] - x) / geo.h);
-                    if (in_lo < eps && v[d] < 0.0) || (in_hi < eps && v[d] > 0.0) {
+                    if cut {
+                        if (live_lo[d] && in_lo < 1.0 - eps) || (live_hi[d] && in_hi < 1.0 - eps) {
+                            normals |= 1 << d;
+                        }
+                    } else if (in_lo < eps && v[d] < 0.0) || (in_hi < eps && v[d] > 0.0) {
                         leading = true;
                     } else if (in_lo < 1.0 - eps && v[d] >= 0.0)
                         || (in_hi < 1.0 - eps && v[d] <= 0.0)
@@ -195,7 +251,14 @@ impl<const D: usize> RigidBodies<D> {
                 if ahead != 0 {
                     return ahead;
                 }
-                if !self.smooth[b] || leading || normals == 0 {
+                if cut {
+                    return if smooth && normals != 0 {
+                        0
+                    } else {
+                        all & !normals
+                    };
+                }
+                if !smooth || leading || normals == 0 {
                     all
                 } else {
                     normals
@@ -204,7 +267,31 @@ impl<const D: usize> RigidBodies<D> {
             let mut idx = first;
             'nodes: loop {
                 let i = geo.flat(&idx);
-                let h = held(&idx);
+                let mut h = held(&idx);
+                if cut {
+                    // less than half a cell inside a face: the ghost value of the normal
+                    // component (the nearer face where the body is thinner than two cells)
+                    let xn = geo.node_position(&idx);
+                    for d in 0..D {
+                        let below =
+                            (live_lo[d] && idx[d] > 0).then(|| (xn[d] - face_lo[d], idx[d] - 1));
+                        let above = (live_hi[d] && idx[d] + 1 < geo.nodes[d])
+                            .then(|| (face_hi[d] - xn[d], idx[d] + 1));
+                        let near = match (below, above) {
+                            (Some(l), Some(u)) => Some(if l.0 <= u.0 { l } else { u }),
+                            (l, u) => l.or(u),
+                        };
+                        if let Some((a, beyond)) = near {
+                            if a >= -eps * geo.h && a <= (0.5 + eps) * geo.h {
+                                let mut out = idx;
+                                out[d] = beyond;
+                                let a = a.max(0.0);
+                                self.ghosts.push((i, b, d, geo.flat(&out), a / (geo.h - a)));
+                                h |= 1 << d;
+                            }
+                        }
+                    }
+                }
                 self.nodes.push((i, b, h));
                 self.owner[i] = (b, h);
                 for d in 0..D {
@@ -217,6 +304,139 @@ impl<const D: usize> RigidBodies<D> {
                 break;
             }
         }
+        self.place_face_points(geo);
+    }
+
+    /// The quadrature points of the faces that can meet the material: on each face inside the
+    /// grid, not on a wall, and not inside another body, three Gauss-Legendre points per cell
+    /// along each tangential axis (exact for the products of shape functions and velocities
+    /// the flux and the force integrate, up to the fifth degree).
+    fn place_face_points(&mut self, geo: &GridGeometry<D>) {
+        const GAUSS: [(f64, f64); 3] = [
+            (-0.774_596_669_241_483_4, 5.0 / 9.0),
+            (0.0, 8.0 / 9.0),
+            (0.774_596_669_241_483_4, 5.0 / 9.0),
+        ];
+        self.faces.clear();
+        let (grid_lo, grid_hi) = (geo.origin, geo.upper());
+        let tol = 1e-9 * geo.h;
+        let mut lines = std::mem::take(&mut self.lines);
+        for b in 0..self.len() {
+            let (lo, hi) = self.bounds(b);
+            for axis in 0..D {
+                for (plane, sign) in [(lo[axis], 1.0), (hi[axis], -1.0)] {
+                    if plane <= grid_lo[axis] + tol || plane >= grid_hi[axis] - tol {
+                        continue;
+                    }
+                    // the Gauss points along each tangential axis, cell by cell
+                    let mut empty = false;
+                    for (k, e) in (0..D).filter(|&e| e != axis).enumerate() {
+                        let line = &mut lines[k];
+                        line.clear();
+                        let (a, z) = (lo[e].max(grid_lo[e]), hi[e].min(grid_hi[e]));
+                        empty |= z <= a;
+                        let mut s = a;
+                        while s < z {
+                            let next_line = grid_lo[e]
+                                + (((s - grid_lo[e]) / geo.h + 1e-9).floor() + 1.0) * geo.h;
+                            let t = next_line.min(z);
+                            let (mid, half) = (0.5 * (s + t), 0.5 * (t - s));
+                            for (g, w) in GAUSS {
+                                line.push((mid + g * half, w * half));
+                            }
+                            s = t;
+                        }
+                    }
+                    if empty {
+                        continue;
+                    }
+                    let counts: [usize; 2] =
+                        std::array::from_fn(|k| if k + 1 < D { lines[k].len() } else { 1 });
+                    let total = counts[0] * counts[1];
+                    for n in 0..total {
+                        let mut x = Vector::<D>::zeros();
+                        x[axis] = plane;
+                        let (mut weight, mut rem) = (1.0, n);
+                        for (k, e) in (0..D).filter(|&e| e != axis).enumerate() {
+                            let (pos, w) = lines[k][rem % counts[k]];
+                            rem /= counts[k];
+                            x[e] = pos;
+                            weight *= w;
+                        }
+                        // a face inside another body meets no material
+                        let covered = (0..self.len()).any(|o| {
+                            let (olo, ohi) = self.bounds(o);
+                            o != b && (0..D).all(|d| x[d] > olo[d] - tol && x[d] < ohi[d] + tol)
+                        });
+                        if !covered {
+                            self.faces.push(FacePoint {
+                                x,
+                                weight,
+                                axis,
+                                sign,
+                                body: b,
+                            });
+                        }
+                    }
+                }
+            }
+        }
+        self.lines = lines;
+    }
+
+    /// Whether `x` lies inside a body, at the time of [`RigidBodies::set_time`].
+    pub fn contains(&self, x: &Vector<D>) -> bool {
+        (0..self.len()).any(|b| {
+            let (lo, hi) = self.bounds(b);
+            (0..D).all(|d| x[d] > lo[d] && x[d] < hi[d])
+        })
+    }
+
+    /// Whether the projection sees the bodies' faces where they lie (cut cells).
+    pub fn cuts_cells(&self) -> bool {
+        self.cut && !self.is_empty()
+    }
+
+    /// The bodies' flux in the projection's right-hand side (cut cells). The weak condition
+    /// on node i's row, over the material and the bodies together, is
+    ///
+    /// ```text
+    /// int_fluid N_i div v dV + int_faces N_i (V_b - v) . n dS = 0
+    /// ```
+    ///
+    /// with n out of the material into the body: the jump of the normal velocity across a
+    /// face counts as a source, so the pressure makes the material's normal velocity the
+    /// body's where the face lies, anywhere in a cell (Batty, Bertails & Bridson 2007, in the
+    /// weak form). The assembly integrates the first term; this adds the second,
+    /// -(1/dt) sum_g w_g N_i(x_g) (V_b - v(x_g)) . n_g, over the face points the level set
+    /// `phi` reads as wet, to the rows `row_of` numbers.
+    #[allow(clippy::too_many_arguments)]
+    pub fn add_face_flux(
+        &self,
+        geo: &GridGeometry<D>,
+        shape: ShapeFunction,
+        v: &[Vector<D>],
+        phi: Option<&[f64]>,
+        row_of: &[u32],
+        dt: f64,
+        rhs: &mut [f64],
+    ) {
+        // serial: the points are few, and a fixed order keeps the bits on any thread count
+        for f in &self.faces {
+            if !wet(geo, phi, &f.x) {
+                continue;
+            }
+            let st = Stencil::<D>::new(shape, &geo.to_cells(&f.x), geo.h, 0.0);
+            let mut vn = 0.0;
+            st.for_each(|nw| vn += nw.n * v[geo.flat(&nw.node)][f.axis]);
+            let jump = f.sign * (self.velocity[f.body][f.axis] - vn) * f.weight / dt;
+            st.for_each(|nw| {
+                let r = row_of[geo.canonical(geo.flat(&nw.node))];
+                if r != u32::MAX {
+                    rhs[r as usize] -= nw.n * jump;
+                }
+            });
+        }
     }
 
     /// Sets the bodies' nodes to the bodies' velocities (the components they hold).
@@ -227,6 +447,13 @@ impl<const D: usize> RigidBodies<D> {
                     v[i][d] = self.velocity[b][d];
                 }
             }
+        }
+        // with cut cells, a node less than half a cell inside a face (at a from it) takes the
+        // normal velocity that puts the body's on the face between it and the node beyond,
+        // ((h - a) v_i + a v_beyond) / h = V
+        for &(i, b, d, beyond, c) in &self.ghosts {
+            let body = self.velocity[b][d];
+            v[i][d] = body + c * (body - v[beyond][d]);
         }
     }
 
@@ -390,12 +617,19 @@ impl<const D: usize> RigidBodies<D> {
             *f = -self.free_momentum[b];
         }
         for &(i, b, h) in &self.nodes {
-            self.force[b] += masked(self.velocity[b] * grid.mass[i], h);
+            // with cut cells the value the node holds (a ghost value on a face's normal), which
+            // the projection's last pass has set
+            let set = if self.cut {
+                grid.velocity_new[i]
+            } else {
+                self.velocity[b]
+            };
+            self.force[b] += masked(set * grid.mass[i], h);
         }
         for f in &mut self.force {
             *f /= -dt;
         }
-        let (ps, shape, node_pressure) = match pressure {
+        let (ps, shape, node_pressure, phi, kinds) = match pressure {
             PressureForce::None => return,
             PressureForce::Nodal(f) => {
                 for &(i, b, h) in &self.nodes {
@@ -403,35 +637,18 @@ impl<const D: usize> RigidBodies<D> {
                 }
                 return;
             }
-            PressureForce::Particles(ps, shape, node_pressure) => (ps, shape, node_pressure),
+            PressureForce::Particles {
+                particles,
+                shape,
+                pressure,
+                level_set,
+                kinds,
+            } => (particles, shape, pressure, level_set, kinds),
         };
         let geo = &grid.geo;
-        // a node within the support of a body's face but outside the body (the first fluid
-        // row before a face that lies between node rows) carries the rest of the face's
-        // pressure: its share int_face p N_i n of the boundary term
-        let reach = 0.5 * shape.width() as f64 * geo.h * (1.0 - 1e-9);
-        // the sums go into `forces`, moved out of `self` so that `apron` may read the bodies
-        let mut forces = std::mem::take(&mut self.force);
-        let apron = |b: usize, x: &Vector<D>| -> u8 {
-            let v = self.velocity[b];
-            let (lo, hi) = self.bounds(b);
-            let mut outside = 0u8;
-            for d in 0..D {
-                let (below, above) = (lo[d] - x[d], x[d] - hi[d]);
-                let gap = below.max(above);
-                if gap >= reach {
-                    return 0;
-                }
-                // beyond a leading face the rows a cell ahead are the body's already
-                let leading = (below > 0.0 && v[d] < 0.0) || (above > 0.0 && v[d] > 0.0);
-                if gap > 1e-9 * geo.h && !leading {
-                    outside |= 1 << d;
-                }
-            }
-            outside
-        };
-        // serial: the particles near the bodies are few, and a fixed order keeps the sum's
-        // bits the same on any number of threads
+        // the pressure's force on the components the bodies hold, as the corrector applied it:
+        // f_i = -sum_p V_p N_ip (grad p)_p. Serial: the particles near the bodies are few, and
+        // a fixed order keeps the sum's bits the same on any number of threads.
         for p in 0..ps.len() {
             let xc = geo.to_cells(&ps.x[p]);
             let near = (0..self.len()).any(|b| {
@@ -441,31 +658,55 @@ impl<const D: usize> RigidBodies<D> {
             if !near {
                 continue;
             }
-            let vol = ps.volume(p);
-            let pv = ps.pressure[p] * vol;
             let stencil = Stencil::<D>::new(shape, &xc, geo.h, ps.half_width[p]);
             let mut grad_p = Vector::<D>::zeros();
             stencil.for_each(|nw| grad_p += nw.grad * node_pressure[geo.flat(&nw.node)]);
+            let vol = ps.volume0[p];
             stencil.for_each(|nw| {
                 let (b, h) = self.owner[geo.flat(&nw.node)];
-                if b != usize::MAX {
-                    forces[b] += masked(nw.grad * pv, h);
-                    return;
-                }
-                // V_p grad(N_i p)_p: the weak form less the corrector's gradient form, the
-                // boundary term, in the normals of the faces the node lies beyond (a wall or
-                // floor the node also touches has other normals)
-                let x = geo.node_position(&nw.node);
-                for (b, force) in forces.iter_mut().enumerate() {
-                    let outside = apron(b, &x);
-                    if outside != 0 {
-                        *force += masked((nw.grad * pv) + grad_p * (nw.n * vol), outside);
-                    }
+                if b != usize::MAX && h != 0 {
+                    self.force[b] -= masked(grad_p * (vol * nw.n), h);
                 }
             });
         }
-        self.force = forces;
+        // and the pressure on the faces, int_faces p n dS (n into the body): the corrector's
+        // gradient form pushes the material with -int grad p dV, whose part on a body's side is
+        // this, the face's reaction; over the wet faces only, where the level set reads water
+        for f in &self.faces {
+            if !wet(geo, phi, &f.x) {
+                continue;
+            }
+            // over the nodes that carry a pressure: the wider shape functions reach nodes
+            // inside the body that no material reaches, whose pressure is not solved for
+            let st = Stencil::<D>::new(shape, &geo.to_cells(&f.x), geo.h, 0.0);
+            let (mut p, mut weight) = (0.0, 0.0);
+            st.for_each(|nw| {
+                let i = geo.flat(&nw.node);
+                if matches!(
+                    kinds[geo.canonical(i)],
+                    NodeKind::Interior | NodeKind::FreeSurface
+                ) {
+                    p += nw.n * node_pressure[i];
+                    weight += nw.n;
+                }
+            });
+            if weight > 0.0 {
+                self.force[f.body][f.axis] += f.sign * p / weight * f.weight;
+            }
+        }
     }
+}
+
+/// Whether the level set `phi` (at the nodes, negative in the material), interpolated linearly
+/// to `x`, reads it as in the material; without a level set, every point.
+fn wet<const D: usize>(geo: &GridGeometry<D>, phi: Option<&[f64]>, x: &Vector<D>) -> bool {
+    let Some(phi) = phi else {
+        return true;
+    };
+    let st = Stencil::<D>::new(ShapeFunction::Linear, &geo.to_cells(x), geo.h, 0.0);
+    let mut value = 0.0;
+    st.for_each(|nw| value += nw.n * phi[geo.flat(&nw.node)]);
+    value <= 0.0
 }
 
 /// The components of `v` that `held` names (bit d: component d), the others zero.
@@ -478,17 +719,24 @@ pub enum PressureForce<'a, const D: usize> {
     /// The explicit scheme: the pressure is in the particle stress, already in the nodes'
     /// force.
     None,
-    /// The nodal projection: from the particles, with their new pressure, the nodes' new
-    /// pressure (the third field) and the shape functions. On a body's nodes, the weak form
-    /// sum_p V_p p_p grad N_ip, as the explicit scheme's stress carries it (the corrector's
-    /// form sum_p V_p N_ip grad p_p leaves out the boundary term p n, which on a body's face is
-    /// the very pressure it bears). That holds only the body nodes' share of the face's
-    /// pressure, int_face N_i p n over the nodes inside: on a face midway between node rows,
-    /// half of it. The fluid nodes whose support reaches the face hold the rest, their
-    /// boundary term sum_p V_p grad(N_i p)_p, taken in the face's normal. (The explicit scheme
-    /// has no such gap: the first fluid node row pushes the particles against the face until
-    /// their pressure doubles.)
-    Particles(&'a Particles<D>, ShapeFunction, &'a [f64]),
+    /// The nodal projection: the particles, the shape functions, the nodes' new pressure and
+    /// the level set of the free surface, where there is one. The force is the pressure on
+    /// the bodies' wet faces, int p n dS, plus on the components the bodies hold the
+    /// corrector's share, -sum_p V_p N_ip (grad p)_p, which the holding takes away from the
+    /// material. (The corrector's gradient form spreads the faces' push over the nodes near
+    /// them; only its sum over them, the face integral, is the body's.)
+    Particles {
+        /// The particles (positions, half-widths, volumes).
+        particles: &'a Particles<D>,
+        /// The shape functions.
+        shape: ShapeFunction,
+        /// The nodes' pressure p^{n+1}.
+        pressure: &'a [f64],
+        /// The free surface's level set at the nodes.
+        level_set: Option<&'a [f64]>,
+        /// Each node's role in the pressure solve.
+        kinds: &'a [NodeKind],
+    },
     /// The cell projection: the weak force sum_c p_c D_cj per node, the corrector's own.
     Nodal(&'a [Vector<D>]),
 }
@@ -515,6 +763,10 @@ mod tests {
             force: vec![Vector::<2>::zeros()],
             hit: Vec::new(),
             impulse: Vec::new(),
+            cut: false,
+            faces: Vec::new(),
+            ghosts: Vec::new(),
+            lines: [Vec::new(), Vec::new()],
         }
     }
 
@@ -591,6 +843,66 @@ mod tests {
             let y = g.node_position(&g.multi(n.0))[1];
             assert_eq!(n.2, if y < 0.72 { 0b10 } else { 0b11 }, "y = {y}");
         }
+    }
+
+    #[test]
+    fn cut_cells_leave_a_face_normal_to_the_pressure_or_to_a_ghost_value() {
+        let g = geo();
+        // a block at rest on the floor; the nodes x = 0.4, 0.6 and y = 0.4 lie 0.7 h inside
+        // its sides and top
+        let mut r = bodies([0.33, 0.0], [0.67, 0.47], [0.0, 0.0]);
+        r.cut = true;
+        r.set_time(0.0, &g);
+        let node = |x: f64, y: f64| {
+            g.flat(&[
+                PAD + (x / 0.1).round() as usize,
+                PAD + (y / 0.1).round() as usize,
+            ])
+        };
+        let held = |r: &RigidBodies<2>, x: f64, y: f64| {
+            r.nodes.iter().find(|n| n.0 == node(x, y)).map(|n| n.2)
+        };
+        // the first row inside the left side: its normal, x, free; the rough side holds y
+        assert_eq!(held(&r, 0.4, 0.2), Some(0b10));
+        // on the floor, which is a wall and no face to the material: as above
+        assert_eq!(held(&r, 0.4, 0.0), Some(0b10));
+        // under the top: y free
+        assert_eq!(held(&r, 0.5, 0.4), Some(0b01));
+        // the corner: both normals free
+        assert_eq!(held(&r, 0.6, 0.4), Some(0b00));
+        // deeper than a cell from every face: all
+        assert_eq!(held(&r, 0.5, 0.2), Some(0b11));
+        assert!(r.ghosts.is_empty());
+        // the faces' points: the sides (0.47 m each) and the top (0.34 m), not the floor
+        let length = |r: &RigidBodies<2>, axis: usize, sign: f64| -> f64 {
+            r.faces
+                .iter()
+                .filter(|f| f.axis == axis && f.sign == sign)
+                .map(|f| f.weight)
+                .sum()
+        };
+        assert!((length(&r, 0, 1.0) - 0.47).abs() < 1e-12);
+        assert!((length(&r, 0, -1.0) - 0.47).abs() < 1e-12);
+        assert!((length(&r, 1, -1.0) - 0.34).abs() < 1e-12);
+        assert_eq!(length(&r, 1, 1.0), 0.0);
+        // smooth sides hold nothing in the first row
+        let mut r = bodies([0.33, 0.0], [0.67, 0.47], [0.0, 0.0]);
+        (r.cut, r.smooth) = (true, vec![true]);
+        r.set_time(0.0, &g);
+        assert_eq!(held(&r, 0.4, 0.2), Some(0b00));
+        assert_eq!(held(&r, 0.5, 0.2), Some(0b11));
+        // a side 0.3 h from the first node inside (x = 0.37, node 0.4): that node holds the
+        // ghost value V + c (V - v_beyond), c = 0.3 / 0.7, which puts V on the face
+        let mut r = bodies([0.37, 0.0], [0.67, 0.47], [1.0, 0.0]);
+        r.cut = true;
+        r.set_time(0.0, &g);
+        assert_eq!(held(&r, 0.4, 0.2), Some(0b11));
+        let mut v = vec![Vector::<2>::new(-2.0, 0.0); g.node_count()];
+        r.apply(&mut v);
+        let ghost = v[node(0.4, 0.2)][0];
+        let on_face = (0.7 * ghost + 0.3 * v[node(0.3, 0.2)][0]) / 1.0;
+        assert!((ghost - (1.0 + 3.0 / 7.0 * 3.0)).abs() < 1e-12, "{ghost}");
+        assert!((on_face - 1.0).abs() < 1e-12, "{on_face}");
     }
 
     #[test]

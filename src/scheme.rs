@@ -297,11 +297,13 @@ impl<const D: usize> Simulation<D> {
                 let projection = self.projection.as_ref().expect("set up for this scheme");
                 let pressure = match projection.cell_pressure_force() {
                     Some(f) => crate::rigid::PressureForce::Nodal(f),
-                    None => crate::rigid::PressureForce::Particles(
-                        &self.particles,
-                        self.settings.shape,
-                        &projection.previous,
-                    ),
+                    None => crate::rigid::PressureForce::Particles {
+                        particles: &self.particles,
+                        shape: self.settings.shape,
+                        pressure: &projection.previous,
+                        level_set: projection.surface.level_set(),
+                        kinds: &projection.surface.kinds,
+                    },
                 };
                 self.boundary.rigid.end_step(&self.grid, dt, pressure);
                 self.boundary.apply(&mut self.grid.velocity_new);

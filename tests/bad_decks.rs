@@ -310,6 +310,17 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "bad.toml: pressure.volume_correction: must be >= 0 and < 1 (a fraction of the drift given back per step), got 1.5",
         ),
         (
+            "cut-cell rigid faces with B-splines",
+            format!(
+                "{}\n[pressure]\nrigid_faces = \"cut\"\n",
+                SMALL_2D.replace(
+                    "scheme = \"explicit\"",
+                    "scheme = \"projection\"\nshape_function = \"bspline2\""
+                )
+            ),
+            "bad.toml: pressure.rigid_faces: \"cut\" needs shape_function = \"linear\" or \"gimp\", free_surface = \"level_set\" and unknowns = \"nodes\" (this deck has \"bspline2\", \"level_set\", \"nodes\"); use \"nodes\" or leave the key out",
+        ),
+        (
             "no pressure pass",
             format!("{SMALL_2D}\n[pressure]\npasses = 0\n"),
             "bad.toml: pressure.passes: must be >= 1 (1: one solve per step), got 0",

@@ -126,6 +126,8 @@ impl<const D: usize> ParticleQuadrature<'_, D> {
 /// between i and j ([`super::free_surface::theta`]): L_ij (1 - 1/theta) joins the diagonal
 /// and L_ij d_j / theta the right-hand side (Gibou, Fedkiw, Cheng & Kang 2002). The diagonal
 /// only grows (L_ij <= 0 for full-cell quadrature), so L stays symmetric positive definite.
+/// A column inside a rigid body ([`NodeKind::Solid`]) takes the row's own value: L_ij joins
+/// the diagonal, which keeps the row diagonally dominant (weakly, as a Neumann row is).
 #[allow(clippy::too_many_arguments)]
 pub fn assemble<const D: usize>(
     geo: &GridGeometry<D>,
@@ -210,7 +212,10 @@ pub fn assemble<const D: usize>(
                         }
                         _ => 1.0,
                     };
-                    if t < 1.0 {
+                    if valid && kinds[jf] == NodeKind::Solid {
+                        // inside a rigid body: p_j = p_i
+                        ghost_diagonal += acc[s];
+                    } else if t < 1.0 {
                         ghost_diagonal += acc[s] * (1.0 - 1.0 / t);
                         known += acc[s] * dirichlet[jf] / t;
                     } else if valid && kinds[jf] == NodeKind::FreeSurface {

@@ -178,6 +178,7 @@ impl<const D: usize> DensityCorrection<D> {
             shape,
             kinds: &self.surface.kinds,
             solid: self.surface.solid(),
+            cut: boundary.rigid.cuts_cells().then_some(&boundary.rigid),
         };
         let fraction = &self.surface.fraction;
         let v0 = &ps.volume0;

@@ -21,6 +21,11 @@ pub enum NodeKind {
     FreeSurface,
     /// Inside the fluid: an unknown of the Poisson equation.
     Interior,
+    /// Inside a rigid body (every cell around it covered), under the level-set free surface:
+    /// no unknown, and no Dirichlet value either. The wider shape functions couple the nodes
+    /// near a face to it; there its pressure reads as the coupled node's own, a Neumann
+    /// condition on the face (taken as 0, it pulled the face's pressure down by a tenth).
+    Solid,
 }
 
 /// The free surface of one solve: the cells' volume fractions, the level set and each node's
@@ -37,6 +42,8 @@ pub struct Surface {
     /// enclosed gaps closed.
     pub fraction: Vec<f64>,
     raw: Vec<f64>,
+    /// The paper's rule: the fractions with the rigid bodies' cover added; the level set: its
+    /// work buffer.
     covered: Vec<f64>,
     /// Share of each cell the rigid bodies cover (empty without rigid bodies).
     solid: Vec<f64>,
@@ -141,7 +148,14 @@ impl Surface {
             // a rigid body is neither water nor air: the level set weighs only the part of
             // each cell it leaves open
             let solid = (!self.solid.is_empty()).then_some(&self.solid[..]);
-            level_set(geo, &self.fraction, solid, &self.open, &mut self.phi);
+            level_set(
+                geo,
+                &self.fraction,
+                solid,
+                &self.open,
+                &mut self.phi,
+                &mut self.covered,
+            );
             classify_level_set(
                 geo,
                 mass,
@@ -293,12 +307,18 @@ const ON_SURFACE: f64 = 1e-9;
 /// from a cell inside the surface to a cell outside it, so phi is the signed distance to the
 /// surface within a cell of it; elsewhere it is a smoothed volume fraction whose zero lies
 /// where the fluid fills half of a node's cells.
+///
+/// A node that a rigid body covers more than half of (one inside a face) takes the least phi of
+/// its neighbours that it covers less than half of: its own open part can be a sliver, whose
+/// particles (a few, or none) would read the water against the face as air or not, step by
+/// step. `scratch` is a work buffer.
 pub fn level_set<const D: usize>(
     geo: &GridGeometry<D>,
     fraction: &[f64],
     solid: Option<&[f64]>,
     open: &[bool],
     phi: &mut Vec<f64>,
+    scratch: &mut Vec<f64>,
 ) {
     let corners = 1usize << D;
     phi.resize(geo.node_count(), 0.0);
@@ -323,6 +343,35 @@ pub fn level_set<const D: usize>(
         // a node on the surface to round-off is on it, so that a column at rest whose top
         // lies on a node row holds p = 0 there exactly
         *phi = geo.h * if p.abs() < ON_SURFACE { 0.0 } else { p };
+    });
+    let Some(solid) = solid else {
+        return;
+    };
+    let half = 0.5 * corners as f64;
+    let room = |node: &[usize; D]| -> f64 {
+        (0..corners)
+            .map(|corner| {
+                mirrored_cell(geo, node, corner, open)
+                    .map_or(1.0, |c| 1.0 - solid[c].clamp(0.0, 1.0))
+            })
+            .sum()
+    };
+    scratch.clone_from(phi);
+    let own = &scratch[..];
+    phi.par_iter_mut().enumerate().for_each(|(i, phi)| {
+        let node = geo.multi(i);
+        if room(&node) >= half {
+            return;
+        }
+        let mut least = f64::INFINITY;
+        for_each_neighbour(geo, &node, |j| {
+            if room(&geo.multi(j)) >= half {
+                least = least.min(own[j]);
+            }
+        });
+        if least.is_finite() {
+            *phi = least;
+        }
     });
 }
 
@@ -393,11 +442,53 @@ pub fn classify_level_set<const D: usize>(
                     mirrored_cell(geo, &node, corner, open).is_some_and(|c| solid[c] >= 1.0 - 1e-9)
                 });
                 if buried {
-                    *kind = NodeKind::Empty;
+                    *kind = NodeKind::Solid;
                 }
             }
         }
     });
+}
+
+/// Extends a nodal field into the rigid bodies: each [`NodeKind::Solid`] node next to the
+/// fluid's nodes takes the mean of their values, then each next to those the mean of theirs
+/// (two layers: the widest shape function, the cubic B-spline, reaches two nodes past a face).
+/// The assembly read a solid node's pressure as the value of the node it couples to; this
+/// gives the particles near a face, their pressure and its gradient, the same Neumann reading,
+/// not a drop to 0 inside the body. `scratch` is a work buffer.
+pub fn extend_into_solids<const D: usize>(
+    geo: &GridGeometry<D>,
+    kinds: &[NodeKind],
+    field: &mut [f64],
+    scratch: &mut Vec<f64>,
+) {
+    // NaN marks a value not known yet
+    scratch.clear();
+    scratch.extend(field.iter().zip(kinds).map(|(&f, k)| match k {
+        NodeKind::Interior | NodeKind::FreeSurface => f,
+        NodeKind::Empty | NodeKind::Solid => f64::NAN,
+    }));
+    for _ in 0..2 {
+        let known = &scratch[..];
+        field.par_iter_mut().enumerate().for_each(|(j, fj)| {
+            if kinds[j] != NodeKind::Solid || !known[j].is_nan() {
+                return;
+            }
+            let (mut sum, mut n) = (0.0, 0usize);
+            for_each_neighbour(geo, &geo.multi(j), |i| {
+                let v = known[geo.canonical(i)];
+                if !v.is_nan() {
+                    sum += v;
+                    n += 1;
+                }
+            });
+            *fj = if n > 0 { sum / n as f64 } else { 0.0 };
+        });
+        for (j, s) in scratch.iter_mut().enumerate() {
+            if kinds[j] == NodeKind::Solid && s.is_nan() && field[j] != 0.0 {
+                *s = field[j];
+            }
+        }
+    }
 }
 
 /// Velocities of the free-surface nodes that no pressure reaches, extended from the walls.
@@ -437,7 +528,9 @@ pub fn extend_velocity<const D: usize>(
             reached |= kinds[geo.canonical(i)] == NodeKind::Interior;
             let ni = geo.multi(i);
             for d in 0..D {
-                if held[i][d] == 0.0 && kinds[i] != NodeKind::Empty {
+                if held[i][d] == 0.0
+                    && matches!(kinds[i], NodeKind::Interior | NodeKind::FreeSurface)
+                {
                     sum[d] += old[i][d];
                     count[d] += 1;
                     side[d] += ni[d] as isize - nj[d] as isize;
@@ -803,7 +896,7 @@ mod tests {
         volume_fractions(&geo, &bins, &vec![0.25; x.len()], &mut vf);
         let at = |phi: &[f64], i: usize, j: usize| phi[geo.flat(&[i + PAD, j + PAD])];
         let mut phi = Vec::new();
-        level_set(&geo, &vf, None, &[false; 4], &mut phi);
+        level_set(&geo, &vf, None, &[false; 4], &mut phi, &mut Vec::new());
         // the top (y = 4) and the side (x = 3): on the surface; a cell inside and outside
         for i in 0..3 {
             assert_eq!(at(&phi, i, 4), 0.0, "top, node {i}");
@@ -825,7 +918,14 @@ mod tests {
                 solid[geo.flat(&[cx + PAD, cy + PAD])] = 1.0;
             }
         }
-        level_set(&geo, &vf, Some(&solid), &[false; 4], &mut phi);
+        level_set(
+            &geo,
+            &vf,
+            Some(&solid),
+            &[false; 4],
+            &mut phi,
+            &mut Vec::new(),
+        );
         assert_eq!(at(&phi, 3, 1), -1.0, "water against the block");
         assert_eq!(at(&phi, 3, 3), 0.0, "the side above the block");
     }

@@ -414,6 +414,7 @@ impl<const D: usize> Projection<D> {
                 shape,
                 kinds: &self.surface.kinds,
                 solid: self.surface.solid(),
+                cut: boundary.rigid.cuts_cells().then_some(&boundary.rigid),
             });
             self.gauss.build(
                 geo,
@@ -522,6 +523,19 @@ impl<const D: usize> Projection<D> {
                 &mut self.rhs,
             );
         }
+        if boundary.rigid.cuts_cells() {
+            // the rigid bodies' faces where they lie: the jump of the normal velocity across
+            // them joins the source
+            boundary.rigid.add_face_flux(
+                geo,
+                shape,
+                &grid.velocity_new,
+                self.surface.level_set(),
+                &self.unknowns.row_of,
+                dt,
+                &mut self.rhs,
+            );
+        }
         timers.lap(Phase::Assembly);
         // a sequential sum: the same bits on any number of threads
         let norm = self.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
@@ -584,6 +598,9 @@ impl<const D: usize> Projection<D> {
                 let [out, first] = &mut self.ghost;
                 free_surface::ghost_values(&grid.geo, kinds, phi, dp, out, first);
                 std::mem::swap(dp, out);
+                if self.surface.solid().is_some() {
+                    free_surface::extend_into_solids(&grid.geo, kinds, dp, first);
+                }
                 grid.geo.copy_to_images(dp);
             }
             // p^{n+1} = beta p^n + dp on the fluid's nodes after the first pass, plus dp after
@@ -597,7 +614,9 @@ impl<const D: usize> Projection<D> {
                 .enumerate()
                 .for_each(|(i, (p, &d))| {
                     *p = match kinds[i] {
-                        NodeKind::Interior | NodeKind::FreeSurface => keep * *p + d,
+                        NodeKind::Interior | NodeKind::FreeSurface | NodeKind::Solid => {
+                            keep * *p + d
+                        }
                         NodeKind::Empty => 0.0,
                     }
                 });
@@ -771,7 +790,7 @@ impl Unknowns {
                     self.node_of_row.push(i as u32);
                 }
                 NodeKind::FreeSurface => free += 1,
-                NodeKind::Empty => {}
+                NodeKind::Empty | NodeKind::Solid => {}
             }
         }
         free
@@ -813,21 +832,19 @@ fn velocity_at_points<const D: usize>(
 
 /// The fluid's domain for the level-set free surface: the matrix is integrated over every cell
 /// next to an unknown, less what rigid bodies cover.
-struct FluidDomain<'a> {
+struct FluidDomain<'a, const D: usize> {
     shape: ShapeFunction,
     kinds: &'a [NodeKind],
     solid: Option<&'a [f64]>,
+    /// With cut cells, the rigid bodies: a cell they cut is integrated over its open part.
+    cut: Option<&'a crate::rigid::RigidBodies<D>>,
 }
 
-impl FluidDomain<'_> {
+impl<const D: usize> FluidDomain<'_, D> {
     /// Whether a point in cell `idx` (padded multi-index) reaches an unknown: a node of the
     /// cell's corners with linear shape functions, up to one more node either side with the
     /// wider ones (as [`assemble::cell_range`] has it).
-    fn touches_unknown<const D: usize>(
-        &self,
-        geo: &crate::grid::GridGeometry<D>,
-        idx: &[usize; D],
-    ) -> bool {
+    fn touches_unknown(&self, geo: &crate::grid::GridGeometry<D>, idx: &[usize; D]) -> bool {
         let (below, above) = if self.shape == ShapeFunction::Linear {
             (0, 1)
         } else {
@@ -861,6 +878,8 @@ struct GaussPoints<const D: usize> {
     cell: Vec<[u32; D]>,
     /// The stencils of the 2^D places in the domain's first cell.
     templates: Vec<Stencil<D>>,
+    /// Whether some points are not at the places of the templates (cut cells).
+    sub_cells: bool,
     bins: CellBins,
 }
 
@@ -875,7 +894,7 @@ impl<const D: usize> GaussPoints<D> {
             divergence: &self.divergence,
             velocity: &self.velocity,
             flux,
-            templates: Some((&self.templates, &self.cell)),
+            templates: (!self.sub_cells).then_some((&self.templates[..], &self.cell[..])),
         }
     }
 
@@ -888,9 +907,12 @@ impl<const D: usize> GaussPoints<D> {
         mass: &[f64],
         volume: &[f64],
         shape: ShapeFunction,
-        domain: Option<FluidDomain<'_>>,
+        domain: Option<FluidDomain<'_, D>>,
     ) {
         use crate::shape::PAD;
+        /// Sub-cells per direction of a cell a rigid body cuts.
+        const SUB: usize = 4;
+        self.sub_cells = false;
         self.x.clear();
         self.volume.clear();
         self.cell.clear();
@@ -924,6 +946,32 @@ impl<const D: usize> GaussPoints<D> {
             });
             let rho = if v > 0.0 { m / v } else { mean_density };
             let lower = geo.node_position(&idx);
+            if let Some(rigid) = domain.as_ref().and_then(|d| d.cut) {
+                if matrix_share > 0.0 && matrix_share < 1.0 - 1e-12 {
+                    // a cell a body cuts: the midpoints of SUB^D sub-cells, those in its open
+                    // part, which the fluid of the cell fills in the share w / open
+                    self.sub_cells = true;
+                    let fill = w.clamp(0.0, matrix_share) / matrix_share;
+                    let sub_volume = cell_volume / SUB.pow(D as u32) as f64;
+                    for k in 0..SUB.pow(D as u32) {
+                        let mut rem = k;
+                        let x = Vector::<D>::from_fn(|d, _| {
+                            let j = rem % SUB;
+                            rem /= SUB;
+                            lower[d] + (j as f64 + 0.5) / SUB as f64 * geo.h
+                        });
+                        if rigid.contains(&x) {
+                            continue;
+                        }
+                        self.x.push(x);
+                        self.volume.push(fill * sub_volume);
+                        self.volume_over_density.push(sub_volume / rho);
+                        self.cell
+                            .push(std::array::from_fn(|d| (idx[d] - PAD) as u32));
+                    }
+                    continue;
+                }
+            }
             let vol = w.max(0.0) * cell_volume / corners as f64;
             let matrix_vol = matrix_share * cell_volume / corners as f64;
             for k in 0..corners {
