@@ -647,6 +647,29 @@ fn further_pressure_passes_shrink_the_divergence_left() {
     assert!(t.0 < 1.0 && t.1 < 0.8, "third / second {t:?}");
 }
 
+/// A dam break with GIMP shape functions runs: the tails of GIMP's shape functions weigh the
+/// ghost nodes behind the floor, which no quadrature point of the density correction reaches,
+/// and as unknowns they left its matrix singular (the solve broke down at the first step).
+/// Measured: to 0.3 s, the volume within 0.03 %.
+#[test]
+fn a_gimp_dam_break_keeps_its_volume() {
+    let mut d = dam_break_deck(2, "projection", A / 10.0, 0.3);
+    d.simulation.shape_function = pmpm::deck::ShapeFunction::Gimp;
+    let sim = in_pool(2, || {
+        let mut sim = Simulation::<2>::new(&d).unwrap();
+        while sim.time < d.simulation.end_time - 1e-12 {
+            let dt = sim.stable_dt(0.5).min(d.simulation.end_time - sim.time);
+            sim.step(dt).unwrap();
+        }
+        sim
+    });
+    let ps = &sim.particles;
+    let volume: f64 = (0..ps.len()).map(|p| ps.volume(p)).sum();
+    let volume0: f64 = ps.volume0.iter().sum();
+    println!("gimp dam break: volume {:.2e}", volume / volume0 - 1.0);
+    assert!((volume / volume0 - 1.0).abs() < 0.01);
+}
+
 /// A dam-break run: per step (time, front x_front / a, height at the wall / 2a, wall probe p).
 struct DamBreak {
     t: Vec<f64>,

@@ -258,6 +258,20 @@ impl<const D: usize> DensityCorrection<D> {
             .enumerate()
             .for_each(|(i, (w, e))| {
                 let node = geo.multi(i);
+                // with GIMP a node behind a wall is no unknown: the tails of the particles'
+                // shape functions weigh it, but no quadrature point reaches it (the points lie
+                // inside the walls and, of no width, reach a cell as the linear hat does), so
+                // its row would be empty (a GIMP dam break's solve broke down at its first
+                // step). The B-splines' points reach it.
+                let pad = crate::shape::PAD;
+                if shape == ShapeFunction::Gimp
+                    && (0..D).any(|d| {
+                        !geo.periodic[d] && (node[d] < pad || node[d] > pad + geo.cells[d])
+                    })
+                {
+                    (*w, *e) = (0.0, 0.0);
+                    return;
+                }
                 let (mut sw, mut se) = (0.0, 0.0);
                 geo.for_each_image(&node, |image| {
                     super::assemble::for_particles_near(geo, bins, shape, &image, |p| {
