@@ -930,6 +930,70 @@ mod tests {
         assert_eq!(at(&phi, 3, 3), 0.0, "the side above the block");
     }
 
+    /// A rigid body that leaves only slivers of its cells open: a node inside its face reads
+    /// the water against the face from its neighbours, not from the slivers, which hold no
+    /// particle (read on their own they put the node in the air).
+    #[test]
+    fn a_node_inside_a_face_reads_the_water_beside_it() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [6, 6]);
+        // water fills the cells x < 3; a body covers 0.9 of every cell x >= 3, without water
+        let (mut vf, mut solid) = (vec![0.0; geo.node_count()], vec![0.0; geo.node_count()]);
+        for cy in 0..6 {
+            for cx in 0..6 {
+                let c = geo.flat(&[cx + PAD, cy + PAD]);
+                if cx < 3 {
+                    vf[c] = 1.0;
+                } else {
+                    solid[c] = 0.9;
+                }
+            }
+        }
+        let at = |phi: &[f64], i: usize, j: usize| phi[geo.flat(&[i + PAD, j + PAD])];
+        let mut phi = Vec::new();
+        level_set(
+            &geo,
+            &vf,
+            Some(&solid),
+            &[false; 4],
+            &mut phi,
+            &mut Vec::new(),
+        );
+        // the face's node x = 3: its open room is 2.2 cells, 2 of them water
+        let face = 1.0 - 2.0 * 2.0 / 2.2;
+        assert!((at(&phi, 3, 2) - face).abs() < 1e-12, "{}", at(&phi, 3, 2));
+        // x = 4, 0.4 cells of room, all of it dry: the face's value, not +1
+        assert_eq!(at(&phi, 4, 2), at(&phi, 3, 2));
+        // deeper, no neighbour with room: its own slivers, dry
+        assert_eq!(at(&phi, 5, 2), 1.0);
+    }
+
+    /// The pressure reaches two layers of nodes into a rigid body, as their neighbours' mean.
+    #[test]
+    fn a_field_extends_two_layers_into_a_solid() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [8, 4]);
+        let n = geo.node_count();
+        let (mut kinds, mut field) = (vec![NodeKind::Empty; n], vec![0.0; n]);
+        for j in 0..geo.nodes[1] {
+            for i in 0..geo.nodes[0] {
+                let k = geo.flat(&[i, j]);
+                if i <= 3 + PAD {
+                    (kinds[k], field[k]) = (NodeKind::Interior, 10.0 + j as f64);
+                } else {
+                    (kinds[k], field[k]) = (NodeKind::Solid, -1.0);
+                }
+            }
+        }
+        extend_into_solids(&geo, &kinds, &mut field, &mut Vec::new());
+        let j = 2 + PAD;
+        let at = |i: usize, j: usize| field[geo.flat(&[i + PAD, j])];
+        // the first layer: the mean of its three water neighbours, 10 + j
+        assert!((at(4, j) - (10.0 + j as f64)).abs() < 1e-12, "{}", at(4, j));
+        // the second: the mean of the first layer's three
+        assert!((at(5, j) - (10.0 + j as f64)).abs() < 1e-12, "{}", at(5, j));
+        // no further
+        assert_eq!(at(6, j), 0.0);
+    }
+
     #[test]
     fn filled_closed_box_has_no_free_surface_but_an_open_face_does() {
         let k = setup(|_, _| true, [false; 4]);
