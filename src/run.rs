@@ -733,8 +733,16 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             crate::deck::RigidSides::Rough => "rough",
             crate::deck::RigidSides::Smooth => "smooth sides",
         };
+        // how the faces act: where they lie (cut cells), or at the nodes inside
+        let faces = if deck.simulation.scheme == crate::deck::Scheme::Projection
+            && deck.pressure.cuts_cells(s.shape_function)
+        {
+            "faces cut the cells where they lie"
+        } else {
+            "faces act at node resolution (put them midway between node rows)"
+        };
         out += &format!(
-            "  rigid body       \"{}\": box {lo:?} to {hi:?} m, velocity {v:?} m/s, {sides}; its force in rigid_bodies.csv every step\n",
+            "  rigid body       \"{}\": box {lo:?} to {hi:?} m, velocity {v:?} m/s, {sides}, {faces}; its force in rigid_bodies.csv every step\n",
             r.name
         );
     }
