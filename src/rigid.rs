@@ -770,6 +770,14 @@ mod tests {
         }
     }
 
+    /// The flat index of the node at (x, y) of [`geo`].
+    fn node_at(g: &GridGeometry<2>, x: f64, y: f64) -> usize {
+        g.flat(&[
+            PAD + (x / 0.1).round() as usize,
+            PAD + (y / 0.1).round() as usize,
+        ])
+    }
+
     #[test]
     fn a_box_holds_the_nodes_inside_it_as_it_moves() {
         let g = geo();
@@ -800,12 +808,7 @@ mod tests {
         let mut r = bodies([0.0, 0.72], [0.3, 1.0], [0.0, -1.0]);
         r.smooth = vec![true];
         r.set_time(0.0, &g);
-        let node = |x: f64, y: f64| {
-            g.flat(&[
-                PAD + (x / 0.1).round() as usize,
-                PAD + (y / 0.1).round() as usize,
-            ])
-        };
+        let node = |x: f64, y: f64| node_at(&g, x, y);
         let held = |x: f64, y: f64| r.nodes.iter().find(|n| n.0 == node(x, y)).map(|n| n.2);
         // inside: the whole velocity
         assert_eq!(held(0.1, 0.9), Some(0b11));
@@ -853,12 +856,7 @@ mod tests {
         let mut r = bodies([0.33, 0.0], [0.67, 0.47], [0.0, 0.0]);
         r.cut = true;
         r.set_time(0.0, &g);
-        let node = |x: f64, y: f64| {
-            g.flat(&[
-                PAD + (x / 0.1).round() as usize,
-                PAD + (y / 0.1).round() as usize,
-            ])
-        };
+        let node = |x: f64, y: f64| node_at(&g, x, y);
         let held = |r: &RigidBodies<2>, x: f64, y: f64| {
             r.nodes.iter().find(|n| n.0 == node(x, y)).map(|n| n.2)
         };

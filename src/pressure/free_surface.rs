@@ -481,12 +481,18 @@ pub fn extend_into_solids<const D: usize>(
                     n += 1;
                 }
             });
-            *fj = if n > 0 { sum / n as f64 } else { 0.0 };
+            *fj = if n > 0 { sum / n as f64 } else { f64::NAN };
         });
-        for (j, s) in scratch.iter_mut().enumerate() {
-            if kinds[j] == NodeKind::Solid && s.is_nan() && field[j] != 0.0 {
-                *s = field[j];
+        for ((s, &f), k) in scratch.iter_mut().zip(field.iter()).zip(kinds) {
+            if *k == NodeKind::Solid && s.is_nan() {
+                *s = f;
             }
+        }
+    }
+    // a solid node neither layer reached holds 0
+    for f in field.iter_mut() {
+        if f.is_nan() {
+            *f = 0.0;
         }
     }
 }
