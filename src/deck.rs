@@ -1509,10 +1509,10 @@ impl Deck {
                     format!("must be \"usl\" {why}: the cells hold the volume of v^(n+1), and the musl remap smooths that velocity before the strain rate is taken, so the volume drifts again (an elastic column lost 1e-4 of its volume in 0.4 s with linear shapes and 2e-3 with bspline2, sinking all the while)"),
                 ));
             }
-            if p.solver == Solver::Pcg && p.preconditioner != Preconditioner::Jacobi {
+            if p.solver == Solver::Pcg && p.preconditioner == Preconditioner::Multigrid {
                 return Err(c.err(
                     "pressure.preconditioner",
-                    format!("must be \"jacobi\" {why} (the multigrid and ic0 are built for the nodal Laplacian), or use solver = \"direct\""),
+                    format!("must be \"jacobi\" or \"ic0\" {why} (the multigrid is built for the nodal Laplacian), or use solver = \"direct\""),
                 ));
             }
         }

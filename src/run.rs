@@ -1,7 +1,7 @@
 //! The run driver: time-step control, frames and probes, and what happens when a run fails.
 
 use crate::checkpoint::{self, DriverState};
-use crate::deck::{Deck, Preconditioner, Scheme, Solver};
+use crate::deck::{Deck, Scheme};
 use crate::error::Error;
 use crate::output::OutputWriter;
 use crate::scheme::Simulation;
@@ -96,19 +96,6 @@ pub struct RunSummary {
 
 /// Runs a validated deck into `dir`, generic over the dimension.
 pub fn run(deck: &Deck, file: &str, dir: &Path, opts: &RunOptions) -> Result<RunSummary, Error> {
-    if deck.simulation.scheme == Scheme::Projection
-        && deck.pressure.solver == Solver::Pcg
-        && deck.pressure.preconditioner == Preconditioner::Ic0
-    {
-        return Err(Error::Unsupported {
-            file: file.to_string(),
-            key: "pressure.preconditioner".into(),
-            message: format!(
-                "\"{}\" is not available yet in this version; use \"multigrid\" or \"jacobi\" (or solver = \"direct\")",
-                format!("{:?}", deck.pressure.preconditioner).to_lowercase()
-            ),
-        });
-    }
     match deck.simulation.dimension {
         2 => run_dim::<2>(deck, file, dir, opts),
         3 => run_dim::<3>(deck, file, dir, opts),

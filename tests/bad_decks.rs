@@ -374,7 +374,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
                 ("[[bodies]]", "[pressure]\nunknowns = \"cells\"\npreconditioner = \"multigrid\"\n\n[[bodies]]"),
                 ("transfer = \"apic\"", "transfer = \"apic\"\nstress_update = \"usl\""),
             ]),
-            "bad.toml: pressure.preconditioner: must be \"jacobi\" with pressure.unknowns = \"cells\" (the multigrid and ic0 are built for the nodal Laplacian), or use solver = \"direct\"",
+            "bad.toml: pressure.preconditioner: must be \"jacobi\" or \"ic0\" with pressure.unknowns = \"cells\" (the multigrid is built for the nodal Laplacian), or use solver = \"direct\"",
         ),
         (
             "cell pressure on a periodic axis",

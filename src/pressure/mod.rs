@@ -28,7 +28,9 @@ use crate::timing::{Phase, PhaseTimers};
 use assemble::ParticleQuadrature;
 use free_surface::NodeKind;
 use rayon::prelude::*;
-use solve::{Direct, EllMatrix, Jacobi, LinearSolver, Pcg, SolveError, SolveStats};
+use solve::{
+    Direct, EllMatrix, IncompleteCholesky, Jacobi, LinearSolver, Pcg, SolveError, SolveStats,
+};
 
 /// State and work buffers of the projection, reused from step to step.
 pub struct Projection<const D: usize> {
@@ -723,11 +725,13 @@ impl<const D: usize> Projection<D> {
 fn linear_solver(pd: &crate::deck::PressureDeck) -> LinearSolver {
     match (pd.solver, pd.preconditioner) {
         (Solver::Direct, _) => LinearSolver::Direct(Direct::default()),
-        // validation refuses the preconditioners that are not built yet
         (Solver::Pcg, Preconditioner::Multigrid) => {
             LinearSolver::Pcg(Pcg::new(Box::<multigrid::Multigrid>::default()))
         }
-        (Solver::Pcg, Preconditioner::Jacobi | Preconditioner::Ic0) => {
+        (Solver::Pcg, Preconditioner::Ic0) => {
+            LinearSolver::Pcg(Pcg::new(Box::<IncompleteCholesky>::default()))
+        }
+        (Solver::Pcg, Preconditioner::Jacobi) => {
             LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())))
         }
     }
