@@ -1,8 +1,11 @@
 //! The `pmpm` command line.
 
 use clap::{Parser, Subcommand};
+use pmpm::deck::Scheme;
 use pmpm::run::{self, RunOptions};
 use pmpm::Error;
+use pmpm_cli::check;
+use pmpm_cli::progress::{self, Progress};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -255,21 +258,47 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             force,
             resume,
         } => {
-            run::catch_interrupts();
+            progress::catch_interrupts();
             let d = run::load(&deck)?;
-            pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
+            let file = deck.display().to_string();
+            pmpm::limits::refuse_beyond_limits(&d, &file, allow_large)?;
             let dir = output.unwrap_or_else(|| PathBuf::from(&d.output.directory));
-            run::run(
+            let from = match &resume {
+                Some(p) => format!(" from {}", p.display()),
+                None => String::new(),
+            };
+            let warnings = check::warnings(&d)
+                .iter()
+                .map(|w| format!("warning: {file}: {}", pmpm::limits::shorten_numbers(w)))
+                .collect();
+            let mut progress = Progress::new(
+                quiet,
+                d.simulation.scheme == Scheme::Projection,
+                format!("{:?} run of {file}{from}", d.simulation.scheme),
+                warnings,
+            );
+            let summary = run::run(
                 &d,
-                &deck.display().to_string(),
+                &file,
                 &dir,
                 &RunOptions {
-                    quiet,
                     force,
                     max_steps: None,
                     resume,
+                    interrupt: Some(progress::interrupt_flag()),
                 },
+                &mut progress,
             )?;
+            if !quiet {
+                eprintln!(
+                    "pmpm: done: {} steps, {} frames, {:.2} s wall, last dt = {:.3e} s, output in {}",
+                    summary.steps,
+                    summary.frames,
+                    summary.wall_seconds,
+                    summary.last_dt,
+                    dir.display()
+                );
+            }
             Ok(0)
         }
         Command::Bench {
@@ -278,7 +307,7 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             output,
         } => {
             // Ctrl-C or SIGTERM ends the timed run at a step and removes the scratch folder
-            run::catch_interrupts();
+            progress::catch_interrupts();
             let d = run::load(&deck)?;
             pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
             let scratch = output.is_none();
@@ -291,11 +320,12 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
                 &file,
                 &dir,
                 &RunOptions {
-                    quiet: true,
                     force: true,
                     max_steps: steps,
                     resume: None,
+                    interrupt: Some(progress::interrupt_flag()),
                 },
+                &mut run::Silent,
             );
             let removed = scratch.then(|| std::fs::remove_dir_all(&dir));
             // a message that points to a checkpoint or a file in the scratch folder says that
@@ -325,14 +355,14 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             }
             print!(
                 "{}",
-                run::bench_report(&d, &file, &summary, rayon::current_num_threads())
+                check::bench_report(&d, &file, &summary, rayon::current_num_threads())
             );
             Ok(0)
         }
         Command::Check { deck } => {
             let d = run::load(&deck)?;
             pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
-            let summary = run::check_summary(&d, &deck.display().to_string())?;
+            let summary = check::check_summary(&d, &deck.display().to_string())?;
             print!("{}", pmpm::limits::shorten_numbers(&summary));
             Ok(0)
         }
@@ -350,7 +380,7 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
                     "validation/report"
                 })
             });
-            let failed = pmpm::validation::validate(pmpm::validation::Options {
+            let failed = pmpm_cli::validation::validate(pmpm_cli::validation::Options {
                 quick,
                 reference,
                 out,
@@ -369,17 +399,17 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             min,
             max,
         } => {
-            let opts = pmpm::plot::PlotOptions {
+            let opts = pmpm_cli::plot::PlotOptions {
                 frame,
-                field: pmpm::plot::Field::from_name(&field),
+                field: pmpm_cli::plot::Field::from_name(&field),
                 out,
                 all,
                 series,
-                plane: pmpm::plot::Plane::from_name(&plane).unwrap_or_default(),
+                plane: pmpm_cli::plot::Plane::from_name(&plane).unwrap_or_default(),
                 min,
                 max,
             };
-            for png in pmpm::plot::plot(&outdir, &opts)? {
+            for png in pmpm_cli::plot::plot(&outdir, &opts)? {
                 println!("wrote {}", png.display());
             }
             Ok(0)

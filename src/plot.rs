@@ -12,11 +12,11 @@
 //! The domain drawn is the background grid of `run.toml` (the particles' extent when it cannot be
 //! read), so that every frame of a run is drawn at the same place and scale.
 
-use crate::error::Error;
 use crate::validation::plot::{self as vplot, colors, Panel, Series};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
+use pmpm::error::Error;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 

@@ -4,7 +4,7 @@ mod common;
 
 use common::{deck, in_pool};
 use pmpm::scheme::Simulation;
-use pmpm::validation::bingham::CASE;
+use pmpm_cli::validation::bingham::CASE;
 
 /// Bingham plane Poiseuille flow, the parameters of the validation case `bingham_poiseuille`
 /// (W = 1, rho = 1, mu_p = 1, tau_y = 0.1, body force 1, m = 250: plug 2 y0 = 0.2 wide, peak

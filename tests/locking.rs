@@ -1,5 +1,5 @@
 //! Volumetric locking of the explicit scheme and the nodal averaging of the volumetric strain
-//! rate (`simulation.volumetric_averaging = "nodal"`, src/averaging.rs).
+//! rate (`simulation.volumetric_averaging = "nodal"`, crates/pmpm/src/averaging.rs).
 
 mod common;
 

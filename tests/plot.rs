@@ -74,7 +74,7 @@ const FRAME_2D: (u32, u32) = (1434, 728);
 #[test]
 fn frame_pictures_of_a_small_run() {
     let out = run_deck("plot-2d", SMALL_2D);
-    assert_eq!(pmpm::plot::frame_image_size(0.4, 0.2, false), FRAME_2D);
+    assert_eq!(pmpm_cli::plot::frame_image_size(0.4, 0.2, false), FRAME_2D);
 
     // default: pressure, last frame, into the output directory
     let o = plot(&[s(&out)]);
@@ -170,7 +170,7 @@ formats = ["csv"]
 "#;
     let out = run_deck("plot-3d", deck);
     // x-y: a 0.2 x 0.1 m plane; the title has a second line saying which projection
-    let (w, h) = pmpm::plot::frame_image_size(0.2, 0.1, true);
+    let (w, h) = pmpm_cli::plot::frame_image_size(0.2, 0.1, true);
     assert_eq!((w, h), (1434, 752));
     ok(&plot(&[s(&out)]));
     assert_eq!(png_size(&out.join("plot_pressure_000002.png")), (w, h));

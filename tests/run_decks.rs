@@ -520,7 +520,7 @@ fn validate_help_names_every_case() {
     let out = pmpm(&["validate", "--help"]);
     assert!(out.status.success());
     let help = String::from_utf8_lossy(&out.stdout).replace(char::is_whitespace, "");
-    for case in pmpm::validation::case_names() {
+    for case in pmpm_cli::validation::case_names() {
         assert!(help.contains(case), "{case} missing from: {help}");
     }
 }

@@ -22,9 +22,9 @@
 
 use super::plot::{colors, save, Panel, Series};
 use super::{load_deck, pct, run_deck, sci, Ctx, Row, Section};
-use crate::deck::Scheme;
-use crate::particles::Matrix;
-use crate::scheme::Simulation;
+use pmpm::deck::Scheme;
+use pmpm::particles::Matrix;
+use pmpm::scheme::Simulation;
 
 /// A Bingham channel: walls at y = 0 and y = width, body force along x.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -472,7 +472,7 @@ pub fn poiseuille(ctx: &Ctx) -> Result<Section, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::material::Viscoplastic;
+    use pmpm::material::Viscoplastic;
 
     #[test]
     fn the_ideal_profile_is_continuous_and_stops_at_the_walls() {

@@ -2,7 +2,7 @@
 
 use super::plot::{colors, save, Panel, Series};
 use super::{load_deck, reference_table, run_deck, Ctx, Row, Section};
-use crate::deck::ProbeDeck;
+use pmpm::deck::ProbeDeck;
 
 struct Run {
     /// Ghia points used (interior only): (y, u_ghia, u_sim) and (x, v_ghia, v_sim).

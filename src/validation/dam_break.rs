@@ -53,7 +53,7 @@ fn dam_break(ctx: &Ctx, scheme: &str, per_a: u32) -> Result<Rc<DamBreakRun>, Str
         steps: 0,
         wall_s: 0.0,
     };
-    let total = |sim: &crate::scheme::Simulation<2>| -> (f64, f64) {
+    let total = |sim: &pmpm::scheme::Simulation<2>| -> (f64, f64) {
         let ps = &sim.particles;
         let m: f64 = ps.mass.iter().sum();
         let v: f64 = (0..ps.len()).map(|p| ps.volume(p)).sum();
@@ -61,7 +61,7 @@ fn dam_break(ctx: &Ctx, scheme: &str, per_a: u32) -> Result<Rc<DamBreakRun>, Str
     };
     let mut m0 = 0.0;
     let mut v0 = 0.0;
-    let mut record = |sim: &crate::scheme::Simulation<2>, out: &mut DamBreakRun| {
+    let mut record = |sim: &pmpm::scheme::Simulation<2>, out: &mut DamBreakRun| {
         // a particle stands for a sub-cell h / 2 wide: the surface is h / 4 beyond its centre
         let ps = &sim.particles;
         let front = ps.x.iter().map(|x| x[0]).fold(0.0, f64::max) + h / 4.0;
@@ -82,7 +82,7 @@ fn dam_break(ctx: &Ctx, scheme: &str, per_a: u32) -> Result<Rc<DamBreakRun>, Str
         out.height.push(height / (2.0 * A));
         out.volume.push(v / v0);
     };
-    let first = crate::scheme::Simulation::<2>::new(&d).map_err(|e| e.to_string())?;
+    let first = pmpm::scheme::Simulation::<2>::new(&d).map_err(|e| e.to_string())?;
     record(&first, &mut out);
     drop(first);
     let sim = run_deck::<2>(&d, |sim, _| {

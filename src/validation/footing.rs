@@ -54,12 +54,12 @@ fn mean(points: &[(f64, f64)], lo: f64, hi: f64) -> f64 {
 /// The footing deck at cell size `h`, in the variant `v`, with the footing's half-width `w`
 /// (m; the deck's is B / 2), pushed at `speed` (m/s) to s / B = 0.1 and half a cell further.
 fn push(v: Variant, h: f64, w: f64, speed: f64) -> Result<Curve, String> {
-    use crate::deck::{PressureUnknowns, Scheme, StressUpdate, VolumetricAveraging};
+    use pmpm::deck::{PressureUnknowns, Scheme, StressUpdate, VolumetricAveraging};
     let d = load_deck("strip_footing", |d| {
         match v {
             Variant::Explicit => {
                 // K = 100 G locks each particle's volume: the volumetric strain rate is
-                // averaged at the nodes (src/averaging.rs)
+                // averaged at the nodes (crates/pmpm/src/averaging.rs)
                 d.simulation.scheme = Scheme::Explicit;
                 d.simulation.volumetric_averaging = VolumetricAveraging::Nodal;
             }
@@ -124,7 +124,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
     let mut s = Section {
         title: "Strip footing on undrained clay (Prandtl)".into(),
         setup: format!(
-            "A rigid strip footing of width B = 1 m, rough base and smooth sides, on the surface of a weightless clay layer 2 m deep (von Mises, c_u = 10 kPa, G = 1 MPa, rho = 1800 kg/m3), pushed down at 0.05 m/s (rho v^2 / c_u = 5e-4: quasi-static) to a settlement of 0.1 B and half a cell further. Half model, 3 m wide: the slip wall x = 0 is the footing's centre line; slip wall x = 3 m, no-slip base, open top. The footing is a `[[rigid_bodies]]` box with `sides = \"smooth\"`; its force is the momentum its nodes need (`src/rigid.rs`). APIC, quadratic B-splines (`bspline2`), cfl 0.5, 2x2 particles per cell, h = {h:.4} m = B / {:.0}: an odd number of cells across B puts the footing's face midway between node rows, where the nodes it holds cover its own width (`validation/decks/strip_footing.toml`{}). Projection with one pressure per cell (`pressure.unknowns = \"cells\"`, `stress_update = \"usl\"`), the bounded run; the projection with the nodal pressure, reported (at cfl 0.5 and, in full mode, 0.1); and the explicit scheme with K = 100 G and `volumetric_averaging = \"nodal\"`: the volumetric strain rate averaged at the nodes (`src/averaging.rs`), against the locking of the nearly incompressible clay (without it the explicit footing's load keeps rising, q / c_u = 7.08 at s / B = 0.1 at h = B / 20).",
+            "A rigid strip footing of width B = 1 m, rough base and smooth sides, on the surface of a weightless clay layer 2 m deep (von Mises, c_u = 10 kPa, G = 1 MPa, rho = 1800 kg/m3), pushed down at 0.05 m/s (rho v^2 / c_u = 5e-4: quasi-static) to a settlement of 0.1 B and half a cell further. Half model, 3 m wide: the slip wall x = 0 is the footing's centre line; slip wall x = 3 m, no-slip base, open top. The footing is a `[[rigid_bodies]]` box with `sides = \"smooth\"`; its force is the momentum its nodes need (`crates/pmpm/src/rigid.rs`). APIC, quadratic B-splines (`bspline2`), cfl 0.5, 2x2 particles per cell, h = {h:.4} m = B / {:.0}: an odd number of cells across B puts the footing's face midway between node rows, where the nodes it holds cover its own width (`validation/decks/strip_footing.toml`{}). Projection with one pressure per cell (`pressure.unknowns = \"cells\"`, `stress_update = \"usl\"`), the bounded run; the projection with the nodal pressure, reported (at cfl 0.5 and, in full mode, 0.1); and the explicit scheme with K = 100 G and `volumetric_averaging = \"nodal\"`: the volumetric strain rate averaged at the nodes (`crates/pmpm/src/averaging.rs`), against the locking of the nearly incompressible clay (without it the explicit footing's load keeps rising, q / c_u = 7.08 at s / B = 0.1 at h = B / 20).",
             B / h,
             if quick { "; quick mode, the full case has h = B / 21" } else { "" }
         ),

@@ -2,7 +2,7 @@
 
 use super::plot::{colors, save, Panel, Series};
 use super::{load_deck, pct, run_deck, sci, Ctx, Row, Section};
-use crate::deck::Deck;
+use pmpm::deck::Deck;
 
 const RHO: f64 = 1000.0;
 const G: f64 = 9.81;

@@ -17,9 +17,9 @@ mod lobovsky;
 mod periodic;
 pub mod plot;
 
-use crate::deck::Deck;
-use crate::error::Error;
-use crate::scheme::Simulation;
+use pmpm::deck::Deck;
+use pmpm::error::Error;
+use pmpm::scheme::Simulation;
 use std::cell::RefCell;
 use std::collections::HashMap;
 use std::fmt::Write as _;

@@ -5,7 +5,7 @@
 
 use super::plot::{colors, save, Panel, Series};
 use super::{load_deck, pct, run_deck, sci, Ctx, Row, Section, Verdict};
-use crate::deck::Deck;
+use pmpm::deck::Deck;
 use std::f64::consts::PI;
 
 /// Channel width (m), kinematic viscosity (m2/s), body force (m/s2), wall speed (m/s).
@@ -47,7 +47,7 @@ pub fn couette_exact(y: f64, t: f64) -> f64 {
 /// Loads a deck and builds its simulation once, to see whether this version runs it.
 fn runnable<const D: usize>(name: &str, edit: impl FnOnce(&mut Deck)) -> Result<Deck, String> {
     let d = load_deck(name, edit)?;
-    crate::scheme::Simulation::<D>::new(&d).map_err(|e| e.to_string())?;
+    pmpm::scheme::Simulation::<D>::new(&d).map_err(|e| e.to_string())?;
     Ok(d)
 }
 
@@ -233,7 +233,7 @@ pub fn taylor_green(ctx: &Ctx) -> Result<Section, String> {
             }
         };
         let mut ke = Vec::new();
-        let sim0 = crate::scheme::Simulation::<2>::new(&d).map_err(|e| e.to_string())?;
+        let sim0 = pmpm::scheme::Simulation::<2>::new(&d).map_err(|e| e.to_string())?;
         let ke0 = sim0.kinetic_energy();
         ke.push((0.0, 1.0));
         drop(sim0);

@@ -405,7 +405,7 @@ pub enum FreeSurface {
 pub enum DensityCorrection {
     /// After each step, a second Poisson solve on the particles' volume error moves the
     /// particles (and deforms their F) so that each one's volume J V0 returns towards V0
-    /// (`src/pressure/density.rs`). The default for fluids with a free surface.
+    /// (`crates/pmpm/src/pressure/density.rs`). The default for fluids with a free surface.
     #[default]
     Positions,
     /// None: the paper's scheme; the default without a free surface and for solids.
@@ -432,7 +432,7 @@ pub enum PoissonRhs {
 pub enum RigidFaces {
     /// The body's nodes hold its velocity: the face acts at node resolution.
     Nodes,
-    /// Cut cells: a face acts where it lies (src/rigid.rs). Needs linear or GIMP shape
+    /// Cut cells: a face acts where it lies (crates/pmpm/src/rigid.rs). Needs linear or GIMP shape
     /// functions, the level-set free surface and nodal unknowns.
     Cut,
 }
@@ -447,7 +447,7 @@ pub enum PressureUnknowns {
     #[default]
     Nodes,
     /// One pressure per cell that holds material, constant in the cell (the Q1-P0 pair,
-    /// `src/pressure/cell.rs`): each cell's weak divergence is zero after the correction, with
+    /// `crates/pmpm/src/pressure/cell.rs`): each cell's weak divergence is zero after the correction, with
     /// no stabilisation residual, so a solid at rest under a steady load stays at rest. No
     /// free-surface detection (p = 0 holds weakly at the material's boundary).
     Cells,

@@ -32,7 +32,8 @@ pub struct TransferSettings<const D: usize> {
     /// ([`Grid::predict`](crate::grid::Grid)); 0 for the explicit scheme and for one pressure
     /// per cell.
     pub mass_floor: f64,
-    /// APIC's affine matrix C_p kept trace free ([`affine`]): true under the projection.
+    /// APIC's affine matrix C_p kept trace free (its trace removed after the transfer):
+    /// true under the projection.
     pub isochoric_affine: bool,
 }
 

@@ -241,7 +241,7 @@ impl<const D: usize> Boundary<D> {
     /// Imposes the face conditions on node velocities: the walls' values (a slip face's
     /// normal, a no-slip face's every component) on the face nodes and the ghost nodes behind
     /// them, the rigid bodies' velocities on their nodes, and then, under the nodal projection,
-    /// the ghost nodes' normal components mirrored ([`Boundary::mirror_ghosts`]).
+    /// the ghost nodes' normal components mirrored about the wall.
     pub fn apply(&self, v: &mut [Vector<D>]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
             let (kind, wall) = (self.faces[f].0, self.wall(k, f));

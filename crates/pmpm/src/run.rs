@@ -1,0 +1,417 @@
+//! The run driver: time-step control, frames and probes, and what happens when a run fails.
+
+use crate::checkpoint::{self, DriverState};
+use crate::deck::Deck;
+use crate::error::Error;
+use crate::output::OutputWriter;
+use crate::scheme::Simulation;
+use crate::timing::Phase;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// How a run is asked for.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Write into a directory that holds an earlier run.
+    pub force: bool,
+    /// Stop after this many steps (benchmarks), as if the end time were reached.
+    pub max_steps: Option<u64>,
+    /// Go on from this checkpoint instead of starting from the deck's initial state.
+    pub resume: Option<std::path::PathBuf>,
+    /// Set from outside (a signal handler) to stop the run at the end of its current step,
+    /// with a frame and a checkpoint written; the run then returns [`Error::Interrupted`].
+    pub interrupt: Option<Arc<AtomicBool>>,
+}
+
+/// Where a run is, as its [`Observer`] is told.
+#[derive(Debug, Clone, Copy)]
+pub struct Status {
+    /// Dimension of the run.
+    pub dimension: usize,
+    /// Simulated time reached (s).
+    pub time: f64,
+    /// The deck's end time (s).
+    pub end_time: f64,
+    /// Steps taken, counting those before a resume.
+    pub steps: u64,
+    /// Steps taken before this run started (a resumed run).
+    pub start_steps: u64,
+    /// The last step's size (s); 0 before the first step.
+    pub dt: f64,
+    /// Particles.
+    pub particles: usize,
+    /// Grid nodes.
+    pub nodes: usize,
+    /// Frames written so far.
+    pub frames: usize,
+    /// The largest particle speed (m/s); only filled in for [`Observer::frame_written`].
+    pub max_speed: f64,
+    /// Pressure iterations of the last step (projection).
+    pub pressure_iterations: usize,
+    /// Wall-clock seconds since the run started.
+    pub wall_seconds: f64,
+}
+
+/// What a run tells as it goes: the application draws a progress bar or prints a line per
+/// frame; the library itself prints nothing.
+pub trait Observer {
+    /// Once, before the first step.
+    fn started(&mut self, _status: &Status) {}
+    /// After every step.
+    fn stepped(&mut self, _status: &Status) {}
+    /// After every frame written after a step.
+    fn frame_written(&mut self, _status: &Status) {}
+    /// When the run stops, for whatever reason, before it returns.
+    fn stopped(&mut self) {}
+}
+
+/// An observer that does nothing.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct Silent;
+
+impl Observer for Silent {}
+
+/// What a finished run reports.
+#[derive(Debug, Clone)]
+pub struct RunSummary {
+    /// Steps taken.
+    pub steps: u64,
+    /// Frames written.
+    pub frames: usize,
+    /// Particles.
+    pub particles: usize,
+    /// Wall-clock seconds.
+    pub wall_seconds: f64,
+    /// Simulated time reached.
+    pub time: f64,
+    /// Wall-clock seconds per phase of the step.
+    pub timers: crate::timing::PhaseTimers,
+    /// Pressure iterations summed over the steps, and the most in one step.
+    pub pressure_iterations: (u64, usize),
+    /// Peak resident memory of the process (bytes), where the system tells it.
+    pub peak_memory: Option<u64>,
+    /// The last step's size (s).
+    pub last_dt: f64,
+}
+
+/// Runs a validated deck into `dir`, generic over the dimension; `file` names the deck in
+/// messages and in the resume command.
+pub fn run(
+    deck: &Deck,
+    file: &str,
+    dir: &Path,
+    opts: &RunOptions,
+    observer: &mut dyn Observer,
+) -> Result<RunSummary, Error> {
+    let result = match deck.simulation.dimension {
+        2 => run_dim::<2>(deck, file, dir, opts, observer),
+        3 => run_dim::<3>(deck, file, dir, opts, observer),
+        d => unreachable!("validated: dimension is 2 or 3, got {d}"),
+    };
+    observer.stopped();
+    result
+}
+
+/// The observer's view of `sim`.
+fn status<const D: usize>(
+    sim: &Simulation<D>,
+    end_time: f64,
+    start_steps: u64,
+    dt: f64,
+    frames: usize,
+    wall_seconds: f64,
+) -> Status {
+    Status {
+        dimension: D,
+        time: sim.time,
+        end_time,
+        steps: sim.steps,
+        start_steps,
+        dt,
+        particles: sim.particles.len(),
+        nodes: sim.grid.geo.node_count(),
+        frames,
+        max_speed: 0.0,
+        pressure_iterations: sim.pressure_iterations,
+        wall_seconds,
+    }
+}
+
+fn run_dim<const D: usize>(
+    deck: &Deck,
+    file: &str,
+    dir: &Path,
+    opts: &RunOptions,
+    observer: &mut dyn Observer,
+) -> Result<RunSummary, Error> {
+    let start = Instant::now();
+    let mut sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
+    let end = deck.simulation.end_time;
+    let interval = deck.output.interval.expect("validated: interval filled in");
+    // checkpoints at every frame unless the deck says otherwise: one file, overwritten, and
+    // small next to the frames
+    let checkpoint_interval = deck.output.checkpoint_interval.unwrap_or(interval);
+    // times are compared with a tolerance far below any step, so that frame k lands at k interval
+    let eps = 1e-9 * interval.min(end);
+    let checkpoint_path = dir.join("checkpoint.bin");
+    let (mut out, mut driver) = match &opts.resume {
+        None => {
+            // the directory is taken only once the run can start: a deck that cannot build
+            // its simulation, or a bad checkpoint, leaves an earlier run as it was
+            crate::output::claim_directory(dir, opts.force, None)?;
+            let out = OutputWriter::new(dir, &sim)?;
+            let driver = DriverState {
+                next_frame: 0.0,
+                next_checkpoint: checkpoint_interval,
+                frames: 0,
+                pvd: Vec::new(),
+                iterations: (0, 0),
+            };
+            (out, driver)
+        }
+        Some(path) => {
+            let driver = checkpoint::read(path, &mut sim)?;
+            if sim.time >= end - eps {
+                return Err(Error::Usage(format!(
+                    "{}: the checkpoint is at t = {} s, at or past simulation.end_time = {end} s \
+                     in {file}: raise end_time to go on",
+                    path.display(),
+                    sim.time
+                )));
+            }
+            crate::output::claim_directory(dir, opts.force, Some(path))?;
+            crate::output::remove_frames_from(dir, driver.frames)?;
+            let out = OutputWriter::resume(dir, &sim, &driver)?;
+            (out, driver)
+        }
+    };
+    let start_steps = sim.steps;
+    observer.started(&status(&sim, end, start_steps, 0.0, out.frames, 0.0));
+    if opts.resume.is_none() {
+        out.frame(&sim, 0.0, 0.0)
+            .map_err(|e| write_failure_hint(e, None, ""))?;
+        driver.next_frame = interval;
+    }
+    let mut last_dt = 0.0;
+    // a resumed run's last good state is the checkpoint it started from
+    let mut last_checkpoint: Option<f64> = opts.resume.as_ref().map(|_| sim.time);
+    sim.timers.lap(Phase::Other);
+    let result = loop {
+        if sim.time >= end - eps || opts.max_steps.is_some_and(|n| sim.steps >= n) {
+            break Ok(());
+        }
+        let next_frame = driver.next_frame;
+        let mut dt = match (deck.simulation.dt, deck.simulation.cfl) {
+            (Some(dt), _) => dt,
+            (None, Some(cfl)) => {
+                // adaptive steps land exactly on frame times, without a sliver of a step
+                // before each frame: the remaining time is split into equal steps (with the
+                // projection a tiny step turns the leftover divergence into a pressure spike).
+                // Without landing, the stable step is taken as is (up to one frame interval)
+                // and frames are written at the first step end at or past their time.
+                let dt = sim.stable_dt(cfl);
+                let left = next_frame.min(end) - sim.time;
+                if deck.simulation.land_on_frames == Some(false) {
+                    // at most one frame interval, so that no frame is skipped
+                    dt.min(interval)
+                } else if dt.is_finite() && dt > 0.0 && left > 0.0 {
+                    left / (left / dt).ceil()
+                } else {
+                    dt
+                }
+            }
+            (None, None) => unreachable!("validated: dt or cfl"),
+        };
+        dt = dt.min(end - sim.time);
+        if !(dt > 0.0 && dt.is_finite()) {
+            // at rest with nothing to bound the step: step to the next frame
+            dt = (next_frame.min(end) - sim.time).max(eps);
+        }
+        let t0 = sim.time;
+        let stepped = sim.step(dt);
+        let (iters, max_iters) = &mut driver.iterations;
+        *iters += sim.pressure_iterations as u64;
+        *max_iters = (*max_iters).max(sim.pressure_iterations);
+        sim.timers.lap(Phase::Other);
+        if let Err(e) = out.probe_row(t0, &sim) {
+            break Err(e);
+        }
+        if stepped.is_ok() {
+            if let Err(e) = out.rigid_row(&sim) {
+                break Err(e);
+            }
+        }
+        if let Err(e) = stepped {
+            let resume = resume_command(file, &checkpoint_path, dir, deck);
+            break Err(blow_up_hint(
+                e.with_file(file),
+                last_checkpoint,
+                &resume,
+                file,
+            ));
+        }
+        last_dt = dt;
+        let interrupted = opts
+            .interrupt
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::SeqCst));
+        let last = opts.max_steps.is_some_and(|n| sim.steps >= n);
+        let at_end = sim.time >= end - eps;
+        if sim.time >= next_frame - eps || at_end || last || interrupted {
+            if let Err(e) = out.frame(&sim, dt, start.elapsed().as_secs_f64()) {
+                break Err(e);
+            }
+            driver.next_frame = next_after(driver.next_frame, sim.time + eps, interval);
+            let wall = start.elapsed().as_secs_f64();
+            let mut s = status(&sim, end, start_steps, dt, out.frames, wall);
+            s.max_speed = sim.max_speed();
+            observer.frame_written(&s);
+        }
+        if at_end || last {
+            // the final state's probe row, before the last checkpoint: a run killed after
+            // that checkpoint is complete
+            sim.particles_to_grid();
+            if let Err(e) = out.probe_row(sim.time, &sim) {
+                break Err(e);
+            }
+        }
+        let checkpoint_due = sim.time >= driver.next_checkpoint - eps;
+        if checkpoint_due || at_end || interrupted {
+            driver.next_checkpoint =
+                next_after(driver.next_checkpoint, sim.time + eps, checkpoint_interval);
+            driver.frames = out.frames;
+            driver.pvd.clone_from(&out.pvd);
+            // the time series reach the disk before the checkpoint that a resume cuts them
+            // back to: a crash after it loses no row
+            if let Err(e) = out.sync() {
+                break Err(e);
+            }
+            if let Err(e) = checkpoint::write(&checkpoint_path, &sim, &driver) {
+                break Err(e);
+            }
+            last_checkpoint = Some(sim.time);
+        }
+        sim.timers.lap(Phase::Output);
+        let wall = start.elapsed().as_secs_f64();
+        observer.stepped(&status(&sim, end, start_steps, dt, out.frames, wall));
+        if interrupted {
+            break Err(Error::Interrupted(format!(
+                "interrupted at step {}, t = {:.6} s; the frame and a checkpoint are written. \
+                 To go on: {}",
+                sim.steps,
+                sim.time,
+                resume_command(file, &checkpoint_path, dir, deck)
+            )));
+        }
+    };
+    let flushed = out.finish();
+    let resume = resume_command(file, &checkpoint_path, dir, deck);
+    result.map_err(|e| write_failure_hint(e, last_checkpoint, &resume))?;
+    flushed.map_err(|e| write_failure_hint(e, last_checkpoint, &resume))?;
+    let summary = RunSummary {
+        steps: sim.steps,
+        frames: out.frames,
+        particles: sim.particles.len(),
+        wall_seconds: start.elapsed().as_secs_f64(),
+        time: sim.time,
+        timers: sim.timers.clone(),
+        pressure_iterations: driver.iterations,
+        peak_memory: peak_memory(),
+        last_dt,
+    };
+    Ok(summary)
+}
+
+/// The command that resumes this run from its checkpoint.
+fn resume_command(file: &str, checkpoint: &Path, dir: &Path, deck: &Deck) -> String {
+    let output = if dir != Path::new(&deck.output.directory) {
+        format!(" --output {}", dir.display())
+    } else {
+        String::new()
+    };
+    format!("pmpm run {file} --resume {}{output}", checkpoint.display())
+}
+
+/// Adds to a failed write (a full disk, a file-size limit) where the last good state is and
+/// how to go on from it once there is room.
+fn write_failure_hint(e: Error, checkpoint: Option<f64>, resume: &str) -> Error {
+    if !matches!(e, Error::Io { .. }) {
+        return e;
+    }
+    let hint = match checkpoint {
+        Some(t) => format!(
+            "; the run stopped there; its files up to the last checkpoint, at t = {t:.6} s, are \
+             whole. Make room (or raise the file-size limit) and go on: {resume}"
+        ),
+        None => "; the run stopped there, before its first checkpoint; make room (or raise the \
+                 file-size limit) and run it again"
+            .to_string(),
+    };
+    e.with_note(&hint)
+}
+
+/// Adds to a blow-up message where the last good state is and how to go on from it.
+fn blow_up_hint(e: Error, checkpoint: Option<f64>, resume: &str, file: &str) -> Error {
+    match (e, checkpoint) {
+        (Error::BlowUp(m), Some(t)) => Error::BlowUp(format!(
+            "{m}. Every frame is kept, and the last checkpoint, at t = {t:.6} s: to go on from \
+             it with a smaller step, lower simulation.cfl (or dt) in {file} and run {resume}"
+        )),
+        (Error::BlowUp(m), None) => Error::BlowUp(format!(
+            "{m}. Every frame is kept; no checkpoint was written yet (the first is at the first \
+             frame or output.checkpoint_interval)"
+        )),
+        (e, _) => e,
+    }
+}
+
+/// Peak resident set size of this process (VmHWM of /proc/self/status, Linux), in bytes.
+pub fn peak_memory() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Loads a deck file, with defaults filled in.
+pub fn load(path: &Path) -> Result<Deck, Error> {
+    Ok(Deck::load(path)?)
+}
+
+/// The first of `next`, `next + interval`, `next + 2 interval`, ... past `t`, found without a
+/// loop: an interval below the spacing of floating-point numbers near `t` would never get
+/// there by adding.
+fn next_after(next: f64, t: f64, interval: f64) -> f64 {
+    if next > t {
+        return next;
+    }
+    let k = ((t - next) / interval).floor() + 1.0;
+    let mut n = next + k * interval;
+    if n <= t {
+        // (t - next) / interval rounded down across a whole number
+        n += interval;
+    }
+    if n > t {
+        n
+    } else {
+        // interval below the floating-point spacing at t: the next number above t
+        f64::from_bits(t.to_bits() + 1).max(n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::next_after;
+
+    #[test]
+    fn the_next_output_time_is_found_without_a_loop() {
+        assert_eq!(next_after(0.5, 0.2, 0.1), 0.5);
+        let n = next_after(0.1, 0.35, 0.1);
+        assert!((n - 0.4).abs() < 1e-15, "{n}");
+        // an interval far below the spacing of numbers near t: the next number above t, at once
+        let n = next_after(1e-300, 0.01, 1e-300);
+        assert!(n > 0.01 && n - 0.01 < 1e-17, "{n}");
+    }
+}

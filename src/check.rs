@@ -1,0 +1,481 @@
+//! What `pmpm check` and `pmpm bench` print: a deck's summary, cost and warnings, and the
+//! time per phase of a run.
+
+use pmpm::deck::{Deck, Scheme};
+use pmpm::error::Error;
+use pmpm::limits::bytes;
+use pmpm::run::RunSummary;
+use pmpm::scheme::Simulation;
+use pmpm::timing::Phase;
+
+/// Warnings about a valid deck that is likely to go wrong.
+pub fn warnings(deck: &Deck) -> Vec<String> {
+    use pmpm::deck::{ShapeFunction, Transfer};
+    let s = &deck.simulation;
+    let mut w = Vec::new();
+    if s.transfer == Some(Transfer::Apic)
+        && s.scheme == pmpm::deck::Scheme::Explicit
+        && matches!(
+            s.shape_function,
+            ShapeFunction::Linear | ShapeFunction::Gimp
+        )
+    {
+        w.push(format!(
+            "simulation.transfer: \"apic\" with shape_function = \"{}\" grows an unstable mode at free surfaces with the explicit scheme (seen in the dam break); use \"bspline2\" or transfer = \"flip\"",
+            format!("{:?}", s.shape_function).to_lowercase()
+        ));
+    }
+    // FLIP under the projection for a fluid: its particle noise goes into the particles'
+    // volumes (a closed tank's splash and the two-fluid column stopped on a particle's volume
+    // with FLIP where APIC ran)
+    if s.transfer == Some(Transfer::Flip)
+        && s.scheme == pmpm::deck::Scheme::Projection
+        && !deck
+            .materials
+            .iter()
+            .any(pmpm::deck::MaterialDeck::is_solid)
+    {
+        w.push(
+            "simulation.transfer: \"flip\" with the projection scheme: FLIP's particle noise enters the particles' volumes, and after splashes single particles can be crushed or blown up until the run stops; the projection's default for fluids, \"apic\", keeps them (docs/deck.md)".to_string(),
+        );
+    }
+    // an elastic solid with APIC under MUSL and linear or GIMP shapes: the remap takes the last
+    // step's affine matrix (`transfer::grid_to_particles`), the strain rate lags a step, and
+    // the solid's waves grow (a von Mises block on a floor blew up in 390 explicit steps)
+    if s.transfer == Some(Transfer::Apic)
+        && s.stress_update == pmpm::deck::StressUpdate::Musl
+        && matches!(
+            s.shape_function,
+            ShapeFunction::Linear | ShapeFunction::Gimp
+        )
+    {
+        if let Some(m) = deck.materials.iter().find(|m| m.shear_modulus.is_some()) {
+            w.push(format!(
+                "simulation.stress_update: \"musl\" with transfer = \"apic\" can let the elastic waves of \"{}\" ({}) grow: the remap takes the last step's affine matrix (a von Mises block at cfl 0.5 blew up within 400 steps); use shape_function = \"bspline2\", transfer = \"flip\", or a step well below the wave limit",
+                m.name,
+                m.model.name()
+            ));
+        }
+    }
+    // a nearly incompressible solid under the explicit scheme without the nodal averaging:
+    // one volume constraint per particle locks the grid (the strip footing's load 38% high at
+    // K = 100 G, and a thin layer on a no-slip floor held still)
+    if s.scheme == pmpm::deck::Scheme::Explicit
+        && s.volumetric_averaging == pmpm::deck::VolumetricAveraging::None
+    {
+        let stiff = deck
+            .materials
+            .iter()
+            .find_map(|m| match (m.shear_modulus, m.bulk_modulus) {
+                (Some(g), Some(k)) if g > 0.0 && k >= 10.0 * g => Some((m, k / g)),
+                _ => None,
+            });
+        if let Some((m, ratio)) = stiff {
+            w.push(format!(
+                "materials \"{}\": bulk_modulus / shear_modulus = {:.0} with the explicit scheme: such a nearly incompressible solid can lock (respond too stiffly); set simulation.volumetric_averaging = \"nodal\" (docs/materials.md), or use the projection scheme",
+                m.name, ratio
+            ));
+        }
+    }
+    // solids only, under the projection with the nodal pressure: its stabilisation residual
+    // lets a loaded solid creep (the elastic column 75% past its settlement and sinking)
+    if s.scheme == pmpm::deck::Scheme::Projection
+        && deck.pressure.unknowns == pmpm::deck::PressureUnknowns::Nodes
+        && deck
+            .materials
+            .iter()
+            .all(pmpm::material::MaterialParams::is_solid)
+    {
+        w.push("every material is a solid and the projection's pressure sits on the nodes: a solid under a steady load creeps with it (docs/method.md, \"One pressure per cell\"); set pressure.unknowns = \"cells\" with simulation.stress_update = \"usl\"".into());
+    }
+    // material that starts inside a rigid body: the body's nodes take its velocity, and the
+    // particles inside are squeezed out (or held) in the first steps
+    for (b, body) in deck.bodies.iter().enumerate() {
+        for (r, rigid) in deck.rigid_bodies.iter().enumerate() {
+            if let Some(x) = overlap_point(&body.shape, &rigid.shape) {
+                let at: Vec<String> = x.iter().map(|c| format!("{c}")).collect();
+                w.push(format!(
+                    "bodies[{b}] starts inside rigid_bodies[{r}] (for example at ({})): its material there will be pushed out of the body in the first steps; cut the body around the rigid one",
+                    at.join(", ")
+                ));
+            }
+        }
+    }
+    w
+}
+
+/// A point inside both a body's shape and a rigid body's box, if the two overlap (tested on a
+/// lattice of 9^D points over the boxes' common part).
+fn overlap_point(body: &pmpm::deck::ShapeDeck, rigid: &pmpm::deck::ShapeDeck) -> Option<Vec<f64>> {
+    let (blo, bhi) = body.bounds();
+    let (rlo, rhi) = rigid.bounds();
+    let dim = blo.len();
+    let lo: Vec<f64> = (0..dim).map(|d| blo[d].max(rlo[d])).collect();
+    let hi: Vec<f64> = (0..dim).map(|d| bhi[d].min(rhi[d])).collect();
+    if (0..dim).any(|d| hi[d] <= lo[d]) {
+        return None;
+    }
+    let n = 9usize;
+    (0..n.pow(dim as u32)).find_map(|k| {
+        let x: Vec<f64> = (0..dim)
+            .map(|d| {
+                let i = (k / n.pow(d as u32)) % n;
+                lo[d] + (hi[d] - lo[d]) * (i as f64 + 0.5) / n as f64
+            })
+            .collect();
+        (body.contains(&x) && rigid.contains(&x)).then_some(x)
+    })
+}
+
+/// The summary `pmpm check` prints: what the deck sets up and what a run will cost.
+pub fn check_summary(deck: &Deck, file: &str) -> Result<String, Error> {
+    match deck.simulation.dimension {
+        2 => summary_dim::<2>(deck, file),
+        3 => summary_dim::<3>(deck, file),
+        d => unreachable!("validated: dimension is 2 or 3, got {d}"),
+    }
+}
+
+fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error> {
+    let sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
+    let s = &deck.simulation;
+    let geo = &sim.grid.geo;
+    let mut out = format!("{file}: deck is valid\n");
+    for w in warnings(deck) {
+        out += &format!("warning: {w}\n");
+    }
+    out += &format!(
+        "  dimension        {D}\n  scheme           {:?}\n",
+        s.scheme
+    );
+    out += &format!(
+        "  grid             {} cells of h = {} m, {} nodes (with ghosts)\n",
+        geo.cells
+            .iter()
+            .map(|c| c.to_string())
+            .collect::<Vec<_>>()
+            .join(" x "),
+        geo.h,
+        geo.node_count()
+    );
+    // particles per body (the bodies are filled in deck order, so body b's particles are a
+    // range of ids), and those of a later body that lie inside an earlier one
+    let per_body: Vec<usize> = (0..deck.bodies.len())
+        .map(|b| {
+            let mut one = deck.clone();
+            one.bodies = vec![deck.bodies[b].clone()];
+            pmpm::particles::Particles::<D>::from_deck(&one, geo).len()
+        })
+        .collect();
+    let mut overlaps: Vec<(usize, usize, usize)> = Vec::new();
+    let mut first = 0;
+    for (b, &n) in per_body.iter().enumerate() {
+        let xs = &sim.particles.x[first..first + n];
+        for a in 0..b {
+            let inside = xs
+                .iter()
+                .filter(|x| deck.bodies[a].shape.contains(x.as_slice()))
+                .count();
+            if inside > 0 {
+                overlaps.push((a, b, inside));
+            }
+        }
+        first += n;
+    }
+    let mut warn = Vec::new();
+    for (b, body) in deck.bodies.iter().enumerate() {
+        out += &format!(
+            "  bodies[{b}]        {} particles of \"{}\" ({} per cell per direction)\n",
+            per_body[b], body.material, body.particles_per_cell
+        );
+        if body.particles_per_cell < 2 {
+            warn.push(format!(
+                "bodies[{b}].particles_per_cell = {}: fewer than 2 particles per cell per \
+                 direction leave cells empty as the material deforms (the pressure then \
+                 checkerboards and the free surface is found inside the water); use 2 or more",
+                body.particles_per_cell
+            ));
+        }
+    }
+    for (a, b, n) in overlaps {
+        warn.push(format!(
+            "bodies[{a}] and bodies[{b}] overlap: {n} particles of bodies[{b}] lie inside \
+             bodies[{a}], which has its own there (more mass than the material's density)"
+        ));
+    }
+    for m in &deck.materials {
+        out += &format!("  material         {}\n", m.describe());
+    }
+    for r in &deck.rigid_bodies {
+        let (lo, hi) = r.shape.bounds();
+        let v = r.velocity.clone().unwrap_or_else(|| vec![0.0; D]);
+        let sides = match r.sides {
+            pmpm::deck::RigidSides::Rough => "rough",
+            pmpm::deck::RigidSides::Smooth => "smooth sides",
+        };
+        // how the faces act: where they lie (cut cells), or at the nodes inside
+        let faces = if deck.simulation.scheme == pmpm::deck::Scheme::Projection
+            && deck.pressure.cuts_cells(s.shape_function)
+        {
+            "faces cut the cells where they lie"
+        } else {
+            "faces act at node resolution (put them midway between node rows)"
+        };
+        out += &format!(
+            "  rigid body       \"{}\": box {lo:?} to {hi:?} m, velocity {v:?} m/s, {sides}, {faces}; its force in rigid_bodies.csv every step\n",
+            r.name
+        );
+    }
+    out += &format!("  particles        {}\n", sim.particles.len());
+    out += &format!(
+        "  transfer         {:?}, shape functions {:?}\n",
+        s.transfer.unwrap_or_default(),
+        s.shape_function
+    );
+    let dt = match (s.dt, s.cfl) {
+        (Some(dt), _) => format!("fixed dt = {dt:e} s"),
+        (None, Some(cfl)) => {
+            let dt0 = sim.stable_dt(cfl);
+            if dt0.is_finite() {
+                format!("adaptive, cfl = {cfl}; at t = 0 dt = {dt0:.3e} s")
+            } else {
+                format!("adaptive, cfl = {cfl}; at rest at t = 0 (set by the flow)")
+            }
+        }
+        (None, None) => unreachable!("validated: dt or cfl"),
+    };
+    out += &format!("  time step        {dt}\n");
+    let g = sim.settings.gravity;
+    let gnorm = g.norm();
+    let estimate = pmpm::limits::estimate(deck);
+    let flow = estimate.flow_steps;
+    let steps = (estimate.steps > 0.0 && estimate.steps.is_finite()).then_some(estimate.steps);
+    if let Some(n) = steps {
+        out += &format!(
+            "  steps            about {} to t = {} s{}\n",
+            pmpm::limits::short(n.ceil()),
+            s.end_time,
+            if s.dt.is_none() {
+                " (at most: with cfl the step follows the flow)"
+            } else {
+                ""
+            }
+        );
+    }
+    if let (Some(dt), Scheme::Projection) = (s.dt, s.scheme) {
+        if gnorm > 0.0 && dt > (geo.h / gnorm).sqrt() {
+            warn.push(format!(
+                "simulation.dt = {dt} s is above sqrt(h / |g|) = {:.3e} s: a particle falling \
+                 from rest crosses more than a cell in a step; lower dt or use cfl",
+                (geo.h / gnorm).sqrt()
+            ));
+        }
+    }
+    // gravity pulling the material out of the grid through an open face
+    let faces = deck.grid.boundary.faces();
+    for d in 0..D {
+        if g[d] == 0.0 {
+            continue;
+        }
+        let face = 2 * d + usize::from(g[d] > 0.0);
+        let open = faces[face]
+            .as_ref()
+            .is_none_or(|f| f.kind() == pmpm::deck::BoundaryKind::Open);
+        if open {
+            warn.push(format!(
+                "grid.boundary.{} is open and gravity pulls the material towards it: particles \
+                 that fall out of the grid stop the run (exit status 3); make it a wall \
+                 (\"slip\" or \"no_slip\") unless the bodies rest on something",
+                pmpm::deck::FACE_NAMES[face]
+            ));
+        }
+    }
+
+    let (wave, viscous) = deck.dt_limits();
+    if wave.is_finite() {
+        out += &format!(
+            "  wave limit       h / c = {wave:.3e} s ({}): about {:.0} steps or more to t = {}\n",
+            if s.scheme == Scheme::Explicit {
+                "c the sound speed"
+            } else {
+                "c the shear wave speed"
+            },
+            s.end_time / (wave * s.cfl.unwrap_or(1.0)),
+            s.end_time
+        );
+    }
+    // the viscous limit, where it binds: below the wave limit and asking for more steps than
+    // the flow does (a yield-stress fluid's regularisation sets it; plain water never does)
+    if viscous.0 < wave && s.end_time / viscous.0 > flow {
+        out += &format!(
+            "  viscous limit    h^2 rho / (2 D mu) = {:.3e} s (material \"{}\"): about {:.0} steps or more to t = {}\n",
+            viscous.0,
+            deck.materials[viscous.1].name,
+            (s.end_time / viscous.0).ceil(),
+            s.end_time
+        );
+    }
+    if s.scheme == Scheme::Projection {
+        let p = &deck.pressure;
+        let lower = |x: String| x.to_lowercase();
+        if p.unknowns == pmpm::deck::PressureUnknowns::Cells {
+            out += &format!(
+                "  pressure         one per cell (unknowns = \"cells\"): {} ({}), tolerance {:e}, at most {} iterations; each cell's weak divergence held at zero, no free-surface detection\n",
+                lower(format!("{:?}", p.solver)),
+                lower(format!("{:?}", p.preconditioner)),
+                p.tolerance,
+                p.max_iterations,
+            );
+        } else {
+            let surface = match p.free_surface.unwrap_or_default() {
+                pmpm::deck::FreeSurface::LevelSet => {
+                    "free surface from the level set (ghost fluid)".to_string()
+                }
+                pmpm::deck::FreeSurface::VolumeFraction => format!(
+                    "free surface (the paper's rule) where a cell is below {} full",
+                    p.volume_fraction_tolerance
+                ),
+                pmpm::deck::FreeSurface::None => "no free surface".to_string(),
+            };
+            let density = match p.density_correction.unwrap_or_default() {
+                pmpm::deck::DensityCorrection::Positions => {
+                    "particle volumes restored by a position correction"
+                }
+                pmpm::deck::DensityCorrection::None => "no density correction",
+            };
+            out += &format!(
+                "  pressure         {} ({}), tolerance {:e}, at most {} iterations; rhs {}, beta = {}; {surface}; {density}\n",
+                lower(format!("{:?}", p.solver)),
+                lower(format!("{:?}", p.preconditioner)),
+                p.tolerance,
+                p.max_iterations,
+                lower(format!("{:?}", p.rhs)),
+                p.beta,
+            );
+        }
+    }
+    let frames = (s.end_time / deck.output.interval.unwrap_or(s.end_time)).round() as usize + 1;
+    let n = sim.particles.len() as f64;
+    // bytes per particle: a CSV row (about 17 characters per number), the .vtu's raw arrays,
+    // the checkpoint's particle state
+    let csv = 17.0 * (2 * D + 5) as f64;
+    let vtu = 8.0 * 3.0 * 2.0 + 8.0 * 4.0 + 4.0 + 17.0;
+    let checkpoint = 8.0 * (2 * D + 5 + 4 * D * D) as f64 + 6.0;
+    let formats = &deck.output.formats;
+    let has = |f: pmpm::deck::Format| formats.contains(&f);
+    let per_frame = n
+        * (if has(pmpm::deck::Format::Csv) {
+            csv
+        } else {
+            0.0
+        } + if has(pmpm::deck::Format::Vtk) {
+            vtu
+        } else {
+            0.0
+        });
+    out += &format!(
+        "  output           {} every {} s into {}: {frames} frames of about {}, {} in all, \
+         and a checkpoint of {}\n",
+        formats
+            .iter()
+            .map(|f| format!("{f:?}").to_lowercase())
+            .collect::<Vec<_>>()
+            .join(", "),
+        deck.output.interval.unwrap_or(0.0),
+        deck.output.directory,
+        bytes(per_frame),
+        bytes(per_frame * frames as f64),
+        bytes(n * checkpoint + 8.0 * geo.node_count() as f64)
+    );
+    let k = usize::from(D == 3);
+    out += &format!(
+        "  memory           about {} ({} MB, {} B per particle and {} B per grid node, from \
+         the benchmarks)\n",
+        bytes(pmpm::limits::memory(D, n, geo.node_count() as f64)),
+        pmpm::limits::BYTES_BASE / 1e6,
+        pmpm::limits::BYTES_PER_PARTICLE[k],
+        pmpm::limits::BYTES_PER_NODE[k],
+    );
+    for w in warn {
+        out += &format!("warning: {w}\n");
+    }
+    Ok(out)
+}
+
+/// The table `pmpm bench` prints: per phase seconds, ms per step and share of the wall time;
+/// particle updates per second; pressure iterations; peak memory per particle. The last line,
+/// `BENCH key=value ...`, is for scripts.
+pub fn bench_report(deck: &Deck, file: &str, r: &RunSummary, threads: usize) -> String {
+    use std::fmt::Write;
+    let steps = r.steps.max(1) as f64;
+    let total = r.timers.total();
+    let mut t = String::new();
+    let _ = writeln!(
+        t,
+        "pmpm bench {file}: {}D {:?}, {} particles, {} steps to t = {:.6} s, {threads} thread(s)\n",
+        deck.simulation.dimension, deck.simulation.scheme, r.particles, r.steps, r.time
+    );
+    let _ = writeln!(t, "| phase | seconds | ms/step | share |");
+    let _ = writeln!(t, "|---|---:|---:|---:|");
+    for p in Phase::ALL {
+        let sec = r.timers.seconds(p);
+        if sec == 0.0 {
+            continue;
+        }
+        let _ = writeln!(
+            t,
+            "| {} | {:.3} | {:.3} | {:.1}% |",
+            p.name(),
+            sec,
+            1e3 * sec / steps,
+            100.0 * sec / total.max(1e-300)
+        );
+    }
+    let _ = writeln!(
+        t,
+        "| **step loop** | **{total:.3}** | **{:.3}** | 100% |\n",
+        1e3 * total / steps
+    );
+    let updates = r.particles as f64 * r.steps as f64 / total.max(1e-300);
+    let _ = writeln!(t, "particle updates per second: {updates:.3e}");
+    let (iters, max_iters) = r.pressure_iterations;
+    if deck.simulation.scheme == Scheme::Projection {
+        let _ = writeln!(
+            t,
+            "pressure iterations: {:.1} per step, at most {max_iters}",
+            iters as f64 / steps
+        );
+    }
+    let mem = r
+        .peak_memory
+        .map(|b| (b, b as f64 / r.particles.max(1) as f64));
+    match mem {
+        Some((b, per)) => {
+            let _ = writeln!(
+                t,
+                "peak memory: {:.1} MB, {per:.0} bytes per particle (whole process: grid, solver and buffers included)",
+                b as f64 / 1e6
+            );
+        }
+        None => {
+            let _ = writeln!(t, "peak memory: not available on this system");
+        }
+    }
+    let _ = write!(
+        t,
+        "BENCH dim={} scheme={:?} particles={} steps={} sim_time={:.6} threads={threads} wall_s={total:.4} ms_per_step={:.4} updates_per_s={updates:.4e} pressure_iterations={iters} max_iterations={max_iters} peak_bytes={} bytes_per_particle={}",
+        deck.simulation.dimension,
+        deck.simulation.scheme,
+        r.particles,
+        r.steps,
+        r.time,
+        1e3 * total / steps,
+        mem.map_or(0, |m| m.0),
+        mem.map_or(0.0, |m| m.1).round()
+    );
+    for p in Phase::ALL {
+        let _ = write!(t, " {}={:.4}", p.key(), r.timers.seconds(p));
+    }
+    t.push('\n');
+    t
+}
