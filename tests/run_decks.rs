@@ -524,3 +524,28 @@ fn validate_help_names_every_case() {
         assert!(help.contains(case), "{case} missing from: {help}");
     }
 }
+
+#[test]
+fn check_warns_of_a_rigid_body_thinner_than_two_cells() {
+    let dir = scratch_dir("check-thin");
+    let deck = dir.join("thin.toml");
+    // the example's obstacle, 9 cells wide, cut down to a plate 1.5 cells thick
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/dam_break_obstacle_2d.toml"),
+    )
+    .unwrap()
+    .replace(
+        "min = [0.292, 0.0], max = [0.316,",
+        "min = [0.292, 0.0], max = [0.296,",
+    );
+    assert!(text.contains("max = [0.296,"), "the edit found its line");
+    std::fs::write(&deck, text).unwrap();
+    let thin = check(deck.to_str().unwrap());
+    assert!(
+        thin.contains("warning: rigid_bodies[0] (\"obstacle\") is 1.50 cells thick along x"),
+        "{thin}"
+    );
+    // the obstacle as shipped, and its height of 18.5 cells, give no warning
+    let apart = check("examples/dam_break_obstacle_2d.toml");
+    assert!(!apart.contains("cells thick"), "{apart}");
+}

@@ -12,6 +12,7 @@
 //! puts the body's on the face; one between half a cell and a cell inside leaves its normal to
 //! the pressure, whose right-hand side takes the jump of the normal velocity across the face
 //! ([`RigidBodies::add_face_flux`]); the cells a face cuts are integrated over their open part.
+//! A face less than a quarter cell (`SNAP`) past a node row acts on that row.
 //!
 //! The force: on a body's nodes the grid momentum without the body would be, at the step's
 //! end, P = sum_i (m_i v_i^n + dt f_i) (the predictor of P2G's velocity and forces, the
@@ -29,6 +30,15 @@ use crate::particles::Particles;
 use crate::pressure::free_surface::NodeKind;
 use crate::shape::{Stencil, PAD};
 use rayon::prelude::*;
+
+/// With cut cells, the least distance (in cells) between a face and the nearest node outside
+/// it for that node to stay free. A node closer than this holds the face's normal velocity,
+/// and the node a cell behind it, whose open part is then thinner than SNAP, holds it too:
+/// the face acts on the node row, at most SNAP h from where it lies. A node whose only
+/// material is such a sliver has a mass that goes to zero with it, and its free velocity
+/// blew up (a dam break against a block whose face lay 0.01 to 0.1 h past a node row stopped
+/// on a pressure solve with NaN when the surge reached it).
+const SNAP: f64 = 0.25;
 
 /// The deck's rigid bodies and the nodes each holds now.
 #[derive(Debug, Clone, Default)]
@@ -188,9 +198,20 @@ impl<const D: usize> RigidBodies<D> {
             } else {
                 geo.h * (1.0 - 2.0 * eps)
             };
+            // a face on a wall, or beyond it, meets no material
+            let live_lo: [bool; D] = std::array::from_fn(|d| face_lo[d] > grid_lo[d] + eps * geo.h);
+            let live_hi: [bool; D] = std::array::from_fn(|d| face_hi[d] < grid_hi[d] - eps * geo.h);
             for d in 0..D {
                 let v = self.velocity[b][d];
-                if v < 0.0 {
+                if self.cut {
+                    // the nodes within SNAP of a face outside it hold its normal (below)
+                    if live_lo[d] {
+                        lo[d] -= SNAP * geo.h;
+                    }
+                    if live_hi[d] {
+                        hi[d] += SNAP * geo.h;
+                    }
+                } else if v < 0.0 {
                     lo[d] -= lead;
                 } else if v > 0.0 {
                     hi[d] += lead;
@@ -211,16 +232,14 @@ impl<const D: usize> RigidBodies<D> {
                 Vector::<D>::from_fn(|d, _| first[d] as f64 - PAD as f64),
                 Vector::<D>::from_fn(|d, _| last[d] as f64 - PAD as f64),
             );
-            // a face on a wall, or beyond it, meets no material
-            let live_lo: [bool; D] = std::array::from_fn(|d| face_lo[d] > grid_lo[d] + eps * geo.h);
-            let live_hi: [bool; D] = std::array::from_fn(|d| face_hi[d] < grid_hi[d] - eps * geo.h);
             // the components a node holds. Ahead of a leading face, the components along which
             // it leads: the body pushes the material there, but has not reached it and does
             // not drag it sideways. On or inside the box, all; but with smooth sides, a node
             // on faces that do not lead or less than a cell inside them (and on no leading
             // face) holds their normals only. With cut cells a node on a face or less than a
             // cell inside it leaves that face's normal to the pressure (rough sides hold the
-            // other components, smooth ones none).
+            // other components, smooth ones none), unless the open part of its cell is thinner
+            // than SNAP; a node outside a face but within SNAP of it holds the normal.
             let v = self.velocity[b];
             let (cut, smooth) = (self.cut, self.smooth[b]);
             let held = |idx: &[usize; D]| -> u8 {
@@ -234,7 +253,8 @@ impl<const D: usize> RigidBodies<D> {
                     }
                     let (in_lo, in_hi) = ((x - face_lo[d]) / geo.h, (face_hi[d] - x) / geo.h);
                     if cut {
-                        if (live_lo[d] && in_lo < 1.0 - eps) || (live_hi[d] && in_hi < 1.0 - eps) {
+                        if (live_lo[d] && in_lo < 1.0 - SNAP) || (live_hi[d] && in_hi < 1.0 - SNAP)
+                        {
                             normals |= 1 << d;
                         }
                     } else if (in_lo < eps && v[d] < 0.0) || (in_hi < eps && v[d] > 0.0) {
