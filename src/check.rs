@@ -88,6 +88,14 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     {
         w.push("every material is a solid and the projection's pressure sits on the nodes: a solid under a steady load creeps with it (docs/method.md, \"One pressure per cell\"); set pressure.unknowns = \"cells\" with simulation.stress_update = \"usl\"".into());
     }
+    if let Some(interval) = deck.output.interval {
+        if interval > s.end_time {
+            w.push(format!(
+                "output.interval = {interval} s is longer than simulation.end_time = {} s: only the first and the last frame are written",
+                s.end_time
+            ));
+        }
+    }
     // a rigid body thinner than two cells between two faces inside the grid: no node row or
     // one lies inside it, and water passes it or is squeezed next to it (a plate 0.4 cells
     // thick let water through at the floor, or lost 3.5 % of the volume passing over it)

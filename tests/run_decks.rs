@@ -272,6 +272,28 @@ fn an_earlier_run_is_not_overwritten_without_force() {
 }
 
 #[test]
+fn an_output_directory_that_is_a_file_is_refused_and_kept() {
+    let dir = scratch_dir("outfile");
+    let deck = dir.join("small.toml");
+    std::fs::write(&deck, SMALL_2D).unwrap();
+    let file = dir.join("notes.txt");
+    std::fs::write(&file, "mine").unwrap();
+    let o = pmpm(&[
+        "run",
+        deck.to_str().unwrap(),
+        "--output",
+        file.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("the output directory is a file"),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
+}
+
+#[test]
 fn a_particle_leaving_through_an_open_face_stops_the_run_with_status_3() {
     let dir = scratch_dir("blowup");
     let deck = dir.join("leak.toml");

@@ -127,6 +127,13 @@ pub fn claim_directory(dir: &Path, force: bool, resume: Option<&Path>) -> Result
         let b = std::fs::canonicalize(dir).ok()?;
         Some(a == b)
     });
+    if dir.exists() && !dir.is_dir() {
+        return Err(Error::Usage(format!(
+            "{}: the output directory is a file; name a new or empty directory (--output or \
+             output.directory)",
+            dir.display()
+        )));
+    }
     match holds(dir)? {
         Holds::Other(name) => {
             return Err(Error::Usage(format!(
