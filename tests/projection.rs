@@ -527,7 +527,7 @@ fn solvers_agree_and_the_matrix_is_symmetric_positive_definite() {
 
 /// Checks an assembled L (free-surface rows and columns removed): symmetric, its eigenvalues
 /// positive, and it has a Cholesky factor.
-fn symmetric_positive_definite(name: &str, m: &pmpm::pressure::solve::EllMatrix) {
+fn symmetric_positive_definite(name: &str, m: &pmpm::linalg::EllMatrix) {
     let n = m.n;
     assert!(n > 0);
     let mut dense = nalgebra::DMatrix::<f64>::zeros(n, n);

@@ -70,6 +70,7 @@ pub mod error;
 pub mod field;
 pub mod grid;
 pub mod limits;
+pub mod linalg;
 pub mod material;
 pub mod output;
 pub mod particles;

@@ -40,10 +40,12 @@
 //! Written by hand rather than taken from a crate: it is the projection itself, on pmpm's grid
 //! and particle bins, like the nodal assembly beside it.
 
-use super::solve::{EllMatrix, LinearSolver, SolveError, SolveStats};
 use crate::boundary::Boundary;
 use crate::deck::ShapeFunction;
 use crate::grid::{CellBins, Grid, GridGeometry, Vector};
+use crate::linalg::{
+    EllMatrix, GridLayout, LinearSolver, SolveError, SolveParams, SolveStats, System,
+};
 use crate::particles::Particles;
 use crate::shape::Stencil;
 use rayon::prelude::*;
@@ -306,14 +308,17 @@ impl<const D: usize> CellProjection<D> {
                 .zip(cells.par_iter())
                 .for_each(|(x, &c)| *x = prev[c as usize]);
         }
-        let stats = solver.solve(
-            &self.matrix,
-            &self.rhs,
-            &mut self.solution,
+        // one pressure per cell: the rows sit on no node grid (the multigrid is refused)
+        let system = System {
+            matrix: &self.matrix,
+            layout: &GridLayout::EMPTY,
+            singular: false,
+        };
+        let params = SolveParams {
             tolerance,
             max_iterations,
-            false,
-        )?;
+        };
+        let stats = solver.solve(&system, &self.rhs, &mut self.solution, params)?;
         cell_pressure.par_iter_mut().for_each(|p| *p = 0.0);
         for (r, &c) in self.cell_of_row.iter().enumerate() {
             cell_pressure[c as usize] = self.solution[r];

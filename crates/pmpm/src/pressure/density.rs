@@ -28,11 +28,11 @@
 //! the correction could ever give back.
 
 use super::free_surface::{self, Surface};
-use super::solve::{EllMatrix, LinearSolver, SolveError, SolveStats};
 use super::{describe_layout, FluidDomain, GaussPoints, Unknowns};
 use crate::boundary::Boundary;
 use crate::deck::{PressureDeck, ShapeFunction};
 use crate::grid::{CellBins, GridGeometry, Vector};
+use crate::linalg::{EllMatrix, LinearSolver, SolveError, SolveParams, SolveStats, System};
 use crate::particles::{Matrix, Particles};
 use crate::shape::Stencil;
 use rayon::prelude::*;
@@ -210,16 +210,20 @@ impl<const D: usize> DensityCorrection<D> {
         // solve
         self.solution.clear();
         self.solution.resize(rows, 0.0);
-        describe_layout(&mut self.solver, geo, shape, &self.unknowns.node_of_row);
-        let singular = free == 0;
-        self.stats = self.solver.solve(
-            &self.matrix,
-            &self.rhs,
-            &mut self.solution,
-            self.tolerance,
-            self.max_iterations,
-            singular,
-        )?;
+        let u = &mut self.unknowns;
+        describe_layout(&mut u.layout, geo, shape, &u.node_of_row);
+        let system = System {
+            matrix: &self.matrix,
+            layout: &self.unknowns.layout,
+            singular: free == 0,
+        };
+        let params = SolveParams {
+            tolerance: self.tolerance,
+            max_iterations: self.max_iterations,
+        };
+        self.stats = self
+            .solver
+            .solve(&system, &self.rhs, &mut self.solution, params)?;
         for (r, &i) in self.unknowns.node_of_row.iter().enumerate() {
             self.potential[i as usize] = self.solution[r];
         }

@@ -14,23 +14,22 @@ pub mod assemble;
 pub mod cell;
 pub mod density;
 pub mod free_surface;
-pub mod multigrid;
-pub mod solve;
 
 use crate::boundary::Boundary;
 use crate::deck::{
     Deck, PoissonRhs, Preconditioner, PressureUnknowns, Quadrature, ShapeFunction, Solver,
 };
 use crate::grid::{CellBins, Grid, Vector};
+use crate::linalg::{
+    Direct, EllMatrix, GridLayout, IncompleteCholesky, Jacobi, LinearSolver, Multigrid, Pcg,
+    SolveError, SolveParams, SolveStats, System,
+};
 use crate::particles::Particles;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
 use assemble::ParticleQuadrature;
 use free_surface::NodeKind;
 use rayon::prelude::*;
-use solve::{
-    Direct, EllMatrix, IncompleteCholesky, Jacobi, LinearSolver, Pcg, SolveError, SolveStats,
-};
 
 /// State and work buffers of the projection, reused from step to step.
 pub struct Projection<const D: usize> {
@@ -561,31 +560,27 @@ impl<const D: usize> Projection<D> {
             // the increment vanishes on the free surface and off the fluid
             self.node_pressure.fill(0.0);
         }
+        if first {
+            let u = &mut self.unknowns;
+            describe_layout(&mut u.layout, &grid.geo, shape, &u.node_of_row);
+        }
+        let system = System {
+            matrix: &self.matrix,
+            layout: &self.unknowns.layout,
+            singular: self.singular,
+        };
+        let mut params = SolveParams {
+            tolerance: self.tolerance,
+            max_iterations: self.max_iterations,
+        };
         let stats = if first {
-            describe_layout(
-                &mut self.solver,
-                &grid.geo,
-                shape,
-                &self.unknowns.node_of_row,
-            );
-            self.solver.solve(
-                &self.matrix,
-                &self.rhs,
-                &mut self.solution,
-                self.tolerance,
-                self.max_iterations,
-                self.singular,
-            )?
+            self.solver
+                .solve(&system, &self.rhs, &mut self.solution, params)?
         } else {
             // to the first solve's accuracy: its tolerance relative to the first right-hand side
-            self.solver.solve_again(
-                &self.matrix,
-                &self.rhs,
-                &mut self.solution,
-                skip_below / norm,
-                self.max_iterations,
-                self.singular,
-            )?
+            params.tolerance = skip_below / norm;
+            self.solver
+                .solve_again(&system, &self.rhs, &mut self.solution, params)?
         };
         {
             let (sol, node_of_row) = (&self.solution, &self.unknowns.node_of_row);
@@ -726,7 +721,7 @@ fn linear_solver(pd: &crate::deck::PressureDeck) -> LinearSolver {
     match (pd.solver, pd.preconditioner) {
         (Solver::Direct, _) => LinearSolver::Direct(Direct::default()),
         (Solver::Pcg, Preconditioner::Multigrid) => {
-            LinearSolver::Pcg(Pcg::new(Box::<multigrid::Multigrid>::default()))
+            LinearSolver::Pcg(Pcg::new(Box::<Multigrid>::default()))
         }
         (Solver::Pcg, Preconditioner::Ic0) => {
             LinearSolver::Pcg(Pcg::new(Box::<IncompleteCholesky>::default()))
@@ -737,17 +732,14 @@ fn linear_solver(pd: &crate::deck::PressureDeck) -> LinearSolver {
     }
 }
 
-/// Tells a preconditioner that wants it (the multigrid) where the unknowns sit on the grid,
-/// for its coarsening.
+/// Where the rows `node_of_row` sit on the grid, for a geometric preconditioner (the
+/// multigrid's coarsening).
 fn describe_layout<const D: usize>(
-    solver: &mut LinearSolver,
+    layout: &mut GridLayout,
     geo: &crate::grid::GridGeometry<D>,
     shape: ShapeFunction,
     node_of_row: &[u32],
 ) {
-    let Some(layout) = solver.layout_mut() else {
-        return;
-    };
     layout.dim = D;
     layout.reach = shape.width() - 1;
     for d in 0..D {
@@ -770,6 +762,8 @@ pub struct Unknowns {
     pub row_of: Vec<u32>,
     /// Each row's node.
     pub node_of_row: Vec<u32>,
+    /// Where the rows sit on the grid, for the solver.
+    pub layout: GridLayout,
 }
 
 impl Unknowns {

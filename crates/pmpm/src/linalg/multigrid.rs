@@ -17,7 +17,7 @@
 //! where the geometry gives it for free. Every loop gathers per output row in a fixed order,
 //! so a solve repeats bitwise for a given thread count; all buffers are kept between steps.
 
-use super::solve::{EllMatrix, Preconditioner};
+use super::{EllMatrix, Preconditioner, System};
 use rayon::prelude::*;
 
 /// Jacobi weight of the smoother: D^-1 A of the bilinear (trilinear) element Laplacian has its
@@ -33,7 +33,8 @@ const COARSEST: usize = 400;
 const DENSE_LIMIT: usize = 600;
 
 /// Where the unknowns sit on the grid, for the geometric coarsening. Filled by the projection
-/// for every system (the rows change with the fluid).
+/// for every system (the rows change with the fluid); [`GridLayout::EMPTY`] for rows that sit
+/// on no grid (the multigrid is then a Jacobi sweep and the coarsest solve).
 #[derive(Debug, Clone, Default)]
 pub struct GridLayout {
     /// 2 or 3.
@@ -54,6 +55,17 @@ pub struct GridLayout {
 }
 
 impl GridLayout {
+    /// No grid: no row has a place.
+    pub const EMPTY: GridLayout = GridLayout {
+        dim: 0,
+        nodes: [0; 3],
+        offset: [0; 3],
+        cells: [0; 3],
+        periodic: [false; 3],
+        reach: 0,
+        index: Vec::new(),
+    };
+
     fn node_count(&self) -> usize {
         self.nodes[..self.dim].iter().product()
     }
@@ -122,8 +134,6 @@ struct Level {
 /// The multigrid preconditioner.
 #[derive(Debug, Default)]
 pub struct Multigrid {
-    /// The layout of the finest level, filled by the caller before each solve.
-    pub layout: GridLayout,
     fine_n: usize,
     fine_inverse_diagonal: Vec<f64>,
     fine_r: Vec<f64>,
@@ -448,25 +458,20 @@ fn cholesky_solve(l: &[f64], n: usize, b: &[f64], x: &mut [f64]) {
 }
 
 impl Preconditioner for Multigrid {
-    fn layout_mut(&mut self) -> Option<&mut GridLayout> {
-        Some(&mut self.layout)
-    }
-
-    fn setup(&mut self, a: &EllMatrix) {
+    fn setup(&mut self, system: &System) {
+        let (a, layout) = (system.matrix, system.layout);
         self.fine_n = a.n;
         inverse_diagonal(a, &mut self.fine_inverse_diagonal);
         self.fine_r.resize(a.n, 0.0);
         // the finest level's node -> row map, from the layout
         let mut used = 0;
-        if self.layout.index.len() == a.n && a.n > COARSEST {
-            let nodes = self.layout.node_count();
+        if layout.index.len() == a.n && a.n > COARSEST {
+            let nodes = layout.node_count();
             let row_of = &mut self.fine_row_of;
             row_of.clear();
             row_of.resize(nodes, u32::MAX);
-            for (r, n) in self.layout.index.iter().enumerate() {
-                row_of[self
-                    .layout
-                    .flat(&[n[0] as usize, n[1] as usize, n[2] as usize])] = r as u32;
+            for (r, n) in layout.index.iter().enumerate() {
+                row_of[layout.flat(&[n[0] as usize, n[1] as usize, n[2] as usize])] = r as u32;
             }
             loop {
                 if used == self.levels.len() {
@@ -475,7 +480,7 @@ impl Preconditioner for Multigrid {
                 let (finer, rest) = self.levels.split_at_mut(used);
                 let coarse = &mut rest[0];
                 let ok = if used == 0 {
-                    coarsen(&self.layout, a, &self.fine_row_of, coarse)
+                    coarsen(layout, a, &self.fine_row_of, coarse)
                 } else {
                     let f = &finer[used - 1];
                     coarsen(&f.layout, &f.a, &f.row_of, coarse)
@@ -616,7 +621,7 @@ fn prolong(coarse: &Level, x: &mut [f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pressure::solve::{LinearSolver, Pcg};
+    use crate::linalg::{LinearSolver, Pcg};
 
     /// The bilinear-element Laplacian on an n x n cell grid, unknowns at the interior nodes
     /// (p = 0 on the boundary), nodes at padded indices 2 ..= n + 2.
@@ -679,11 +684,12 @@ mod tests {
     #[test]
     fn v_cycle_is_symmetric_positive_definite() {
         let (a, layout) = laplacian(64);
-        let mut mg = Multigrid {
-            layout,
-            ..Default::default()
-        };
-        mg.setup(&a);
+        let mut mg = Multigrid::default();
+        mg.setup(&System {
+            matrix: &a,
+            layout: &layout,
+            singular: false,
+        });
         assert!(mg.levels() >= 3, "levels {:?}", mg.sizes());
         let n = a.n;
         let (x, y) = (pseudo_random(n, 1), pseudo_random(n, 2));
@@ -709,15 +715,22 @@ mod tests {
             let mut its = [0usize; 2];
             for (k, pc) in [true, false].into_iter().enumerate() {
                 let mut solver = if pc {
-                    let mut s = LinearSolver::Pcg(Pcg::new(Box::<Multigrid>::default()));
-                    *s.layout_mut().unwrap() = layout.clone();
-                    s
+                    LinearSolver::Pcg(Pcg::new(Box::<Multigrid>::default()))
                 } else {
-                    LinearSolver::Pcg(Pcg::new(Box::<crate::pressure::solve::Jacobi>::default()))
+                    LinearSolver::Pcg(Pcg::new(Box::<crate::linalg::Jacobi>::default()))
+                };
+                let system = System {
+                    matrix: &a,
+                    layout: &layout,
+                    singular: false,
+                };
+                let params = crate::linalg::SolveParams {
+                    tolerance: 1e-8,
+                    max_iterations: 5000,
                 };
                 let mut x = vec![0.0; a.n];
                 its[k] = solver
-                    .solve(&a, &b, &mut x, 1e-8, 5000, false)
+                    .solve(&system, &b, &mut x, params)
                     .unwrap()
                     .iterations;
             }

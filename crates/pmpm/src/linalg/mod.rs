@@ -1,4 +1,9 @@
-//! Linear solvers of the pressure Poisson equation (METHOD.md step 4), behind one interface.
+//! Linear algebra for the projection's symmetric positive (semi-)definite systems: the ELL
+//! matrix, the conjugate gradient with its preconditioners (Jacobi, incomplete Cholesky, the
+//! geometric multigrid of [`multigrid`]) and faer's sparse Cholesky, behind one interface: a
+//! [`System`] (matrix, where its rows sit on the grid, whether it is singular), the
+//! [`SolveParams`] that stop a solve, and its [`SolveStats`] or [`SolveError`]. Nothing here
+//! knows what the unknowns mean.
 //!
 //! The matrix is stored row by row with a fixed number of slots per row (ELLPACK): a grid node
 //! couples with at most (2K - 1)^D nodes for shape functions K nodes wide, so every row has the
@@ -10,6 +15,10 @@
 //! bitwise, whatever the thread count), handles the singular pure-Neumann system of a closed,
 //! filled container, and takes any [`Preconditioner`]. The direct solver is faer's sparse
 //! Cholesky.
+
+pub mod multigrid;
+
+pub use multigrid::{GridLayout, Multigrid};
 
 use faer::linalg::solvers::Solve;
 use faer::sparse::{SparseColMat, Triplet};
@@ -93,17 +102,34 @@ fn remove_mean(x: &mut [f64], partials: &mut Vec<f64>) {
     x.par_iter_mut().for_each(|v| *v -= mean);
 }
 
+/// A linear system A x = b as a solver sees it.
+#[derive(Debug, Clone, Copy)]
+pub struct System<'a> {
+    /// A, symmetric positive (semi-)definite.
+    pub matrix: &'a EllMatrix,
+    /// Where each row's unknown sits on the grid, for a geometric preconditioner (the
+    /// multigrid); an empty layout where the rows sit on no grid.
+    pub layout: &'a GridLayout,
+    /// The constant vector is A's null space (a closed, filled container): b is made
+    /// consistent by removing its mean and the solution has zero mean.
+    pub singular: bool,
+}
+
+/// When an iterative solve stops.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolveParams {
+    /// Relative residual |b - A x| / |b| to reach.
+    pub tolerance: f64,
+    /// Iterations allowed; reaching them is a [`SolveError::NotConverged`].
+    pub max_iterations: usize,
+}
+
 /// A preconditioner M^-1 of the conjugate gradient.
 pub trait Preconditioner: Send + Sync {
-    /// Prepares for a new matrix.
-    fn setup(&mut self, a: &EllMatrix);
-    /// z = M^-1 r, for the matrix `a` last given to `setup`.
+    /// Prepares for a new system.
+    fn setup(&mut self, system: &System);
+    /// z = M^-1 r, for the matrix `a` of the system last given to `setup`.
     fn apply(&mut self, a: &EllMatrix, r: &[f64], z: &mut [f64]);
-    /// Where the unknowns sit on the grid, for a preconditioner that needs it (multigrid);
-    /// the caller fills it before the solve.
-    fn layout_mut(&mut self) -> Option<&mut super::multigrid::GridLayout> {
-        None
-    }
 }
 
 /// Diagonal (Jacobi) preconditioner.
@@ -113,8 +139,8 @@ pub struct Jacobi {
 }
 
 impl Preconditioner for Jacobi {
-    fn setup(&mut self, a: &EllMatrix) {
-        a.diagonal(&mut self.inverse_diagonal);
+    fn setup(&mut self, system: &System) {
+        system.matrix.diagonal(&mut self.inverse_diagonal);
         self.inverse_diagonal
             .par_iter_mut()
             .for_each(|d| *d = if *d > 0.0 { 1.0 / *d } else { 1.0 });
@@ -152,7 +178,8 @@ pub struct IncompleteCholesky {
 }
 
 impl Preconditioner for IncompleteCholesky {
-    fn setup(&mut self, a: &EllMatrix) {
+    fn setup(&mut self, system: &System) {
+        let a = system.matrix;
         let (n, w) = (a.n, a.width);
         self.start.clear();
         self.cols.clear();
@@ -288,25 +315,24 @@ impl Pcg {
         }
     }
 
-    /// With `setup` false the preconditioner is the one set up for the last matrix, which
-    /// must be `a`.
-    #[allow(clippy::too_many_arguments)]
+    /// With `setup` false the preconditioner is the one set up for the last system, which
+    /// must have the same matrix.
     fn solve(
         &mut self,
-        a: &EllMatrix,
+        system: &System,
         b: &[f64],
         x: &mut [f64],
-        tol: f64,
-        max_iterations: usize,
-        singular: bool,
+        params: SolveParams,
         setup: bool,
     ) -> Result<SolveStats, SolveError> {
+        let (a, singular) = (system.matrix, system.singular);
+        let (tol, max_iterations) = (params.tolerance, params.max_iterations);
         let n = a.n;
         for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
             v.resize(n, 0.0);
         }
         if setup {
-            self.preconditioner.setup(a);
+            self.preconditioner.setup(system);
         }
         let Self {
             preconditioner,
@@ -483,58 +509,42 @@ pub enum LinearSolver {
 }
 
 impl LinearSolver {
-    /// The grid layout the preconditioner wants filled, if any.
-    pub fn layout_mut(&mut self) -> Option<&mut super::multigrid::GridLayout> {
-        match self {
-            LinearSolver::Pcg(s) => s.preconditioner.layout_mut(),
-            LinearSolver::Direct(_) => None,
-        }
-    }
-
-    /// Solves A x = b (x holds the initial guess for the iterative solver) to the relative
-    /// residual `tol`. With `singular`, A is taken to have the constant vector as its null
-    /// space: b is made consistent by removing its mean and the solution has zero mean.
+    /// Solves A x = b to the relative residual `params.tolerance`; x holds the initial guess of
+    /// the iterative solver.
     pub fn solve(
         &mut self,
-        a: &EllMatrix,
+        system: &System,
         b: &[f64],
         x: &mut [f64],
-        tol: f64,
-        max_iterations: usize,
-        singular: bool,
+        params: SolveParams,
     ) -> Result<SolveStats, SolveError> {
-        self.solve_with(a, b, x, tol, max_iterations, singular, true)
+        self.solve_with(system, b, x, params, true)
     }
 
     /// [`LinearSolver::solve`] for the matrix of the last solve, with a new right-hand side:
     /// the preconditioner is not set up again (the direct solver factorises again).
     pub fn solve_again(
         &mut self,
-        a: &EllMatrix,
+        system: &System,
         b: &[f64],
         x: &mut [f64],
-        tol: f64,
-        max_iterations: usize,
-        singular: bool,
+        params: SolveParams,
     ) -> Result<SolveStats, SolveError> {
-        self.solve_with(a, b, x, tol, max_iterations, singular, false)
+        self.solve_with(system, b, x, params, false)
     }
 
     /// Both solves: `setup` false keeps the preconditioner of the last matrix.
-    #[allow(clippy::too_many_arguments)]
     fn solve_with(
         &mut self,
-        a: &EllMatrix,
+        system: &System,
         b: &[f64],
         x: &mut [f64],
-        tol: f64,
-        max_iterations: usize,
-        singular: bool,
+        params: SolveParams,
         setup: bool,
     ) -> Result<SolveStats, SolveError> {
         match self {
-            LinearSolver::Pcg(s) => s.solve(a, b, x, tol, max_iterations, singular, setup),
-            LinearSolver::Direct(s) => s.solve(a, b, x, singular),
+            LinearSolver::Pcg(s) => s.solve(system, b, x, params, setup),
+            LinearSolver::Direct(s) => s.solve(system.matrix, b, x, system.singular),
         }
     }
 }
@@ -542,6 +552,23 @@ impl LinearSolver {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `a` as a system on no grid.
+    fn system(a: &EllMatrix, singular: bool) -> System<'_> {
+        static NO_GRID: GridLayout = GridLayout::EMPTY;
+        System {
+            matrix: a,
+            layout: &NO_GRID,
+            singular,
+        }
+    }
+
+    fn params(tolerance: f64, max_iterations: usize) -> SolveParams {
+        SolveParams {
+            tolerance,
+            max_iterations,
+        }
+    }
 
     /// 1D Laplacian with `n` unknowns; Dirichlet at both ends unless `neumann`.
     fn laplacian(n: usize, neumann: bool) -> EllMatrix {
@@ -577,12 +604,16 @@ mod tests {
         let b: Vec<f64> = (0..n).map(|i| ((i * 7) % 13) as f64 - 6.0).collect();
         let mut x1 = vec![0.0; n];
         let mut pcg = LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())));
-        let s = pcg.solve(&a, &b, &mut x1, 1e-12, 1000, false).unwrap();
+        let s = pcg
+            .solve(&system(&a, false), &b, &mut x1, params(1e-12, 1000))
+            .unwrap();
         assert!(s.iterations > 0 && s.relative_residual <= 1e-12);
         assert!(residual(&a, &b, &x1) <= 1e-11);
         let mut x2 = vec![0.0; n];
         let mut direct = LinearSolver::Direct(Direct::default());
-        direct.solve(&a, &b, &mut x2, 1e-12, 0, false).unwrap();
+        direct
+            .solve(&system(&a, false), &b, &mut x2, params(1e-12, 0))
+            .unwrap();
         assert!(residual(&a, &b, &x2) <= 1e-12);
         let scale = x2.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         for (p, q) in x1.iter().zip(&x2) {
@@ -604,7 +635,9 @@ mod tests {
             LinearSolver::Direct(Direct::default()),
         ] {
             let mut x = vec![1.0; n];
-            solver.solve(&a, &b, &mut x, 1e-12, 1000, true).unwrap();
+            solver
+                .solve(&system(&a, true), &b, &mut x, params(1e-12, 1000))
+                .unwrap();
             assert!(residual(&a, &consistent, &x) <= 1e-10);
             let mean = x.iter().sum::<f64>() / n as f64;
             assert!(mean.abs() <= 1e-12 * x.iter().fold(0.0f64, |m, v| m.max(v.abs())));
@@ -650,7 +683,7 @@ mod tests {
         let a = laplacian(n, false);
         let b: Vec<f64> = (0..n).map(|i| (i as f64 * 0.3).cos()).collect();
         let mut ic = IncompleteCholesky::default();
-        ic.setup(&a);
+        ic.setup(&system(&a, false));
         let mut x = vec![0.0; n];
         ic.apply(&a, &b, &mut x);
         assert!(residual(&a, &b, &x) <= 1e-13, "{}", residual(&a, &b, &x));
@@ -670,7 +703,7 @@ mod tests {
         {
             let mut x = vec![0.0; a.n];
             let s = LinearSolver::Pcg(Pcg::new(pre))
-                .solve(&a, &b, &mut x, 1e-10, 1000, false)
+                .solve(&system(&a, false), &b, &mut x, params(1e-10, 1000))
                 .unwrap();
             assert!(residual(&a, &b, &x) <= 1e-9);
             iterations[k] = s.iterations;
@@ -690,7 +723,9 @@ mod tests {
         let b = vec![1.0; 500];
         let mut x = vec![0.0; 500];
         let mut pcg = LinearSolver::Pcg(Pcg::new(Box::new(Jacobi::default())));
-        let e = pcg.solve(&a, &b, &mut x, 1e-12, 10, false).unwrap_err();
+        let e = pcg
+            .solve(&system(&a, false), &b, &mut x, params(1e-12, 10))
+            .unwrap_err();
         assert!(matches!(e, SolveError::NotConverged { iterations: 10, .. }));
     }
 }
