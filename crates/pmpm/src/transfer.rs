@@ -727,6 +727,43 @@ mod tests {
         }
     }
 
+    /// FLIP adds the grid's change to the particle's own velocity, PIC takes the grid's new
+    /// velocity: with the grid at rest before and a uniform Delta after, PIC gives Delta and
+    /// FLIP with ratio alpha gives Delta + alpha v_p (the shape functions sum to one).
+    #[test]
+    fn flip_keeps_the_particle_velocity_that_pic_forgets() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 0.1, [8; 2]);
+        let delta = Vector::<2>::new(0.7, -0.2);
+        for shape in [ShapeFunction::Linear, ShapeFunction::Bspline2] {
+            for transfer in [Transfer::Pic, Transfer::Flip] {
+                let s = settings::<2>(shape, transfer);
+                let mut grid = Grid::new(geo.clone());
+                grid.velocity.fill(Vector::<2>::zeros());
+                grid.velocity_new.fill(delta);
+                let mut ps = scatter(&geo, 200);
+                let mut usl = ps.clone();
+                let v0 = ps.v.clone();
+                let mut adv = vec![Vector::<2>::zeros(); ps.len()];
+                grid_to_particles(&mut ps, &grid, &s, &mut adv);
+                grid_to_particles_usl(&mut usl, &grid, &s, 1e-3);
+                let keep = if transfer == Transfer::Flip {
+                    s.flip_ratio
+                } else {
+                    0.0
+                };
+                for ((v, u), v0) in ps.v.iter().zip(&usl.v).zip(&v0) {
+                    let expected = delta + v0 * keep;
+                    for (path, got) in [("musl", v), ("usl", u)] {
+                        assert!(
+                            (got - expected).norm() < 1e-12,
+                            "{shape:?} {transfer:?} {path}: {got:?} against {expected:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn p2g_is_deterministic_for_a_thread_count() {
         let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 0.1, [10; 2]);
