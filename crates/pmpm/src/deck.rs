@@ -1392,6 +1392,20 @@ impl Deck {
     /// Checks what the types cannot and fills in every default.
     pub fn validate(&mut self, file: &str) -> Result<(), DeckError> {
         let c = Check { file };
+        self.check_simulation(&c)?;
+        self.fill_pressure_defaults(&c)?;
+        self.check_grid(&c)?;
+        self.check_pressure(&c)?;
+        self.check_materials(&c)?;
+        self.check_bodies(&c)?;
+        self.check_rigid_bodies(&c)?;
+        self.check_output(&c)?;
+        self.check_time_step(&c)?;
+        Ok(())
+    }
+
+    /// The `[simulation]` table: dimension, times, gravity, transfer and the scheme's defaults.
+    fn check_simulation(&mut self, c: &Check) -> Result<(), DeckError> {
         let s = &mut self.simulation;
         let dim = s.dimension;
         if dim != 2 && dim != 3 {
@@ -1459,6 +1473,11 @@ impl Deck {
                 "is for scheme = \"explicit\" (against the locking of its equation of state); the projection's pressure already keeps one volume constraint per node: remove the key or set it to \"none\"",
             ));
         }
+        Ok(())
+    }
+
+    /// The `[pressure]` defaults that depend on the scheme and the materials, and what one pressure per cell needs.
+    fn fill_pressure_defaults(&mut self, c: &Check) -> Result<(), DeckError> {
         if self.pressure.free_surface.is_none() {
             self.pressure.free_surface = Some(FreeSurface::LevelSet);
         }
@@ -1516,7 +1535,12 @@ impl Deck {
                 ));
             }
         }
+        Ok(())
+    }
 
+    /// The `[grid]` table: origin, size, cell size and the boundary faces.
+    fn check_grid(&mut self, c: &Check) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
         let g = &mut self.grid;
         if g.origin.is_empty() {
             g.origin = vec![0.0; dim];
@@ -1626,7 +1650,11 @@ impl Deck {
                 ));
             }
         }
+        Ok(())
+    }
 
+    /// The `[pressure]` table's numbers and the keys that do not go together.
+    fn check_pressure(&self, c: &Check) -> Result<(), DeckError> {
         let p = &self.pressure;
         c.positive("pressure.tolerance", p.tolerance)?;
         if p.max_iterations == 0 {
@@ -1664,7 +1692,11 @@ impl Deck {
                 format!("must be in [0, 1], got {}", p.beta),
             ));
         }
+        Ok(())
+    }
 
+    /// The `[[materials]]`.
+    fn check_materials(&self, c: &Check) -> Result<(), DeckError> {
         if self.materials.is_empty() {
             return Err(c.err("materials", "at least one [[materials]] entry is required"));
         }
@@ -1693,7 +1725,7 @@ impl Deck {
             }
             c.positive(&format!("{k}.density"), m.density)?;
             c.non_negative(&format!("{k}.viscosity"), m.viscosity)?;
-            m.check_model_keys(&k, &c)?;
+            m.check_model_keys(&k, c)?;
             match m.bulk_modulus {
                 Some(b) => c.positive(&format!("{k}.bulk_modulus"), b)?,
                 None if explicit => {
@@ -1715,7 +1747,12 @@ impl Deck {
                 ));
             }
         }
+        Ok(())
+    }
 
+    /// The `[[bodies]]`: shapes inside the grid, particles per cell, materials and velocities.
+    fn check_bodies(&mut self, c: &Check) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
         if self.bodies.is_empty() {
             return Err(c.err("bodies", "at least one [[bodies]] entry is required"));
         }
@@ -1833,7 +1870,12 @@ impl Deck {
             }
             c.field(&format!("{k}.velocity"), &b.velocity, dim)?;
         }
+        Ok(())
+    }
 
+    /// The `[[rigid_bodies]]`.
+    fn check_rigid_bodies(&self, c: &Check) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
         for (i, r) in self.rigid_bodies.iter().enumerate() {
             let k = format!("rigid_bodies[{i}]");
             if r.name.is_empty() || r.name.contains([',', '"', '\n']) {
@@ -1872,7 +1914,13 @@ impl Deck {
                 c.vector(&format!("{k}.velocity"), v, dim)?;
             }
         }
+        Ok(())
+    }
 
+    /// The `[output]` table: intervals, formats and probes.
+    fn check_output(&mut self, c: &Check) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
+        let (lo, hi) = self.domain();
         let o = &mut self.output;
         let interval = *o.interval.get_or_insert(self.simulation.end_time / 100.0);
         c.positive("output.interval", interval)?;
@@ -1922,7 +1970,12 @@ impl Deck {
                 ));
             }
         }
+        Ok(())
+    }
 
+    /// A fixed `simulation.dt` against the explicit limits.
+    fn check_time_step(&self, c: &Check) -> Result<(), DeckError> {
+        let explicit = self.simulation.scheme == Scheme::Explicit;
         if let Some(dt) = self.simulation.dt {
             let (wave, viscous) = self.dt_limits();
             if dt > wave {
@@ -1959,6 +2012,13 @@ impl Deck {
             }
         }
         Ok(())
+    }
+
+    /// The grid's lower and upper corners.
+    fn domain(&self) -> (Vec<f64>, Vec<f64>) {
+        let g = &self.grid;
+        let hi = g.origin.iter().zip(&g.size).map(|(o, s)| o + s).collect();
+        (g.origin.clone(), hi)
     }
 
     /// Largest wave speed the scheme integrates explicitly, over the materials: the sound
