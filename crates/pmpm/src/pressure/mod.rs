@@ -387,8 +387,6 @@ impl<const D: usize> Projection<D> {
         // 4. (div v*)_p after the wall conditions and, for the flux form, w_p: the part of v*
         //    the walls removed; then L and the right-hand side
         let shape = self.shape;
-        let beta = self.beta;
-        let n_nodes = grid.geo.node_count();
         let flux = self.rhs_form == PoissonRhs::Flux;
         if !first {
             // a further pass measures the divergence of the velocity the particles will take,
@@ -452,33 +450,8 @@ impl<const D: usize> Projection<D> {
             // load creeps with it. Aim at div v = alpha (1 - J) / dt, which gives back the
             // fraction alpha of the drift per step.
             let rate = self.volume_correction / dt;
-            let (bins, v0, jac) = (&self.bins, &ps.volume0, &ps.jacobian);
-            if let Some(cells) = qcell {
-                self.cell_jacobian.resize(n_nodes, 1.0);
-                self.cell_jacobian
-                    .par_iter_mut()
-                    .enumerate()
-                    .for_each(|(c, j)| {
-                        let (mut sv, mut sj) = (0.0, 0.0);
-                        for &p in bins.particles(c) {
-                            sv += v0[p as usize];
-                            sj += v0[p as usize] * jac[p as usize];
-                        }
-                        *j = if sv > 0.0 { sj / sv } else { 1.0 };
-                    });
-                let cj = &self.cell_jacobian;
-                qdiv.par_iter_mut()
-                    .zip(cells.par_iter())
-                    .for_each(|(div, c)| {
-                        let idx: [usize; D] =
-                            std::array::from_fn(|d| c[d] as usize + crate::shape::PAD);
-                        *div -= rate * (1.0 - cj[geo.flat(&idx)]);
-                    });
-            } else {
-                qdiv.par_iter_mut()
-                    .zip(jac.par_iter())
-                    .for_each(|(div, j)| *div -= rate * (1.0 - j));
-            }
+            let cj = &mut self.cell_jacobian;
+            aim_at_volume(geo, &self.bins, ps, qcell, rate, cj, qdiv);
         }
         if flux {
             boundary.apply(&mut grid.velocity_new);
@@ -545,12 +518,30 @@ impl<const D: usize> Projection<D> {
         if !first && (norm <= skip_below || norm >= skip.1) {
             return Ok(None);
         }
+        let stats = self.solve(&grid.geo, first, skip.0 / norm)?;
+        self.store_pressure(&grid.geo, first, level_set);
+        timers.lap(Phase::Solve);
+        // 5. particle pressure and (grad dp)_p, then the corrector
+        self.correct_velocity(ps, grid, boundary, mass_epsilon, dt, level_set);
+        timers.lap(Phase::Corrector);
+        Ok(Some((norm, stats)))
+    }
+
+    /// Stage 4 of a pass: solves L dp = rhs for the unknowns, from the last step's pressure
+    /// (Chorin's form, first pass) or from zero (a further pass, to `further_tolerance`
+    /// relative to its own right-hand side: the first solve's accuracy).
+    fn solve(
+        &mut self,
+        geo: &crate::grid::GridGeometry<D>,
+        first: bool,
+        further_tolerance: f64,
+    ) -> Result<SolveStats, SolveError> {
         // solve; Chorin's form starts from the last step's pressure at the same nodes, a
         // further pass from zero
         self.solution.resize(self.unknowns.node_of_row.len(), 0.0);
         {
             let prev = &self.previous;
-            let warm = first && beta == 0.0;
+            let warm = first && self.beta == 0.0;
             self.solution
                 .par_iter_mut()
                 .zip(self.unknowns.node_of_row.par_iter())
@@ -562,7 +553,7 @@ impl<const D: usize> Projection<D> {
         }
         if first {
             let u = &mut self.unknowns;
-            describe_layout(&mut u.layout, &grid.geo, shape, &u.node_of_row);
+            describe_layout(&mut u.layout, geo, self.shape, &u.node_of_row);
         }
         let system = System {
             matrix: &self.matrix,
@@ -578,32 +569,38 @@ impl<const D: usize> Projection<D> {
                 .solve(&system, &self.rhs, &mut self.solution, params)?
         } else {
             // to the first solve's accuracy: its tolerance relative to the first right-hand side
-            params.tolerance = skip_below / norm;
+            params.tolerance = further_tolerance;
             self.solver
                 .solve_again(&system, &self.rhs, &mut self.solution, params)?
         };
+        Ok(stats)
+    }
+
+    /// Stage 4, after the solve: dp on the nodes (with the free surface's ghost values and the
+    /// solids' extension), and p^{n+1} kept for the next step.
+    fn store_pressure(&mut self, geo: &crate::grid::GridGeometry<D>, first: bool, level_set: bool) {
         {
             let (sol, node_of_row) = (&self.solution, &self.unknowns.node_of_row);
             let dp = &mut self.node_pressure;
             for (r, &i) in node_of_row.iter().enumerate() {
                 dp[i as usize] = sol[r];
             }
-            grid.geo.copy_to_images(dp);
+            geo.copy_to_images(dp);
             if level_set {
                 // the free-surface nodes take the ghost values that put p = 0 on the surface
                 let (kinds, phi) = (&self.surface.kinds, &self.surface.phi);
                 let [out, first] = &mut self.ghost;
-                free_surface::ghost_values(&grid.geo, kinds, phi, dp, out, first);
+                free_surface::ghost_values(geo, kinds, phi, dp, out, first);
                 std::mem::swap(dp, out);
                 if self.surface.solid().is_some() {
-                    free_surface::extend_into_solids(&grid.geo, kinds, dp, first);
+                    free_surface::extend_into_solids(geo, kinds, dp, first);
                 }
-                grid.geo.copy_to_images(dp);
+                geo.copy_to_images(dp);
             }
             // p^{n+1} = beta p^n + dp on the fluid's nodes after the first pass, plus dp after
             // each further one: the memory of the next step (on the free surface its own
             // value, or the ghost value)
-            let keep = if first { beta } else { 1.0 };
+            let keep = if first { self.beta } else { 1.0 };
             let kinds = &self.surface.kinds;
             self.previous
                 .par_iter_mut()
@@ -618,7 +615,20 @@ impl<const D: usize> Projection<D> {
                     }
                 });
         }
-        timers.lap(Phase::Solve);
+    }
+
+    /// Stage 5 of a pass: the particles' pressure and (grad dp)_p, the corrector
+    /// v^{n+1} = v* - dt / rho grad dp, and, with the level set, the velocity of the nodes no
+    /// pressure reached.
+    fn correct_velocity(
+        &mut self,
+        ps: &mut Particles<D>,
+        grid: &mut Grid<D>,
+        boundary: &Boundary<D>,
+        mass_epsilon: f64,
+        dt: f64,
+        level_set: bool,
+    ) {
         // 5. particle pressure and (grad dp)_p, then the corrector
         self.particle_pressure(ps, &grid.geo, true);
         self.correct(ps, grid, mass_epsilon, dt);
@@ -626,7 +636,8 @@ impl<const D: usize> Projection<D> {
             // the nodes no pressure reached take the held velocity of the walls around them
             boundary.apply(&mut grid.velocity_new);
             self.held.clear();
-            self.held.resize(n_nodes, Vector::<D>::repeat(1.0));
+            self.held
+                .resize(grid.geo.node_count(), Vector::<D>::repeat(1.0));
             boundary.hold_still(&mut self.held);
             free_surface::extend_velocity(
                 &grid.geo,
@@ -636,8 +647,6 @@ impl<const D: usize> Projection<D> {
                 &mut self.extended,
             );
         }
-        timers.lap(Phase::Corrector);
-        Ok(Some((norm, stats)))
     }
 
     /// Interpolates to the particles: with `after_solve` the new pressure
@@ -713,6 +722,43 @@ impl<const D: usize> Projection<D> {
                 });
                 *v -= f * (scale / m);
             });
+    }
+}
+
+/// The volume correction's source: the divergence at the quadrature points `div` aims at
+/// alpha (1 - J) / dt (`rate` = alpha / dt) instead of 0, with J the particle's, or, at cell
+/// points (`cells`), the volume-weighted J of the cell's particles.
+fn aim_at_volume<const D: usize>(
+    geo: &crate::grid::GridGeometry<D>,
+    bins: &CellBins,
+    ps: &Particles<D>,
+    cells: Option<&[[u32; D]]>,
+    rate: f64,
+    cell_jacobian: &mut Vec<f64>,
+    div: &mut [f64],
+) {
+    let (v0, jac) = (&ps.volume0, &ps.jacobian);
+    if let Some(cells) = cells {
+        cell_jacobian.resize(geo.node_count(), 1.0);
+        cell_jacobian.par_iter_mut().enumerate().for_each(|(c, j)| {
+            let (mut sv, mut sj) = (0.0, 0.0);
+            for &p in bins.particles(c) {
+                sv += v0[p as usize];
+                sj += v0[p as usize] * jac[p as usize];
+            }
+            *j = if sv > 0.0 { sj / sv } else { 1.0 };
+        });
+        let cj = &*cell_jacobian;
+        div.par_iter_mut()
+            .zip(cells.par_iter())
+            .for_each(|(div, c)| {
+                let idx: [usize; D] = std::array::from_fn(|d| c[d] as usize + crate::shape::PAD);
+                *div -= rate * (1.0 - cj[geo.flat(&idx)]);
+            });
+    } else {
+        div.par_iter_mut()
+            .zip(jac.par_iter())
+            .for_each(|(div, j)| *div -= rate * (1.0 - j));
     }
 }
 
