@@ -139,91 +139,12 @@ impl<const D: usize> CellProjection<D> {
         boundary.mask_held(&mut self.free);
         boundary.apply(&mut grid.velocity_new);
 
-        // the unknowns: every cell that holds a particle
-        self.row_of.clear();
-        self.row_of.resize(n_nodes, u32::MAX);
-        self.cell_of_row.clear();
-        for c in 0..n_nodes {
-            if !bins.particles(c).is_empty() {
-                self.row_of[c] = self.cell_of_row.len() as u32;
-                self.cell_of_row.push(c as u32);
-            }
-        }
+        self.number_and_couple(ps, geo, bins, shape);
+
+        self.drop_unconstrained(geo, &grid.mass, mass_epsilon);
         let rows = self.cell_of_row.len();
         let bl = self.box_len();
         let (bw, reach) = (self.box_width, self.reach);
-        self.coupling.clear();
-        self.coupling.resize(rows * bl, Vector::<D>::zeros());
-        self.weight.clear();
-        self.weight.resize(rows * bl, 0.0);
-        {
-            let mut coupling = std::mem::take(&mut self.coupling);
-            let mut weight = std::mem::take(&mut self.weight);
-            let this = &*self;
-            let (xs, hw, vol) = (&ps.x, &ps.half_width, &ps.volume0);
-            coupling
-                .par_chunks_mut(bl)
-                .zip(weight.par_chunks_mut(bl))
-                .zip(this.cell_of_row.par_iter())
-                .for_each(|((dc, wc), &c)| {
-                    let lo = geo.multi(c as usize).map(|i| i - reach);
-                    for &p in bins.particles(c as usize) {
-                        let p = p as usize;
-                        let st = Stencil::<D>::new(shape, &geo.to_cells(&xs[p]), geo.h, hw[p]);
-                        st.for_each(|nw| {
-                            let mut o = [0usize; D];
-                            for d in 0..D {
-                                o[d] = nw.node[d].wrapping_sub(lo[d]);
-                            }
-                            if o.iter().any(|&v| v >= bw) {
-                                // a weight of exactly zero at the kernel's edge
-                                debug_assert!(nw.n == 0.0 && nw.grad.norm() == 0.0);
-                                return;
-                            }
-                            let k = this.box_flat(&o);
-                            dc[k] += nw.grad * vol[p];
-                            wc[k] += nw.n * vol[p];
-                        });
-                    }
-                });
-            self.coupling = coupling;
-            self.weight = weight;
-        }
-
-        // a cell whose particles touch no free node (inside a rigid body or a no-slip wall's
-        // reach) has nothing to constrain: its row would be zero and its pressure arbitrary.
-        // Such cells are no unknowns.
-        {
-            let (free, mass) = (&self.free, &grid.mass);
-            let mut kept = 0usize;
-            for r in 0..rows {
-                let c = self.cell_of_row[r] as usize;
-                let lo = geo.multi(c).map(|i| i - reach);
-                let (mut masked, mut whole) = (0.0, 0.0);
-                self.for_box(geo, &lo, |k, j, _| {
-                    if mass[j] > mass_epsilon {
-                        let d = self.coupling[r * bl + k];
-                        masked += d.component_mul(&free[j]).norm_squared() / mass[j];
-                        whole += d.norm_squared() / mass[j];
-                    }
-                });
-                if masked > 1e-12 * whole {
-                    if kept != r {
-                        self.coupling.copy_within(r * bl..(r + 1) * bl, kept * bl);
-                        self.weight.copy_within(r * bl..(r + 1) * bl, kept * bl);
-                        self.cell_of_row[kept] = c as u32;
-                    }
-                    self.row_of[c] = kept as u32;
-                    kept += 1;
-                } else {
-                    self.row_of[c] = u32::MAX;
-                }
-            }
-            self.cell_of_row.truncate(kept);
-            self.coupling.truncate(kept * bl);
-            self.weight.truncate(kept * bl);
-        }
-        let rows = self.cell_of_row.len();
 
         // right-hand side -(1/dt) D v* and the matrix rows
         let span = 2 * bw - 1;
@@ -299,6 +220,121 @@ impl<const D: usize> CellProjection<D> {
             self.matrix = matrix;
         }
 
+        let stats = self.solve(solver, tolerance, max_iterations, cell_pressure)?;
+
+        self.correct(ps, grid, mass_epsilon, dt, shape);
+        Ok(stats)
+    }
+
+    /// The unknowns, every cell that holds a particle, and each one's coupling to the nodes of
+    /// its box: D_cj = sum_p V_p grad N_jp and the weights sum_p V_p N_jp over its particles.
+    fn number_and_couple(
+        &mut self,
+        ps: &Particles<D>,
+        geo: &GridGeometry<D>,
+        bins: &CellBins,
+        shape: ShapeFunction,
+    ) {
+        let n_nodes = geo.node_count();
+        // the unknowns: every cell that holds a particle
+        self.row_of.clear();
+        self.row_of.resize(n_nodes, u32::MAX);
+        self.cell_of_row.clear();
+        for c in 0..n_nodes {
+            if !bins.particles(c).is_empty() {
+                self.row_of[c] = self.cell_of_row.len() as u32;
+                self.cell_of_row.push(c as u32);
+            }
+        }
+        let rows = self.cell_of_row.len();
+        let bl = self.box_len();
+        let (bw, reach) = (self.box_width, self.reach);
+        self.coupling.clear();
+        self.coupling.resize(rows * bl, Vector::<D>::zeros());
+        self.weight.clear();
+        self.weight.resize(rows * bl, 0.0);
+        {
+            let mut coupling = std::mem::take(&mut self.coupling);
+            let mut weight = std::mem::take(&mut self.weight);
+            let this = &*self;
+            let (xs, hw, vol) = (&ps.x, &ps.half_width, &ps.volume0);
+            coupling
+                .par_chunks_mut(bl)
+                .zip(weight.par_chunks_mut(bl))
+                .zip(this.cell_of_row.par_iter())
+                .for_each(|((dc, wc), &c)| {
+                    let lo = geo.multi(c as usize).map(|i| i - reach);
+                    for &p in bins.particles(c as usize) {
+                        let p = p as usize;
+                        let st = Stencil::<D>::new(shape, &geo.to_cells(&xs[p]), geo.h, hw[p]);
+                        st.for_each(|nw| {
+                            let mut o = [0usize; D];
+                            for d in 0..D {
+                                o[d] = nw.node[d].wrapping_sub(lo[d]);
+                            }
+                            if o.iter().any(|&v| v >= bw) {
+                                // a weight of exactly zero at the kernel's edge
+                                debug_assert!(nw.n == 0.0 && nw.grad.norm() == 0.0);
+                                return;
+                            }
+                            let k = this.box_flat(&o);
+                            dc[k] += nw.grad * vol[p];
+                            wc[k] += nw.n * vol[p];
+                        });
+                    }
+                });
+            self.coupling = coupling;
+            self.weight = weight;
+        }
+    }
+
+    /// Removes the cells whose particles touch no free node (inside a rigid body or a no-slip
+    /// wall's reach): their rows would be zero and their pressure arbitrary.
+    fn drop_unconstrained(&mut self, geo: &GridGeometry<D>, mass: &[f64], mass_epsilon: f64) {
+        let rows = self.cell_of_row.len();
+        let (bl, reach) = (self.box_len(), self.reach);
+        {
+            let free = &self.free;
+            let mut kept = 0usize;
+            for r in 0..rows {
+                let c = self.cell_of_row[r] as usize;
+                let lo = geo.multi(c).map(|i| i - reach);
+                let (mut masked, mut whole) = (0.0, 0.0);
+                self.for_box(geo, &lo, |k, j, _| {
+                    if mass[j] > mass_epsilon {
+                        let d = self.coupling[r * bl + k];
+                        masked += d.component_mul(&free[j]).norm_squared() / mass[j];
+                        whole += d.norm_squared() / mass[j];
+                    }
+                });
+                if masked > 1e-12 * whole {
+                    if kept != r {
+                        self.coupling.copy_within(r * bl..(r + 1) * bl, kept * bl);
+                        self.weight.copy_within(r * bl..(r + 1) * bl, kept * bl);
+                        self.cell_of_row[kept] = c as u32;
+                    }
+                    self.row_of[c] = kept as u32;
+                    kept += 1;
+                } else {
+                    self.row_of[c] = u32::MAX;
+                }
+            }
+            self.cell_of_row.truncate(kept);
+            self.coupling.truncate(kept * bl);
+            self.weight.truncate(kept * bl);
+        }
+    }
+
+    /// Solves for the cell pressures, from the last step's (`cell_pressure`, which takes the
+    /// new ones).
+    fn solve(
+        &mut self,
+        solver: &mut LinearSolver,
+        tolerance: f64,
+        max_iterations: usize,
+        cell_pressure: &mut [f64],
+    ) -> Result<SolveStats, SolveError> {
+        let rows = self.cell_of_row.len();
         // solve, from the last step's pressures
         self.solution.resize(rows, 0.0);
         {
@@ -323,9 +359,23 @@ impl<const D: usize> CellProjection<D> {
         for (r, &c) in self.cell_of_row.iter().enumerate() {
             cell_pressure[c as usize] = self.solution[r];
         }
+        Ok(stats)
+    }
 
-        // corrector: v_j += (dt / m_j) sum_c p_c D_cj, gathered per node from the cells whose
-        // boxes hold it; and the nodal average of the cell pressures
+    /// The corrector v_j += (dt / m_j) sum_c p_c D_cj, gathered per node from the cells whose
+    /// boxes hold it; the nodal average of the cell pressures; the particles' pressure from it.
+    fn correct(
+        &mut self,
+        ps: &mut Particles<D>,
+        grid: &mut Grid<D>,
+        mass_epsilon: f64,
+        dt: f64,
+        shape: ShapeFunction,
+    ) {
+        let geo = &grid.geo;
+        let n_nodes = geo.node_count();
+        let bl = self.box_len();
+        let (bw, reach) = (self.box_width, self.reach);
         self.node_pressure.resize(n_nodes, 0.0);
         self.force.resize(n_nodes, Vector::<D>::zeros());
         {
@@ -387,7 +437,6 @@ impl<const D: usize> CellProjection<D> {
         )
             .into_par_iter()
             .for_each(|(x, &lp, pp)| *pp = crate::transfer::interpolate(shape, geo, np, x, lp));
-        Ok(stats)
     }
 
     /// Calls `f(k, j, o)` for each node of the box whose first node is `lo` (padded
