@@ -10,6 +10,7 @@ use crate::deck::{Deck, PressureUnknowns, Scheme, StressUpdate, VolumetricAverag
 use crate::error::Error;
 use crate::grid::CellBins;
 use crate::grid::{Grid, GridGeometry, Vector};
+use crate::linalg::SolveError;
 use crate::material::{self, MaterialParams};
 use crate::particles::{Particles, PermuteScratch};
 use crate::pressure::Projection;
@@ -243,10 +244,31 @@ impl<const D: usize> Simulation<D> {
         self.particles_to_grid();
         self.boundary.rigid.begin_step(&self.grid, dt);
         self.timers.lap(Phase::P2g);
-        // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure).
-        //    The projection takes v^n on the walls from the wall conditions: P2G extrapolates
-        //    the particles' velocity onto wall nodes, and the flux form of the Poisson
-        //    equation would read that as flow through the wall.
+        // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure)
+        self.predict(dt);
+        // 3. boundary conditions on v*; the projection's pressure
+        match self.scheme {
+            Scheme::Explicit => self.hold_walls(dt),
+            Scheme::Projection => self.project(dt)?,
+        }
+        // 4. grid -> particles (PIC / FLIP / APIC) and move
+        self.grid_to_particles(dt)?;
+        self.timers.lap(Phase::G2p);
+        // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme)
+        self.update_materials(dt);
+        self.timers.lap(Phase::Constitutive);
+        // 6. projection: the particles moved back towards their rest volumes
+        self.correct_density(dt)?;
+        self.time += dt;
+        self.steps += 1;
+        self.check_particles()?;
+        self.check_volumes()
+    }
+
+    /// Step 2: v* = v^n + dt f / m. The projection takes v^n on the walls from the wall
+    /// conditions: P2G extrapolates the particles' velocity onto wall nodes, and the flux form
+    /// of the Poisson equation would read that as flow through the wall.
+    fn predict(&mut self, dt: f64) {
         if self.scheme == Scheme::Projection {
             self.boundary.apply(&mut self.grid.velocity);
         }
@@ -256,61 +278,75 @@ impl<const D: usize> Simulation<D> {
             self.settings.mass_epsilon,
             self.settings.mass_floor,
         );
-        match self.scheme {
-            Scheme::Explicit => {
-                // 3. boundary conditions on v*; pressure came from the equation of state in
-                //    the particle stress
-                self.boundary
-                    .rigid
-                    .end_step(&self.grid, dt, crate::rigid::PressureForce::None);
-                self.boundary.apply(&mut self.grid.velocity_new);
-                self.pressure_iterations = 0;
-                self.timers.lap(Phase::Predictor);
-            }
-            Scheme::Projection => {
-                self.timers.lap(Phase::Predictor);
-                // 3. boundary conditions on v* (applied by the projection, after it has taken
-                //    the walls' flux of v* into the Poisson equation), free surface, Poisson
-                //    equation, corrector, pressure to particles
-                let projection = self.projection.as_mut().expect("set up for this scheme");
-                let stats = projection
-                    .project(
-                        &mut self.particles,
-                        &mut self.grid,
-                        &self.boundary,
-                        self.settings.mass_epsilon,
-                        dt,
-                        &mut self.timers,
-                    )
-                    .map_err(|e| {
-                        Error::BlowUp(format!(
-                            "run stopped at step {}, t = {:.6} s: {e}. Likely causes: a time \
-                             step too large for the flow (lower simulation.cfl or simulation.dt), \
-                             or pressure.max_iterations too small for this grid",
-                            self.steps + 1,
-                            self.time
-                        ))
-                    })?;
-                self.pressure_iterations = stats.iterations;
-                // the corrector changed the wall nodes' normal velocity: re-impose it (the
-                // rigid bodies' force first, with the new pressure)
-                let projection = self.projection.as_ref().expect("set up for this scheme");
-                let pressure = match projection.cell_pressure_force() {
-                    Some(f) => crate::rigid::PressureForce::Nodal(f),
-                    None => crate::rigid::PressureForce::Particles {
-                        particles: &self.particles,
-                        shape: self.settings.shape,
-                        pressure: &projection.previous,
-                        level_set: projection.surface.level_set(),
-                        kinds: &projection.surface.kinds,
-                    },
+    }
+
+    /// Step 3 of the explicit scheme: the boundary conditions on v* (the pressure came from
+    /// the equation of state in the particle stress) and the rigid bodies' force.
+    fn hold_walls(&mut self, dt: f64) {
+        self.boundary
+            .rigid
+            .end_step(&self.grid, dt, crate::rigid::PressureForce::None);
+        self.boundary.apply(&mut self.grid.velocity_new);
+        self.pressure_iterations = 0;
+        self.timers.lap(Phase::Predictor);
+    }
+
+    /// Step 3 of the projection: boundary conditions on v* (applied by the projection, after
+    /// it has taken the walls' flux of v* into the Poisson equation), free surface, Poisson
+    /// equation, corrector, pressure to particles; then the rigid bodies' force with the new
+    /// pressure, and the wall conditions again (the corrector changed the wall nodes' normal
+    /// velocity).
+    fn project(&mut self, dt: f64) -> Result<(), Error> {
+        self.timers.lap(Phase::Predictor);
+        let projection = self.projection.as_mut().expect("set up for this scheme");
+        let stats = projection
+            .project(
+                &mut self.particles,
+                &mut self.grid,
+                &self.boundary,
+                self.settings.mass_epsilon,
+                dt,
+                &mut self.timers,
+            )
+            .map_err(|e| {
+                let hint = match e {
+                    SolveError::NotConverged { .. } => {
+                        "raise pressure.max_iterations, or use preconditioner = \"multigrid\" \
+                         on a large grid"
+                    }
+                    SolveError::Breakdown(_) => {
+                        "likely a time step too large for the flow (lower simulation.cfl or \
+                         simulation.dt); next to a rigid body, pressure.rigid_faces = \"nodes\" \
+                         is the other way to hold its faces"
+                    }
                 };
-                self.boundary.rigid.end_step(&self.grid, dt, pressure);
-                self.boundary.apply(&mut self.grid.velocity_new);
-            }
-        }
-        // 4. grid -> particles (PIC / FLIP / APIC) and move; the strain rate and APIC's C_p from
-        //    node velocities remapped from the particles (MUSL) or from v^{n+1} (USL)
+                Error::BlowUp(format!(
+                    "run stopped at step {}, t = {:.6} s: {e}. {hint}",
+                    self.steps + 1,
+                    self.time
+                ))
+            })?;
+        self.pressure_iterations = stats.iterations;
+        let projection = self.projection.as_ref().expect("set up for this scheme");
+        let pressure = match projection.cell_pressure_force() {
+            Some(f) => crate::rigid::PressureForce::Nodal(f),
+            None => crate::rigid::PressureForce::Particles {
+                particles: &self.particles,
+                shape: self.settings.shape,
+                pressure: &projection.previous,
+                level_set: projection.surface.level_set(),
+                kinds: &projection.surface.kinds,
+            },
+        };
+        self.boundary.rigid.end_step(&self.grid, dt, pressure);
+        self.boundary.apply(&mut self.grid.velocity_new);
+        Ok(())
+    }
+
+    /// Step 4: grid -> particles (PIC / FLIP / APIC) and move; the strain rate and APIC's C_p
+    /// from node velocities remapped from the particles (MUSL) or from v^{n+1} (USL). A
+    /// particle that left the grid stops the run here, before a transfer reads it.
+    fn grid_to_particles(&mut self, dt: f64) -> Result<(), Error> {
         match self.deck.simulation.stress_update {
             StressUpdate::Musl => {
                 transfer::grid_to_particles(
@@ -340,12 +376,13 @@ impl<const D: usize> Simulation<D> {
         }
         self.boundary
             .confine(&self.grid.geo, dt, &mut self.particles);
-        // a particle that left the grid stops the run here, before a transfer reads it
-        self.check_particles()?;
-        self.timers.lap(Phase::G2p);
-        // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme);
-        //    with volumetric_averaging = "nodal", against locking, the strain rate's volumetric
-        //    part before and the pressure after are averaged at the nodes
+        self.check_particles()
+    }
+
+    /// Step 5: the constitutive update. With volumetric_averaging = "nodal", against locking,
+    /// the strain rate's volumetric part before and the pressure after are averaged at the
+    /// nodes; under the projection the spray's volumes are held.
+    fn update_materials(&mut self, dt: f64) {
         let (geo, shape) = (&self.grid.geo, self.settings.shape);
         if let Some(averaging) = &mut self.averaging {
             averaging.average_strain_rate(&mut self.particles, geo, shape);
@@ -364,9 +401,11 @@ impl<const D: usize> Simulation<D> {
                 averaging.average_pressure(&mut self.particles, geo, shape);
             }
         }
-        self.timers.lap(Phase::Constitutive);
-        // 6. projection: the particles moved back towards their rest volumes, at the pace of
-        //    the flow (a few corrections per cell crossing)
+    }
+
+    /// Step 6 (projection): the particles moved back towards their rest volumes, at the pace
+    /// of the flow (a few corrections per cell crossing).
+    fn correct_density(&mut self, dt: f64) -> Result<(), Error> {
         let corrects = self
             .projection
             .as_ref()
@@ -395,10 +434,7 @@ impl<const D: usize> Simulation<D> {
                 .confine(&self.grid.geo, dt, &mut self.particles);
             self.timers.lap(Phase::Corrector);
         }
-        self.time += dt;
-        self.steps += 1;
-        self.check_particles()?;
-        self.check_volumes()
+        Ok(())
     }
 
     /// Stops the run if a particle's volume ratio J is not positive, left
