@@ -156,37 +156,7 @@ fn run_dim<const D: usize>(
     // times are compared with a tolerance far below any step, so that frame k lands at k interval
     let eps = 1e-9 * interval.min(end);
     let checkpoint_path = dir.join("checkpoint.bin");
-    let (mut out, mut driver) = match &opts.resume {
-        None => {
-            // the directory is taken only once the run can start: a deck that cannot build
-            // its simulation, or a bad checkpoint, leaves an earlier run as it was
-            crate::output::claim_directory(dir, opts.force, None)?;
-            let out = OutputWriter::new(dir, &sim)?;
-            let driver = DriverState {
-                next_frame: 0.0,
-                next_checkpoint: checkpoint_interval,
-                frames: 0,
-                pvd: Vec::new(),
-                iterations: (0, 0),
-            };
-            (out, driver)
-        }
-        Some(path) => {
-            let driver = checkpoint::read(path, &mut sim)?;
-            if sim.time >= end - eps {
-                return Err(Error::Usage(format!(
-                    "{}: the checkpoint is at t = {} s, at or past simulation.end_time = {end} s \
-                     in {file}: raise end_time to go on",
-                    path.display(),
-                    sim.time
-                )));
-            }
-            crate::output::claim_directory(dir, opts.force, Some(path))?;
-            crate::output::remove_frames_from(dir, driver.frames)?;
-            let out = OutputWriter::resume(dir, &sim, &driver)?;
-            (out, driver)
-        }
-    };
+    let (mut out, mut driver) = open_output(&mut sim, file, dir, opts, checkpoint_interval, eps)?;
     let start_steps = sim.steps;
     observer.started(&status(&sim, end, start_steps, 0.0, out.frames, 0.0));
     if opts.resume.is_none() {
@@ -203,32 +173,7 @@ fn run_dim<const D: usize>(
             break Ok(());
         }
         let next_frame = driver.next_frame;
-        let mut dt = match (deck.simulation.dt, deck.simulation.cfl) {
-            (Some(dt), _) => dt,
-            (None, Some(cfl)) => {
-                // adaptive steps land exactly on frame times, without a sliver of a step
-                // before each frame: the remaining time is split into equal steps (with the
-                // projection a tiny step turns the leftover divergence into a pressure spike).
-                // Without landing, the stable step is taken as is (up to one frame interval)
-                // and frames are written at the first step end at or past their time.
-                let dt = sim.stable_dt(cfl);
-                let left = next_frame.min(end) - sim.time;
-                if deck.simulation.land_on_frames == Some(false) {
-                    // at most one frame interval, so that no frame is skipped
-                    dt.min(interval)
-                } else if dt.is_finite() && dt > 0.0 && left > 0.0 {
-                    left / (left / dt).ceil()
-                } else {
-                    dt
-                }
-            }
-            (None, None) => unreachable!("validated: dt or cfl"),
-        };
-        dt = dt.min(end - sim.time);
-        if !(dt > 0.0 && dt.is_finite()) {
-            // at rest with nothing to bound the step: step to the next frame
-            dt = (next_frame.min(end) - sim.time).max(eps);
-        }
+        let dt = next_dt(deck, &sim, next_frame, eps);
         let t0 = sim.time;
         let stepped = sim.step(dt);
         let (iters, max_iters) = &mut driver.iterations;
@@ -322,6 +267,87 @@ fn run_dim<const D: usize>(
         last_dt,
     };
     Ok(summary)
+}
+
+/// The output directory and the driver's clocks: a new run claims the directory (only once
+/// the run can start: a deck that cannot build its simulation, or a bad checkpoint, leaves an
+/// earlier run as it was); a resumed one reads its checkpoint into `sim` and cuts the
+/// directory's files back to it.
+fn open_output<const D: usize>(
+    sim: &mut Simulation<D>,
+    file: &str,
+    dir: &Path,
+    opts: &RunOptions,
+    checkpoint_interval: f64,
+    eps: f64,
+) -> Result<(OutputWriter, DriverState), Error> {
+    let end = sim.deck.simulation.end_time;
+    Ok(match &opts.resume {
+        None => {
+            // the directory is taken only once the run can start: a deck that cannot build
+            // its simulation, or a bad checkpoint, leaves an earlier run as it was
+            crate::output::claim_directory(dir, opts.force, None)?;
+            let out = OutputWriter::new(dir, sim)?;
+            let driver = DriverState {
+                next_frame: 0.0,
+                next_checkpoint: checkpoint_interval,
+                frames: 0,
+                pvd: Vec::new(),
+                iterations: (0, 0),
+            };
+            (out, driver)
+        }
+        Some(path) => {
+            let driver = checkpoint::read(path, sim)?;
+            if sim.time >= end - eps {
+                return Err(Error::Usage(format!(
+                    "{}: the checkpoint is at t = {} s, at or past simulation.end_time = {end} s \
+                     in {file}: raise end_time to go on",
+                    path.display(),
+                    sim.time
+                )));
+            }
+            crate::output::claim_directory(dir, opts.force, Some(path))?;
+            crate::output::remove_frames_from(dir, driver.frames)?;
+            let out = OutputWriter::resume(dir, sim, &driver)?;
+            (out, driver)
+        }
+    })
+}
+
+/// The time-step policy: the deck's fixed dt, or the stable step at its cfl, split so that
+/// adaptive steps land exactly on the next frame's time (`next_frame`), and never past the
+/// end time.
+fn next_dt<const D: usize>(deck: &Deck, sim: &Simulation<D>, next_frame: f64, eps: f64) -> f64 {
+    let end = deck.simulation.end_time;
+    let interval = deck.output.interval.unwrap_or(end);
+    let mut dt = match (deck.simulation.dt, deck.simulation.cfl) {
+        (Some(dt), _) => dt,
+        (None, Some(cfl)) => {
+            // adaptive steps land exactly on frame times, without a sliver of a step
+            // before each frame: the remaining time is split into equal steps (with the
+            // projection a tiny step turns the leftover divergence into a pressure spike).
+            // Without landing, the stable step is taken as is (up to one frame interval)
+            // and frames are written at the first step end at or past their time.
+            let dt = sim.stable_dt(cfl);
+            let left = next_frame.min(end) - sim.time;
+            if deck.simulation.land_on_frames == Some(false) {
+                // at most one frame interval, so that no frame is skipped
+                dt.min(interval)
+            } else if dt.is_finite() && dt > 0.0 && left > 0.0 {
+                left / (left / dt).ceil()
+            } else {
+                dt
+            }
+        }
+        (None, None) => unreachable!("validated: dt or cfl"),
+    };
+    dt = dt.min(end - sim.time);
+    if !(dt > 0.0 && dt.is_finite()) {
+        // at rest with nothing to bound the step: step to the next frame
+        dt = (next_frame.min(end) - sim.time).max(eps);
+    }
+    dt
 }
 
 /// The command that resumes this run from its checkpoint.
