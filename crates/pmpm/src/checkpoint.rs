@@ -152,9 +152,11 @@ fn first_difference(
     }
 }
 
-/// Writes the state of `sim` and of the driver to `path` (through a temporary file).
+/// Writes the state of `sim`, built from `deck`, and of the driver to `path` (through a
+/// temporary file).
 pub fn write<const D: usize>(
     path: &Path,
+    deck: &Deck,
     sim: &Simulation<D>,
     driver: &DriverState,
 ) -> Result<(), Error> {
@@ -163,7 +165,7 @@ pub fn write<const D: usize>(
     let state = State {
         version: env!("CARGO_PKG_VERSION").to_string(),
         dimension: D,
-        deck: fingerprint(&sim.deck).to_string(),
+        deck: fingerprint(deck).to_string(),
         time: sim.time,
         steps: sim.steps,
         pressure_iterations: sim.pressure_iterations,
@@ -245,7 +247,11 @@ fn refuse(path: &Path, why: impl std::fmt::Display) -> Error {
 /// Reads a checkpoint into `sim` (set up from the same deck) and returns the driver's state.
 /// A file that is not a checkpoint, is damaged, or was written by another deck, another
 /// dimension or another particle count is refused with a message that says which.
-pub fn read<const D: usize>(path: &Path, sim: &mut Simulation<D>) -> Result<DriverState, Error> {
+pub fn read<const D: usize>(
+    path: &Path,
+    deck: &Deck,
+    sim: &mut Simulation<D>,
+) -> Result<DriverState, Error> {
     if path.is_dir() {
         return Err(refuse(
             path,
@@ -267,7 +273,7 @@ pub fn read<const D: usize>(path: &Path, sim: &mut Simulation<D>) -> Result<Driv
         .deck
         .parse()
         .map_err(|e| refuse(path, format!("its deck cannot be read ({e})")))?;
-    let ours = fingerprint(&sim.deck);
+    let ours = fingerprint(deck);
     if let Some((key, was, now)) =
         first_difference("", &toml::Value::Table(theirs), &toml::Value::Table(ours))
     {
@@ -464,7 +470,7 @@ mod tests {
     use crate::deck::Deck;
 
     /// A small projection run's simulation and a driver state for it.
-    fn small() -> (Simulation<2>, DriverState) {
+    fn small() -> (Simulation<2>, Deck, DriverState) {
         let src = r#"
 [simulation]
 dimension = 2
@@ -491,20 +497,20 @@ particles_per_cell = 2
             pvd: Vec::new(),
             iterations: (0, 0),
         };
-        (Simulation::<2>::new(&deck).unwrap(), driver)
+        (Simulation::<2>::new(&deck).unwrap(), deck, driver)
     }
 
     /// A checkpoint whose checksum is right but whose content is not (a material index, an id,
     /// a position, a time out of range) is refused with a reason before anything is used.
     #[test]
     fn a_checkpoint_with_a_good_checksum_and_bad_content_is_refused() {
-        let (mut sim, driver) = small();
+        let (mut sim, deck, driver) = small();
         let dir = std::env::temp_dir().join(format!("pmpm-ck-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("checkpoint.bin");
-        write(&path, &sim, &driver).unwrap();
+        write(&path, &deck, &sim, &driver).unwrap();
         let good = decode(&std::fs::read(&path).unwrap()).unwrap();
-        if let Err(e) = read(&path, &mut sim) {
+        if let Err(e) = read(&path, &deck, &mut sim) {
             panic!("the good checkpoint: {e}");
         }
         type Tamper = fn(&mut State);
@@ -530,8 +536,8 @@ particles_per_cell = 2
             tamper(&mut bad);
             let bad_path = dir.join("bad.bin");
             std::fs::write(&bad_path, encode(&bad).unwrap()).unwrap();
-            let (mut fresh, _) = small();
-            match read(&bad_path, &mut fresh) {
+            let (mut fresh, _, _) = small();
+            match read(&bad_path, &deck, &mut fresh) {
                 Err(Error::Usage(m)) => assert!(m.contains(why), "{why}: {m}"),
                 other => panic!("{why}: {:?}", other.map(|_| ())),
             }

@@ -4,7 +4,7 @@
 //! The .vtu files are written by hand with raw appended binary data: the smallest and fastest
 //! form for ParaView to read, and a few dozen lines (vtkio writes inline base64 only).
 
-use crate::deck::Format;
+use crate::deck::{Deck, Format};
 use crate::error::Error;
 use crate::scheme::Simulation;
 use std::fs::File;
@@ -240,12 +240,12 @@ const SERIES_HEADER: &str =
     "frame,time,step,dt,kinetic_energy,max_speed,pressure_iterations,wall_seconds";
 
 /// The header of probes.csv: time, then per probe its pressure and velocity components.
-fn probes_header<const D: usize>(sim: &Simulation<D>) -> String {
+fn probes_header(deck: &Deck, dim: usize) -> String {
     let mut head = String::from("time");
     let axes = ["vx", "vy", "vz"];
-    for p in &sim.deck.output.probes {
+    for p in &deck.output.probes {
         head += &format!(",{}_pressure", p.name);
-        for a in &axes[..D] {
+        for a in &axes[..dim] {
             head += &format!(",{}_{a}", p.name);
         }
     }
@@ -253,24 +253,24 @@ fn probes_header<const D: usize>(sim: &Simulation<D>) -> String {
 }
 
 /// The frames directory and run.toml (the deck as run).
-fn prepare<const D: usize>(dir: &Path, sim: &Simulation<D>) -> Result<(), Error> {
+fn prepare(dir: &Path, deck: &Deck) -> Result<(), Error> {
     let frames_dir = dir.join("frames");
     std::fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
     let run_toml = dir.join("run.toml");
-    let text = sim.deck.to_run_toml();
+    let text = deck.to_run_toml();
     write_atomic(&run_toml, |w| w.write_all(text.as_bytes())).map_err(|e| Error::io(&run_toml, e))
 }
 
 /// The header of rigid_bodies.csv: time, then per body its displacement and the force the
 /// material exerts on it.
-fn rigid_header<const D: usize>(sim: &Simulation<D>) -> String {
+fn rigid_header(deck: &Deck, dim: usize) -> String {
     let mut head = String::from("time");
     let axes = ["x", "y", "z"];
-    for b in &sim.deck.rigid_bodies {
-        for a in &axes[..D] {
+    for b in &deck.rigid_bodies {
+        for a in &axes[..dim] {
             head += &format!(",{}_u{a}", b.name);
         }
-        for a in &axes[..D] {
+        for a in &axes[..dim] {
             head += &format!(",{}_f{a}", b.name);
         }
     }
@@ -313,33 +313,37 @@ fn reopen(
 impl OutputWriter {
     /// Creates the directory and the files that grow during the run (series.csv, probes.csv),
     /// and writes run.toml.
-    pub fn new<const D: usize>(dir: &Path, sim: &Simulation<D>) -> Result<Self, Error> {
-        prepare(dir, sim)?;
+    pub fn new(dir: &Path, deck: &Deck) -> Result<Self, Error> {
+        prepare(dir, deck)?;
+        let dim = deck.simulation.dimension;
         let series = fresh(&dir.join("series.csv"), SERIES_HEADER)?;
-        let probes = if sim.deck.output.probes.is_empty() {
+        let probes = if deck.output.probes.is_empty() {
             None
         } else {
-            Some(fresh(&dir.join("probes.csv"), &probes_header(sim))?)
+            Some(fresh(&dir.join("probes.csv"), &probes_header(deck, dim))?)
         };
-        let rigid = if sim.deck.rigid_bodies.is_empty() {
+        let rigid = if deck.rigid_bodies.is_empty() {
             None
         } else {
-            Some(fresh(&dir.join("rigid_bodies.csv"), &rigid_header(sim))?)
+            Some(fresh(
+                &dir.join("rigid_bodies.csv"),
+                &rigid_header(deck, dim),
+            )?)
         };
-        Ok(Self::with(dir, sim, series, probes, rigid, Vec::new(), 0))
+        Ok(Self::with(dir, deck, series, probes, rigid, Vec::new(), 0))
     }
 
     /// The writer over files already opened.
-    fn with<const D: usize>(
+    fn with(
         dir: &Path,
-        sim: &Simulation<D>,
+        deck: &Deck,
         series: BufWriter<File>,
         probes: Option<BufWriter<File>>,
         rigid: Option<BufWriter<File>>,
         pvd: Vec<(f64, String)>,
         frames: usize,
     ) -> Self {
-        let formats = &sim.deck.output.formats;
+        let formats = &deck.output.formats;
         Self {
             dir: dir.to_path_buf(),
             csv: formats.contains(&Format::Csv),
@@ -358,36 +362,39 @@ impl OutputWriter {
     /// again), and frames go on from the checkpoint's frame count.
     pub fn resume<const D: usize>(
         dir: &Path,
+        deck: &Deck,
         sim: &Simulation<D>,
         driver: &crate::checkpoint::DriverState,
     ) -> Result<Self, Error> {
-        prepare(dir, sim)?;
+        prepare(dir, deck)?;
         let frames = driver.frames;
         let series = reopen(&dir.join("series.csv"), SERIES_HEADER, |f| {
             f.parse::<usize>().is_ok_and(|k| k < frames)
         })?;
         // rows are stamped with the time at the start of their step, printed as {:.9e}
         let t: f64 = format!("{:.9e}", sim.time).parse().expect("a number");
-        let probes = if sim.deck.output.probes.is_empty() {
+        let probes = if deck.output.probes.is_empty() {
             None
         } else {
-            Some(reopen(&dir.join("probes.csv"), &probes_header(sim), |f| {
-                f.parse::<f64>().is_ok_and(|s| s < t)
-            })?)
+            Some(reopen(
+                &dir.join("probes.csv"),
+                &probes_header(deck, D),
+                |f| f.parse::<f64>().is_ok_and(|s| s < t),
+            )?)
         };
         // rigid-body rows are stamped with the time at the end of their step
-        let rigid = if sim.deck.rigid_bodies.is_empty() {
+        let rigid = if deck.rigid_bodies.is_empty() {
             None
         } else {
             Some(reopen(
                 &dir.join("rigid_bodies.csv"),
-                &rigid_header(sim),
+                &rigid_header(deck, D),
                 |f| f.parse::<f64>().is_ok_and(|s| s <= t),
             )?)
         };
         Ok(Self::with(
             dir,
-            sim,
+            deck,
             series,
             probes,
             rigid,

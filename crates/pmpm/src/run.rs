@@ -156,7 +156,8 @@ fn run_dim<const D: usize>(
     // times are compared with a tolerance far below any step, so that frame k lands at k interval
     let eps = 1e-9 * interval.min(end);
     let checkpoint_path = dir.join("checkpoint.bin");
-    let (mut out, mut driver) = open_output(&mut sim, file, dir, opts, checkpoint_interval, eps)?;
+    let (mut out, mut driver) =
+        open_output(deck, &mut sim, file, dir, opts, checkpoint_interval, eps)?;
     let start_steps = sim.steps;
     observer.started(&status(&sim, end, start_steps, 0.0, out.frames, 0.0));
     if opts.resume.is_none() {
@@ -233,7 +234,7 @@ fn run_dim<const D: usize>(
             if let Err(e) = out.sync() {
                 break Err(e);
             }
-            if let Err(e) = checkpoint::write(&checkpoint_path, &sim, &driver) {
+            if let Err(e) = checkpoint::write(&checkpoint_path, deck, &sim, &driver) {
                 break Err(e);
             }
             last_checkpoint = Some(sim.time);
@@ -274,6 +275,7 @@ fn run_dim<const D: usize>(
 /// earlier run as it was); a resumed one reads its checkpoint into `sim` and cuts the
 /// directory's files back to it.
 fn open_output<const D: usize>(
+    deck: &Deck,
     sim: &mut Simulation<D>,
     file: &str,
     dir: &Path,
@@ -281,13 +283,13 @@ fn open_output<const D: usize>(
     checkpoint_interval: f64,
     eps: f64,
 ) -> Result<(OutputWriter, DriverState), Error> {
-    let end = sim.deck.simulation.end_time;
+    let end = deck.simulation.end_time;
     Ok(match &opts.resume {
         None => {
             // the directory is taken only once the run can start: a deck that cannot build
             // its simulation, or a bad checkpoint, leaves an earlier run as it was
             crate::output::claim_directory(dir, opts.force, None)?;
-            let out = OutputWriter::new(dir, sim)?;
+            let out = OutputWriter::new(dir, deck)?;
             let driver = DriverState {
                 next_frame: 0.0,
                 next_checkpoint: checkpoint_interval,
@@ -298,7 +300,7 @@ fn open_output<const D: usize>(
             (out, driver)
         }
         Some(path) => {
-            let driver = checkpoint::read(path, sim)?;
+            let driver = checkpoint::read(path, deck, sim)?;
             if sim.time >= end - eps {
                 return Err(Error::Usage(format!(
                     "{}: the checkpoint is at t = {} s, at or past simulation.end_time = {end} s \
@@ -309,7 +311,7 @@ fn open_output<const D: usize>(
             }
             crate::output::claim_directory(dir, opts.force, Some(path))?;
             crate::output::remove_frames_from(dir, driver.frames)?;
-            let out = OutputWriter::resume(dir, sim, &driver)?;
+            let out = OutputWriter::resume(dir, deck, sim, &driver)?;
             (out, driver)
         }
     })

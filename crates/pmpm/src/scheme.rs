@@ -30,10 +30,43 @@ pub struct Escape<const D: usize> {
     pub v: Vector<D>,
 }
 
+/// The deck's settings the step and its time-step bound read, taken once from the deck: the
+/// simulation keeps these, not the deck.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepPolicy {
+    /// Steps between sorts of the particles into cell order (0: never).
+    pub sort_interval: usize,
+    /// Velocity damping (1/s).
+    pub damping: f64,
+    /// MUSL or USL.
+    pub stress_update: StressUpdate,
+    /// The particle volume ratios J outside which the run stops.
+    pub volume_limits: Option<[f64; 2]>,
+    /// Largest adaptive step (s).
+    pub max_dt: Option<f64>,
+    /// Fixed step (s).
+    pub dt: Option<f64>,
+}
+
+impl StepPolicy {
+    /// The settings of a validated deck.
+    pub fn new(deck: &Deck) -> Self {
+        let s = &deck.simulation;
+        Self {
+            sort_interval: s.sort_interval,
+            damping: s.damping,
+            stress_update: s.stress_update,
+            volume_limits: s.volume_limits,
+            max_dt: s.max_dt,
+            dt: s.dt,
+        }
+    }
+}
+
 /// The whole state of a run: particles, grid, settings, time.
 pub struct Simulation<const D: usize> {
-    /// The validated deck.
-    pub deck: Deck,
+    /// What the step reads besides its parts: the deck's time-step and update settings.
+    pub policy: StepPolicy,
     /// Material points.
     pub particles: Particles<D>,
     /// Background grid and its node fields.
@@ -210,7 +243,7 @@ impl<const D: usize> Simulation<D> {
             body_force,
             projection,
             averaging,
-            deck: deck.clone(),
+            policy: StepPolicy::new(deck),
             particles,
             grid: Grid::new(geo),
             materials,
@@ -235,7 +268,7 @@ impl<const D: usize> Simulation<D> {
         self.timers.lap(Phase::Other);
         // 0. every sort_interval steps, particles in cell order (the transfers then walk the
         //    grid in order); a particle keeps its id
-        let interval = self.deck.simulation.sort_interval;
+        let interval = self.policy.sort_interval;
         if interval > 0 && self.steps % interval as u64 == 0 {
             self.sort_particles();
         }
@@ -274,7 +307,7 @@ impl<const D: usize> Simulation<D> {
         }
         self.grid.predict(
             dt,
-            self.deck.simulation.damping,
+            self.policy.damping,
             self.settings.mass_epsilon,
             self.settings.mass_floor,
         );
@@ -347,7 +380,7 @@ impl<const D: usize> Simulation<D> {
     /// from node velocities remapped from the particles (MUSL) or from v^{n+1} (USL). A
     /// particle that left the grid stops the run here, before a transfer reads it.
     fn grid_to_particles(&mut self, dt: f64) -> Result<(), Error> {
-        match self.deck.simulation.stress_update {
+        match self.policy.stress_update {
             StressUpdate::Musl => {
                 transfer::grid_to_particles(
                     &mut self.particles,
@@ -442,7 +475,7 @@ impl<const D: usize> Simulation<D> {
     /// [`crate::deck::MAX_PARTICLE_CELLS`] cells: its state no longer says anything about the
     /// material, and its volume would go on into the output and the transfers.
     pub fn check_volumes(&self) -> Result<(), Error> {
-        let limits = self.deck.simulation.volume_limits;
+        let limits = self.policy.volume_limits;
         let [lo, hi] = limits.unwrap_or([0.0, f64::INFINITY]);
         let cell = self.grid.geo.h.powi(D as i32);
         let largest = crate::deck::MAX_PARTICLE_CELLS * cell;
@@ -593,7 +626,7 @@ impl<const D: usize> Simulation<D> {
         for m in mats {
             dt = dt.min(m.viscous_dt_limit(h, D));
         }
-        if let Some(max) = self.deck.simulation.max_dt {
+        if let Some(max) = self.policy.max_dt {
             dt = dt.min(max);
         }
         dt
@@ -638,7 +671,7 @@ impl<const D: usize> Simulation<D> {
             "likely causes: a time step above the stability limit, an \"open\" face material can \
              flow through, or a body pushed out by its initial velocity",
         );
-        if let Some(dt) = self.deck.simulation.dt {
+        if let Some(dt) = self.policy.dt {
             let limit = match self.scheme {
                 Scheme::Explicit => "h / max(|v| + c)",
                 Scheme::Projection => "h / max |v|",
