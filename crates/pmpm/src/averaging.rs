@@ -64,12 +64,27 @@
 //! velocity is divergence free node by node, not at each particle. Its density correction
 //! also evens out J itself between neighbours ([`NodalAveraging::smooth_jacobian`]).
 
-use crate::deck::ShapeFunction;
 use crate::grid::GridGeometry;
 use crate::particles::Particles;
+use crate::shape::ShapeFunction;
 use crate::shape::Stencil;
 use crate::transfer::{scatter_bands, Band};
 use rayon::prelude::*;
+
+use serde::{Deserialize, Serialize};
+
+/// Anti-locking treatment of the explicit scheme's volume change (`crate::averaging`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum VolumetricAveraging {
+    /// Each particle's own velocity gradient: one volume constraint per particle, which locks
+    /// a nearly incompressible solid (K >> G).
+    #[default]
+    None,
+    /// The volumetric part of the velocity gradient averaged at the nodes (one constraint per
+    /// node); explicit scheme only.
+    Nodal,
+}
 
 /// The buffers of the averaging, kept between steps: one band of node sums per rayon thread
 /// (as for P2G, so the sum is deterministic for a given thread count) and two node fields.

@@ -5,9 +5,13 @@
 //! wide shape functions (GIMP, B-splines) see the wall too; under the nodal projection a ghost
 //! node's normal component mirrors the node as far inside ([`Boundary::apply`]).
 
-use crate::deck::{BoundaryKind, Deck, PressureUnknowns, Scheme};
+use crate::deck::{BoundaryKind, Deck};
+
+use crate::pressure::PressureUnknowns;
+
 use crate::grid::{GridGeometry, Vector};
 use crate::particles::Particles;
+use crate::scheme::Scheme;
 use crate::shape::PAD;
 use rayon::prelude::*;
 

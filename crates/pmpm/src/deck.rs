@@ -8,6 +8,19 @@
 
 use crate::field::{Component, VectorField};
 use serde::{Deserialize, Serialize};
+
+// the option enums live with the code they choose
+pub use crate::averaging::VolumetricAveraging;
+pub use crate::pressure::free_surface::FreeSurface;
+pub use crate::pressure::PoissonRhs;
+pub use crate::pressure::PressureUnknowns;
+pub use crate::pressure::Quadrature;
+pub use crate::pressure::RigidFaces;
+pub use crate::rigid::RigidSides;
+pub use crate::scheme::Scheme;
+pub use crate::shape::ShapeFunction;
+pub use crate::transfer::StressUpdate;
+pub use crate::transfer::Transfer;
 use std::fmt;
 use std::path::Path;
 
@@ -38,75 +51,6 @@ impl fmt::Display for DeckError {
 }
 
 impl std::error::Error for DeckError {}
-
-/// Time-integration scheme: the paper's projection or the weakly compressible baseline.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Scheme {
-    /// Implicit pressure by Chorin's projection (METHOD.md).
-    #[default]
-    Projection,
-    /// Explicit, weakly compressible: p = K (1 - J).
-    Explicit,
-}
-
-/// Particle/grid velocity transfer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Transfer {
-    /// Particle-in-cell: particle velocity is the interpolated grid velocity.
-    Pic,
-    /// PIC/FLIP blend, `flip_ratio` of FLIP. The explicit scheme's default: with linear shape
-    /// functions its APIC is not stable at free-surface corners.
-    #[default]
-    Flip,
-    /// Affine particle-in-cell (Jiang et al. 2015). The projection's default for fluids:
-    /// FLIP's particle velocities carry a noise the projected grid velocity does not have, and
-    /// the strain rate the particles' volumes integrate picks it up.
-    Apic,
-}
-
-/// Where the strain rate and APIC's affine matrix come from (the order of the stress update).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum StressUpdate {
-    /// Modified update-stress-last (Sulsky et al.): node velocities remapped from the updated
-    /// particle velocities, one more P2G and G2P per step. Robust with linear shape functions,
-    /// where a node a particle has only just reached holds a tiny mass and a huge v^{n+1}.
-    #[default]
-    Musl,
-    /// Update-stress-last: strain rate and affine matrix straight from v^{n+1}, in the same
-    /// pass as G2P (as MLS-MPM codes do). Half the transfers; for B-spline shape functions.
-    Usl,
-}
-
-/// Anti-locking treatment of the explicit scheme's volume change (`crate::averaging`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum VolumetricAveraging {
-    /// Each particle's own velocity gradient: one volume constraint per particle, which locks
-    /// a nearly incompressible solid (K >> G).
-    #[default]
-    None,
-    /// The volumetric part of the velocity gradient averaged at the nodes (one constraint per
-    /// node); explicit scheme only.
-    Nodal,
-}
-
-/// Shape functions of the background grid.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum ShapeFunction {
-    /// Multilinear (the paper's).
-    #[default]
-    Linear,
-    /// Generalised interpolation material point (uGIMP), particle domain fixed at its start size.
-    Gimp,
-    /// Quadratic B-spline.
-    Bspline2,
-    /// Cubic B-spline.
-    Bspline3,
-}
 
 /// Kind of a boundary face.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -380,25 +324,6 @@ pub enum Preconditioner {
     Multigrid,
 }
 
-/// How free-surface (p = 0) nodes are found.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum FreeSurface {
-    /// A level set of the volume fraction, phi = h (1 - 2 f) with f the node's mean cell
-    /// fraction: every node inside the fluid (phi < 0) is an unknown, and p = 0 is imposed
-    /// where phi crosses zero between nodes, by a ghost-fluid value (Gibou et al. 2002).
-    #[default]
-    LevelSet,
-    /// The paper's rule: p = 0 on every node next to a cell whose particle volume fraction is
-    /// at or below `volume_fraction_tolerance`.
-    VolumeFraction,
-    /// No free surface: the fluid fills its container, every cell counts as full (a cell the
-    /// particles left empty takes the mean density), p = 0 only on open faces. For closed or
-    /// periodic flows (lid-driven cavity, channels, vortices), where a gap the particles open
-    /// is not air.
-    None,
-}
-
 /// How the projection keeps each particle's volume from drifting.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -410,61 +335,6 @@ pub enum DensityCorrection {
     Positions,
     /// None: the paper's scheme; the default without a free surface and for solids.
     None,
-}
-
-/// Right-hand side of the pressure Poisson equation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum PoissonRhs {
-    /// The divergence form plus the wall flux (1/dt) sum_p V_p G_ip . w_p, w the part of v*
-    /// the wall conditions removed: the discrete form of the Neumann condition
-    /// dp/dn = rho (v* - v_wall) . n / dt, exact under gravity.
-    #[default]
-    Flux,
-    /// METHOD.md's -(1/dt) sum_p V_p N_ip (div v*)_p with v* after the wall conditions
-    /// (dp/dn = 0 on walls), the paper's form.
-    Divergence,
-}
-
-/// How the nodal projection sees the rigid bodies' faces (`pressure.rigid_faces`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum RigidFaces {
-    /// The body's nodes hold its velocity: the face acts at node resolution.
-    Nodes,
-    /// Cut cells: a face acts where it lies (crates/pmpm/src/rigid.rs). Needs linear or GIMP shape
-    /// functions, the level-set free surface and nodal unknowns.
-    Cut,
-}
-
-/// Where the projection's pressure unknowns sit.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum PressureUnknowns {
-    /// One pressure per node, the velocity's own shape functions (METHOD.md): a free-surface
-    /// detection gives p = 0, and the projection's residual dt (L - D M^-1 G) p damps the
-    /// equal-order checkerboard.
-    #[default]
-    Nodes,
-    /// One pressure per cell that holds material, constant in the cell (the Q1-P0 pair,
-    /// `crates/pmpm/src/pressure/cell.rs`): each cell's weak divergence is zero after the correction, with
-    /// no stabilisation residual, so a solid at rest under a steady load stays at rest. No
-    /// free-surface detection (p = 0 holds weakly at the material's boundary).
-    Cells,
-}
-
-/// Quadrature of the Poisson matrix L and its right-hand side.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Quadrature {
-    /// The particles are the quadrature points (the paper): L_ij = sum_p (V_p / rho_p)
-    /// G_ip . G_jp.
-    Particle,
-    /// 2^D Gauss points per cell, weighted by the cell's volume fraction min(phi_c, 1), with the
-    /// cell's density (METHOD.md's alternative): L and the right-hand side do not see where the
-    /// particles sit inside the fluid, only how full each cell is.
-    #[default]
-    Cell,
 }
 
 /// `[pressure]`, used by the projection scheme.
@@ -950,20 +820,6 @@ pub struct RigidBodyDeck {
     /// Contact on the faces that do not lead the motion (a footing's sides).
     #[serde(default)]
     pub sides: RigidSides,
-}
-
-/// How a rigid body holds the material on its faces that do not lead its motion: the faces
-/// whose outward normal does not point along its velocity (a footing's vertical sides and its
-/// top; every face of a body at rest).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum RigidSides {
-    /// Their nodes take the body's whole velocity (no slip), as the leading faces' do.
-    #[default]
-    Rough,
-    /// Their nodes take only the velocity's component along the face's normal: the material
-    /// slides along them, as along a slip wall. The leading faces stay rough.
-    Smooth,
 }
 
 /// The whole deck.

@@ -24,12 +24,30 @@
 //! the pressure on the wet faces, int p n dS, is added: the corrector's gradient form pushes the
 //! material away from a face with it, whichever nodes carry the push.
 
-use crate::deck::{Deck, RigidSides, ShapeFunction};
+use crate::deck::Deck;
+
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::Particles;
 use crate::pressure::free_surface::NodeKind;
+use crate::shape::ShapeFunction;
 use crate::shape::{Stencil, PAD};
 use rayon::prelude::*;
+
+use serde::{Deserialize, Serialize};
+
+/// How a rigid body holds the material on its faces that do not lead its motion: the faces
+/// whose outward normal does not point along its velocity (a footing's vertical sides and its
+/// top; every face of a body at rest).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum RigidSides {
+    /// Their nodes take the body's whole velocity (no slip), as the leading faces' do.
+    #[default]
+    Rough,
+    /// Their nodes take only the velocity's component along the face's normal: the material
+    /// slides along them, as along a slip wall. The leading faces stay rough.
+    Smooth,
+}
 
 /// With cut cells, the least distance (in cells) between a face and the nearest node outside
 /// it for that node to stay free. A node closer than this holds the face's normal velocity,

@@ -5,19 +5,35 @@
 //! between the predictor and the corrector.
 
 use crate::averaging::NodalAveraging;
+use crate::averaging::VolumetricAveraging;
 use crate::boundary::Boundary;
-use crate::deck::{Deck, PressureUnknowns, Scheme, StressUpdate, VolumetricAveraging};
+use crate::deck::Deck;
 use crate::error::Error;
 use crate::grid::CellBins;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::linalg::SolveError;
 use crate::material::{self, MaterialParams};
 use crate::particles::{Particles, PermuteScratch};
+use crate::pressure::PressureUnknowns;
 use crate::pressure::Projection;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
+use crate::transfer::StressUpdate;
 use crate::transfer::{self, P2gScratch, TransferSettings};
 use rayon::prelude::*;
+
+use serde::{Deserialize, Serialize};
+
+/// Time-integration scheme: the paper's projection or the weakly compressible baseline.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Scheme {
+    /// Implicit pressure by Chorin's projection (METHOD.md).
+    #[default]
+    Projection,
+    /// Explicit, weakly compressible: p = K (1 - J).
+    Explicit,
+}
 
 /// Particles that [`Simulation::check_particles`] caught leaving the grid or going non-finite.
 #[derive(Debug, Clone)]

@@ -4,9 +4,24 @@
 //! direction (K = 2 linear, 3 GIMP and quadratic B-spline, 4 cubic B-spline) and the weights of
 //! its K^D nodes are products of 1D weights. The grid carries two ghost layers of nodes beyond
 //! each face ([`PAD`]), so the wider kernels keep their partition of unity up to the walls.
-
-use crate::deck::ShapeFunction;
 use nalgebra::SVector;
+
+use serde::{Deserialize, Serialize};
+
+/// Shape functions of the background grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ShapeFunction {
+    /// Multilinear (the paper's).
+    #[default]
+    Linear,
+    /// Generalised interpolation material point (uGIMP), particle domain fixed at its start size.
+    Gimp,
+    /// Quadratic B-spline.
+    Bspline2,
+    /// Cubic B-spline.
+    Bspline3,
+}
 
 /// Ghost node layers beyond each face of the grid.
 pub const PAD: usize = 2;

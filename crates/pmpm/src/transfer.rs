@@ -5,11 +5,43 @@
 //! and the buffers are summed node by node in a fixed order. No float atomics, so a given
 //! thread count gives bitwise the same result on every run. The buffers are reused every step.
 
-use crate::deck::{ShapeFunction, Transfer};
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::{Matrix, Particles};
+use crate::shape::ShapeFunction;
 use crate::shape::Stencil;
 use rayon::prelude::*;
+
+use serde::{Deserialize, Serialize};
+
+/// Particle/grid velocity transfer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Transfer {
+    /// Particle-in-cell: particle velocity is the interpolated grid velocity.
+    Pic,
+    /// PIC/FLIP blend, `flip_ratio` of FLIP. The explicit scheme's default: with linear shape
+    /// functions its APIC is not stable at free-surface corners.
+    #[default]
+    Flip,
+    /// Affine particle-in-cell (Jiang et al. 2015). The projection's default for fluids:
+    /// FLIP's particle velocities carry a noise the projected grid velocity does not have, and
+    /// the strain rate the particles' volumes integrate picks it up.
+    Apic,
+}
+
+/// Where the strain rate and APIC's affine matrix come from (the order of the stress update).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum StressUpdate {
+    /// Modified update-stress-last (Sulsky et al.): node velocities remapped from the updated
+    /// particle velocities, one more P2G and G2P per step. Robust with linear shape functions,
+    /// where a node a particle has only just reached holds a tiny mass and a huge v^{n+1}.
+    #[default]
+    Musl,
+    /// Update-stress-last: strain rate and affine matrix straight from v^{n+1}, in the same
+    /// pass as G2P (as MLS-MPM codes do). Half the transfers; for B-spline shape functions.
+    Usl,
+}
 
 /// What a transfer needs to know besides the particles and the grid.
 #[derive(Debug, Clone, Copy)]

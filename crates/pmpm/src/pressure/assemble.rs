@@ -10,9 +10,9 @@
 //! copies of the matrix, and the same bits for any thread count.
 
 use super::free_surface::NodeKind;
-use crate::deck::ShapeFunction;
 use crate::grid::{CellBins, GridGeometry, Vector};
 use crate::linalg::EllMatrix;
+use crate::shape::ShapeFunction;
 use crate::shape::{Stencil, PAD};
 use rayon::prelude::*;
 

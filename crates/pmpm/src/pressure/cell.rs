@@ -41,12 +41,12 @@
 //! and particle bins, like the nodal assembly beside it.
 
 use crate::boundary::Boundary;
-use crate::deck::ShapeFunction;
 use crate::grid::{CellBins, Grid, GridGeometry, Vector};
 use crate::linalg::{
     EllMatrix, GridLayout, LinearSolver, SolveError, SolveParams, SolveStats, System,
 };
 use crate::particles::Particles;
+use crate::shape::ShapeFunction;
 use crate::shape::Stencil;
 use rayon::prelude::*;
 

@@ -30,10 +30,11 @@
 use super::free_surface::{self, Surface};
 use super::{describe_layout, FluidDomain, GaussPoints, Unknowns};
 use crate::boundary::Boundary;
-use crate::deck::{PressureDeck, ShapeFunction};
+use crate::deck::PressureDeck;
 use crate::grid::{CellBins, GridGeometry, Vector};
 use crate::linalg::{EllMatrix, LinearSolver, SolveError, SolveParams, SolveStats, System};
 use crate::particles::{Matrix, Particles};
+use crate::shape::ShapeFunction;
 use crate::shape::Stencil;
 use rayon::prelude::*;
 

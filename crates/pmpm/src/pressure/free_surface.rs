@@ -5,11 +5,30 @@
 //! Poisson equation when every cell around it is filled, and a free-surface node (p = 0)
 //! otherwise. Cells beyond a closed wall count as filled (the wall is not a free surface),
 //! cells beyond an open face as empty (the pressure there is the ambient one).
-
-use crate::deck::FreeSurface;
 use crate::grid::{CellBins, GridGeometry};
 use crate::shape::PAD;
 use rayon::prelude::*;
+
+use serde::{Deserialize, Serialize};
+
+/// How free-surface (p = 0) nodes are found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FreeSurface {
+    /// A level set of the volume fraction, phi = h (1 - 2 f) with f the node's mean cell
+    /// fraction: every node inside the fluid (phi < 0) is an unknown, and p = 0 is imposed
+    /// where phi crosses zero between nodes, by a ghost-fluid value (Gibou et al. 2002).
+    #[default]
+    LevelSet,
+    /// The paper's rule: p = 0 on every node next to a cell whose particle volume fraction is
+    /// at or below `volume_fraction_tolerance`.
+    VolumeFraction,
+    /// No free surface: the fluid fills its container, every cell counts as full (a cell the
+    /// particles left empty takes the mean density), p = 0 only on open faces. For closed or
+    /// periodic flows (lid-driven cavity, channels, vortices), where a gap the particles open
+    /// is not air.
+    None,
+}
 
 /// The role of a node in the pressure solve.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

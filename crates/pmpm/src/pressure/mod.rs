@@ -16,20 +16,76 @@ pub mod density;
 pub mod free_surface;
 
 use crate::boundary::Boundary;
-use crate::deck::{
-    Deck, PoissonRhs, Preconditioner, PressureUnknowns, Quadrature, ShapeFunction, Solver,
-};
+use crate::deck::{Deck, Preconditioner, Solver};
 use crate::grid::{CellBins, Grid, Vector};
 use crate::linalg::{
     Direct, EllMatrix, GridLayout, IncompleteCholesky, Jacobi, LinearSolver, Multigrid, Pcg,
     SolveError, SolveParams, SolveStats, System,
 };
 use crate::particles::Particles;
+use crate::shape::ShapeFunction;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
 use assemble::ParticleQuadrature;
 use free_surface::NodeKind;
 use rayon::prelude::*;
+
+use serde::{Deserialize, Serialize};
+
+/// Right-hand side of the pressure Poisson equation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PoissonRhs {
+    /// The divergence form plus the wall flux (1/dt) sum_p V_p G_ip . w_p, w the part of v*
+    /// the wall conditions removed: the discrete form of the Neumann condition
+    /// dp/dn = rho (v* - v_wall) . n / dt, exact under gravity.
+    #[default]
+    Flux,
+    /// METHOD.md's -(1/dt) sum_p V_p N_ip (div v*)_p with v* after the wall conditions
+    /// (dp/dn = 0 on walls), the paper's form.
+    Divergence,
+}
+
+/// Where the projection's pressure unknowns sit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PressureUnknowns {
+    /// One pressure per node, the velocity's own shape functions (METHOD.md): a free-surface
+    /// detection gives p = 0, and the projection's residual dt (L - D M^-1 G) p damps the
+    /// equal-order checkerboard.
+    #[default]
+    Nodes,
+    /// One pressure per cell that holds material, constant in the cell (the Q1-P0 pair,
+    /// `crates/pmpm/src/pressure/cell.rs`): each cell's weak divergence is zero after the correction, with
+    /// no stabilisation residual, so a solid at rest under a steady load stays at rest. No
+    /// free-surface detection (p = 0 holds weakly at the material's boundary).
+    Cells,
+}
+
+/// Quadrature of the Poisson matrix L and its right-hand side.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Quadrature {
+    /// The particles are the quadrature points (the paper): L_ij = sum_p (V_p / rho_p)
+    /// G_ip . G_jp.
+    Particle,
+    /// 2^D Gauss points per cell, weighted by the cell's volume fraction min(phi_c, 1), with the
+    /// cell's density (METHOD.md's alternative): L and the right-hand side do not see where the
+    /// particles sit inside the fluid, only how full each cell is.
+    #[default]
+    Cell,
+}
+
+/// How the nodal projection sees the rigid bodies' faces (`pressure.rigid_faces`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RigidFaces {
+    /// The body's nodes hold its velocity: the face acts at node resolution.
+    Nodes,
+    /// Cut cells: a face acts where it lies (crates/pmpm/src/rigid.rs). Needs linear or GIMP shape
+    /// functions, the level-set free surface and nodal unknowns.
+    Cut,
+}
 
 /// State and work buffers of the projection, reused from step to step.
 pub struct Projection<const D: usize> {
