@@ -248,6 +248,14 @@ fn max_threads() -> usize {
     (8 * cores()).max(64)
 }
 
+/// The deck's warnings, a line each, as `run` and `bench` print them when the run starts.
+fn warning_lines(d: &pmpm::Deck, file: &str) -> Vec<String> {
+    check::warnings(d)
+        .iter()
+        .map(|w| format!("warning: {file}: {}", pmpm::limits::shorten_numbers(w)))
+        .collect()
+}
+
 /// Runs a command; Ok(number of failed validation rows).
 fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
     match cmd {
@@ -267,15 +275,11 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
                 Some(p) => format!(" from {}", p.display()),
                 None => String::new(),
             };
-            let warnings = check::warnings(&d)
-                .iter()
-                .map(|w| format!("warning: {file}: {}", pmpm::limits::shorten_numbers(w)))
-                .collect();
             let mut progress = Progress::new(
                 quiet,
                 d.simulation.scheme == Scheme::Projection,
                 format!("{:?} run of {file}{from}", d.simulation.scheme),
-                warnings,
+                warning_lines(&d, &file),
             );
             let summary = run::run(
                 &d,
@@ -325,7 +329,8 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
                     resume: None,
                     interrupt: Some(progress::interrupt_flag()),
                 },
-                &mut run::Silent,
+                // the deck's warnings only, as the run starts
+                &mut Progress::new(true, false, String::new(), warning_lines(&d, &file)),
             );
             let removed = scratch.then(|| std::fs::remove_dir_all(&dir));
             // a message that points to a checkpoint or a file in the scratch folder says that
