@@ -1306,7 +1306,7 @@ impl Deck {
         c.non_negative("simulation.damping", s.damping)?;
         // APIC for the projection's fluids; FLIP for the explicit scheme, whose APIC with
         // linear shapes is unstable at free surfaces, and for solids, whose waves APIC's lagged
-        // affine matrix lets grow under the musl remap (`run::warnings`)
+        // affine matrix lets grow under the musl remap (the command's `check::warnings`)
         if s.transfer.is_none() {
             let solid = self.materials.iter().any(MaterialDeck::is_solid);
             s.transfer = Some(if s.scheme == Scheme::Projection && !solid {
