@@ -66,11 +66,9 @@
 
 use crate::grid::GridGeometry;
 use crate::particles::Particles;
-use crate::shape::ShapeFunction;
-use crate::shape::Stencil;
+use crate::shape::{ShapeFunction, Stencil};
 use crate::transfer::{scatter_bands, Band};
 use rayon::prelude::*;
-
 use serde::{Deserialize, Serialize};
 
 /// Anti-locking treatment of the explicit scheme's volume change (`crate::averaging`).

@@ -25,14 +25,11 @@
 //! material away from a face with it, whichever nodes carry the push.
 
 use crate::deck::Deck;
-
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::Particles;
 use crate::pressure::free_surface::NodeKind;
-use crate::shape::ShapeFunction;
-use crate::shape::{Stencil, PAD};
+use crate::shape::{ShapeFunction, Stencil, PAD};
 use rayon::prelude::*;
-
 use serde::{Deserialize, Serialize};
 
 /// How a rigid body holds the material on its faces that do not lead its motion: the faces

@@ -4,8 +4,7 @@
 //! state p = K (1 - J) inside the particle stress, `projection` (METHOD.md) from a Poisson solve
 //! between the predictor and the corrector.
 
-use crate::averaging::NodalAveraging;
-use crate::averaging::VolumetricAveraging;
+use crate::averaging::{NodalAveraging, VolumetricAveraging};
 use crate::boundary::Boundary;
 use crate::deck::Deck;
 use crate::error::Error;
@@ -18,10 +17,8 @@ use crate::pressure::PressureUnknowns;
 use crate::pressure::Projection;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
-use crate::transfer::StressUpdate;
-use crate::transfer::{self, P2gScratch, TransferSettings};
+use crate::transfer::{self, P2gScratch, StressUpdate, TransferSettings};
 use rayon::prelude::*;
-
 use serde::{Deserialize, Serialize};
 
 /// Time-integration scheme: the paper's projection or the weakly compressible baseline.

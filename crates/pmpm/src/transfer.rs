@@ -7,10 +7,8 @@
 
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::{Matrix, Particles};
-use crate::shape::ShapeFunction;
-use crate::shape::Stencil;
+use crate::shape::{ShapeFunction, Stencil};
 use rayon::prelude::*;
-
 use serde::{Deserialize, Serialize};
 
 /// Particle/grid velocity transfer.

@@ -12,8 +12,7 @@
 use super::free_surface::NodeKind;
 use crate::grid::{CellBins, GridGeometry, Vector};
 use crate::linalg::EllMatrix;
-use crate::shape::ShapeFunction;
-use crate::shape::{Stencil, PAD};
+use crate::shape::{ShapeFunction, Stencil, PAD};
 use rayon::prelude::*;
 
 /// Largest row: (2K - 1)^D slots, K = 4 (cubic B-spline), D = 3.

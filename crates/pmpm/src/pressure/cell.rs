@@ -46,8 +46,7 @@ use crate::linalg::{
     EllMatrix, GridLayout, LinearSolver, SolveError, SolveParams, SolveStats, System,
 };
 use crate::particles::Particles;
-use crate::shape::ShapeFunction;
-use crate::shape::Stencil;
+use crate::shape::{ShapeFunction, Stencil};
 use rayon::prelude::*;
 
 /// Buffers of the cell projection, reused from step to step.

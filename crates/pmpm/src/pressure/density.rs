@@ -34,8 +34,7 @@ use crate::deck::PressureDeck;
 use crate::grid::{CellBins, GridGeometry, Vector};
 use crate::linalg::{EllMatrix, LinearSolver, SolveError, SolveParams, SolveStats, System};
 use crate::particles::{Matrix, Particles};
-use crate::shape::ShapeFunction;
-use crate::shape::Stencil;
+use crate::shape::{ShapeFunction, Stencil};
 use rayon::prelude::*;
 
 /// Largest displacement of a node in one correction, in cells: a particle whose volume is far

@@ -23,13 +23,11 @@ use crate::linalg::{
     SolveError, SolveParams, SolveStats, System,
 };
 use crate::particles::Particles;
-use crate::shape::ShapeFunction;
-use crate::shape::Stencil;
+use crate::shape::{ShapeFunction, Stencil};
 use crate::timing::{Phase, PhaseTimers};
 use assemble::ParticleQuadrature;
 use free_surface::NodeKind;
 use rayon::prelude::*;
-
 use serde::{Deserialize, Serialize};
 
 /// Right-hand side of the pressure Poisson equation.
