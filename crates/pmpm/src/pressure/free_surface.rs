@@ -1068,6 +1068,25 @@ mod tests {
         assert_eq!(kinds[geo.flat(&[PAD, PAD])], NodeKind::Interior);
     }
 
+    /// `pressure.volume_fraction_tolerance` is what the paper's rule compares with: the same
+    /// cell, a quarter full, is air under 0.3 and water under 0.2, through `Surface::detect`.
+    #[test]
+    fn the_paper_rule_reads_the_decks_tolerance() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [2, 2]);
+        let x = vec![Vector::<2>::new(0.5, 0.5)];
+        let mut bins = CellBins::default();
+        bins.sort(&geo, &x);
+        let mass = vec![1.0; geo.node_count()];
+        let corner = geo.flat(&[PAD, PAD]);
+        for (tolerance, kind) in [(0.3, NodeKind::FreeSurface), (0.2, NodeKind::Interior)] {
+            let mut s =
+                Surface::with_settings(FreeSurface::VolumeFraction, tolerance, 0, vec![false; 4]);
+            let rigid = crate::rigid::RigidBodies::<2>::default();
+            s.detect(&geo, &bins, &[0.25], &mass, 1e-9, &rigid);
+            assert_eq!(s.kinds[corner], kind, "tolerance {tolerance}");
+        }
+    }
+
     /// Fractions of a 6 x 6 box: `f(cx, cy)` per cell.
     fn fractions(geo: &GridGeometry<2>, f: impl Fn(usize, usize) -> f64) -> Vec<f64> {
         let mut vf = vec![0.0; geo.node_count()];
