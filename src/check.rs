@@ -162,6 +162,39 @@ pub fn check_summary(deck: &Deck, file: &str) -> Result<String, Error> {
     }
 }
 
+/// The viscosity the PIC share of the transfer adds at the first step, against the fluids'
+/// own: a flow held to a small step (a viscous or sound-speed limit) is damped more by PIC's
+/// per-step smoothing than by its material (`Transfer::pic_viscosity`).
+fn pic_damping<const D: usize>(deck: &Deck, sim: &Simulation<D>) -> Option<String> {
+    let s = &deck.simulation;
+    let transfer = s.transfer.unwrap_or_default();
+    let dt = s.dt.or_else(|| s.cfl.map(|cfl| sim.stable_dt(cfl)))?;
+    let nu = transfer.pic_viscosity(s.flip_ratio, s.shape_function, sim.grid.geo.h, dt);
+    if !(nu > 0.0 && nu.is_finite()) {
+        return None;
+    }
+    let share = match transfer {
+        pmpm::deck::Transfer::Flip => {
+            format!("its PIC share (1 - flip_ratio = {:.1e})", 1.0 - s.flip_ratio)
+        }
+        _ => "PIC".to_string(),
+    };
+    let fluids = deck
+        .materials
+        .iter()
+        .filter(|m| !m.is_solid() && m.viscosity > 0.0)
+        .map(|m| format!("\"{}\" mu / rho = {:.1e}", m.name, m.viscosity / m.density))
+        .collect::<Vec<_>>();
+    let own = if fluids.is_empty() {
+        String::new()
+    } else {
+        format!(" (the fluid's own: {} m2/s)", fluids.join(", "))
+    };
+    Some(format!(
+        "                   {share} damps like a kinematic viscosity of about {nu:.1e} m2/s at the first step{own}; it grows as the step shrinks, APIC does not add it\n"
+    ))
+}
+
 fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error> {
     let sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
     let s = &deck.simulation;
@@ -258,6 +291,9 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         s.transfer.unwrap_or_default(),
         s.shape_function
     );
+    if let Some(line) = pic_damping(deck, &sim) {
+        out += &line;
+    }
     let dt = match (s.dt, s.cfl) {
         (Some(dt), _) => format!("fixed dt = {dt:e} s"),
         (None, Some(cfl)) => {

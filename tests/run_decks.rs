@@ -536,6 +536,33 @@ fn projection_defaults_to_apic_and_check_warns_of_flip() {
     assert!(flip.contains(warning), "{flip}");
 }
 
+/// `pmpm check` says how much PIC's share of a FLIP blend damps, (1 - r) h^2 / (6 dt) for
+/// linear shapes: in the explicit yield-stress twin, at its viscous step of 3.324e-5 s and
+/// h = 0.01 m, 5.0e-5 m2/s with r = 0.9999, and a hundred times that with the usual 0.99; APIC
+/// adds none.
+#[test]
+fn check_reports_the_viscosity_of_the_pic_share() {
+    let example = "examples/yield_block_slump_2d_explicit.toml";
+    let said = |text: &str| -> String {
+        text.lines()
+            .find(|l| l.contains("damps like a kinematic viscosity"))
+            .unwrap_or_default()
+            .to_string()
+    };
+    let twin = check(example);
+    assert!(said(&twin).contains("about 5.0e-5 m2/s"), "{twin}");
+    assert!(said(&twin).contains("\"mud\" mu / rho = 2.0e-3"), "{twin}");
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(example)).unwrap();
+    let line = text.lines().find(|l| l.starts_with("flip_ratio")).unwrap();
+    let dir = scratch_dir("check-pic-share");
+    let deck = dir.join("usual.toml");
+    std::fs::write(&deck, text.replace(line, "flip_ratio = 0.99")).unwrap();
+    let usual = check(deck.to_str().unwrap());
+    assert!(said(&usual).contains("about 5.0e-3 m2/s"), "{usual}");
+    assert_eq!(said(&check("examples/yield_block_slump_2d.toml")), "");
+}
+
 /// `pmpm validate --help` names every case `--case` accepts.
 #[test]
 fn validate_help_names_every_case() {
