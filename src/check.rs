@@ -175,7 +175,10 @@ fn pic_damping<const D: usize>(deck: &Deck, sim: &Simulation<D>) -> Option<Strin
     }
     let share = match transfer {
         pmpm::deck::Transfer::Flip => {
-            format!("its PIC share (1 - flip_ratio = {:.1e})", 1.0 - s.flip_ratio)
+            format!(
+                "its PIC share (1 - flip_ratio = {:.1e})",
+                1.0 - s.flip_ratio
+            )
         }
         _ => "PIC".to_string(),
     };
