@@ -193,7 +193,7 @@ pub fn write<const D: usize>(
             std::io::Error::other(format!("cannot encode the checkpoint: {e}")),
         )
     })?;
-    crate::output::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
+    crate::atomic::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
         .map_err(|e| Error::io(path, e))
 }
 

@@ -1,6 +1,34 @@
 //! The errors a user can cause, each with its exit status.
 
-use crate::deck::DeckError;
+use std::fmt;
+
+/// A deck error: what a user typed wrong, with the file, the key and where TOML found it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeckError {
+    /// The deck file as the user named it.
+    pub file: String,
+    /// Dotted key path, e.g. `materials[0].density`.
+    pub key: String,
+    /// Line and column (1-based) where TOML located the problem, when it did.
+    pub line_col: Option<(usize, usize)>,
+    /// What is wrong, for a person.
+    pub message: String,
+}
+
+impl fmt::Display for DeckError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line_col {
+            Some((l, c)) => write!(
+                f,
+                "{}:{}:{}: {}: {}",
+                self.file, l, c, self.key, self.message
+            ),
+            None => write!(f, "{}: {}: {}", self.file, self.key, self.message),
+        }
+    }
+}
+
+impl std::error::Error for DeckError {}
 
 /// What can stop pmpm: a bad deck, a file it cannot write, a run that blows up.
 #[derive(Debug, thiserror::Error)]

@@ -62,6 +62,7 @@
 // Loops over the D axes index several arrays at once and read like the equations.
 #![allow(clippy::needless_range_loop)]
 
+pub mod atomic;
 pub mod averaging;
 pub mod boundary;
 pub mod checkpoint;

@@ -79,19 +79,19 @@ fn cubic_bspline(r: f64) -> (f64, f64) {
 macro_rules! with_shape {
     ($shape:expr, $S:ident => $body:expr) => {
         match $shape {
-            $crate::deck::ShapeFunction::Linear => {
+            $crate::shape::ShapeFunction::Linear => {
                 const $S: u8 = 0;
                 $body
             }
-            $crate::deck::ShapeFunction::Gimp => {
+            $crate::shape::ShapeFunction::Gimp => {
                 const $S: u8 = 1;
                 $body
             }
-            $crate::deck::ShapeFunction::Bspline2 => {
+            $crate::shape::ShapeFunction::Bspline2 => {
                 const $S: u8 = 2;
                 $body
             }
-            $crate::deck::ShapeFunction::Bspline3 => {
+            $crate::shape::ShapeFunction::Bspline3 => {
                 const $S: u8 = 3;
                 $body
             }
