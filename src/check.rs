@@ -220,6 +220,41 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         geo.h,
         geo.node_count()
     );
+    let mut warn = Vec::new();
+    bodies(deck, &sim, &mut out, &mut warn);
+    for m in &deck.materials {
+        out += &format!("  material         {}\n", m.describe());
+    }
+    rigid_bodies(deck, D, &mut out);
+    out += &format!("  particles        {}\n", sim.particles.len());
+    out += &format!(
+        "  transfer         {:?}, shape functions {:?}\n",
+        s.transfer.unwrap_or_default(),
+        s.shape_function
+    );
+    if let Some(line) = pic_damping(deck, &sim) {
+        out += &line;
+    }
+    time_step(deck, &sim, &mut out, &mut warn);
+    gravity_towards_open_faces(deck, sim.settings.gravity.as_slice(), &mut warn);
+    step_limits(deck, &mut out);
+    pressure(deck, &mut out);
+    output_and_memory(deck, sim.particles.len() as f64, geo, &mut out);
+    for w in warn {
+        out += &format!("warning: {w}\n");
+    }
+    Ok(out)
+}
+
+/// The particles of each body, and the warnings about them: too few per cell, and a later
+/// body's particles inside an earlier body.
+fn bodies<const D: usize>(
+    deck: &Deck,
+    sim: &Simulation<D>,
+    out: &mut String,
+    warn: &mut Vec<String>,
+) {
+    let geo = &sim.grid.geo;
     // particles per body (the bodies are filled in deck order, so body b's particles are a
     // range of ids), and those of a later body that lie inside an earlier one
     let per_body: Vec<usize> = (0..deck.bodies.len())
@@ -244,9 +279,8 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         }
         first += n;
     }
-    let mut warn = Vec::new();
     for (b, body) in deck.bodies.iter().enumerate() {
-        out += &format!(
+        *out += &format!(
             "  bodies[{b}]        {} particles of \"{}\" ({} per cell per direction)\n",
             per_body[b], body.material, body.particles_per_cell
         );
@@ -265,12 +299,14 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
              bodies[{a}], which has its own there (more mass than the material's density)"
         ));
     }
-    for m in &deck.materials {
-        out += &format!("  material         {}\n", m.describe());
-    }
+}
+
+/// One line per rigid body: its box, velocity, sides and how its faces act.
+fn rigid_bodies(deck: &Deck, dim: usize, out: &mut String) {
+    let s = &deck.simulation;
     for r in &deck.rigid_bodies {
         let (lo, hi) = r.shape.bounds();
-        let v = r.velocity.clone().unwrap_or_else(|| vec![0.0; D]);
+        let v = r.velocity.clone().unwrap_or_else(|| vec![0.0; dim]);
         let sides = match r.sides {
             pmpm::deck::RigidSides::Rough => "rough",
             pmpm::deck::RigidSides::Smooth => "smooth sides",
@@ -283,20 +319,22 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         } else {
             "faces act at node resolution (put them midway between node rows)"
         };
-        out += &format!(
+        *out += &format!(
             "  rigid body       \"{}\": box {lo:?} to {hi:?} m, velocity {v:?} m/s, {sides}, {faces}; its force in rigid_bodies.csv every step\n",
             r.name
         );
     }
-    out += &format!("  particles        {}\n", sim.particles.len());
-    out += &format!(
-        "  transfer         {:?}, shape functions {:?}\n",
-        s.transfer.unwrap_or_default(),
-        s.shape_function
-    );
-    if let Some(line) = pic_damping(deck, &sim) {
-        out += &line;
-    }
+}
+
+/// The time step at t = 0 and the steps to the end; a fixed step too large for a fall.
+fn time_step<const D: usize>(
+    deck: &Deck,
+    sim: &Simulation<D>,
+    out: &mut String,
+    warn: &mut Vec<String>,
+) {
+    let s = &deck.simulation;
+    let geo = &sim.grid.geo;
     let dt = match (s.dt, s.cfl) {
         (Some(dt), _) => format!("fixed dt = {dt:e} s"),
         (None, Some(cfl)) => {
@@ -309,14 +347,13 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         }
         (None, None) => unreachable!("validated: dt or cfl"),
     };
-    out += &format!("  time step        {dt}\n");
+    *out += &format!("  time step        {dt}\n");
     let g = sim.settings.gravity;
     let gnorm = g.norm();
     let estimate = pmpm::limits::estimate(deck);
-    let flow = estimate.flow_steps;
     let steps = (estimate.steps > 0.0 && estimate.steps.is_finite()).then_some(estimate.steps);
     if let Some(n) = steps {
-        out += &format!(
+        *out += &format!(
             "  steps            about {} to t = {} s{}\n",
             pmpm::limits::short(n.ceil()),
             s.end_time,
@@ -336,9 +373,13 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             ));
         }
     }
+}
+
+/// A warning for each open face that gravity pulls the material towards.
+fn gravity_towards_open_faces(deck: &Deck, g: &[f64], warn: &mut Vec<String>) {
     // gravity pulling the material out of the grid through an open face
     let faces = deck.grid.boundary.faces();
-    for d in 0..D {
+    for d in 0..g.len() {
         if g[d] == 0.0 {
             continue;
         }
@@ -355,10 +396,15 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             ));
         }
     }
+}
 
+/// The wave limit, and the viscous limit where it binds.
+fn step_limits(deck: &Deck, out: &mut String) {
+    let s = &deck.simulation;
+    let flow = pmpm::limits::estimate(deck).flow_steps;
     let (wave, viscous) = deck.dt_limits();
     if wave.is_finite() {
-        out += &format!(
+        *out += &format!(
             "  wave limit       h / c = {wave:.3e} s ({}): about {:.0} steps or more to t = {}\n",
             if s.scheme == Scheme::Explicit {
                 "c the sound speed"
@@ -372,7 +418,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     // the viscous limit, where it binds: below the wave limit and asking for more steps than
     // the flow does (a yield-stress fluid's regularisation sets it; plain water never does)
     if viscous.0 < wave && s.end_time / viscous.0 > flow {
-        out += &format!(
+        *out += &format!(
             "  viscous limit    h^2 rho / (2 D mu) = {:.3e} s (material \"{}\"): about {:.0} steps or more to t = {}\n",
             viscous.0,
             deck.materials[viscous.1].name,
@@ -380,11 +426,16 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             s.end_time
         );
     }
+}
+
+/// The pressure solve's settings, under the projection.
+fn pressure(deck: &Deck, out: &mut String) {
+    let s = &deck.simulation;
     if s.scheme == Scheme::Projection {
         let p = &deck.pressure;
         let lower = |x: String| x.to_lowercase();
         if p.unknowns == pmpm::deck::PressureUnknowns::Cells {
-            out += &format!(
+            *out += &format!(
                 "  pressure         one per cell (unknowns = \"cells\"): {} ({}), tolerance {:e}, at most {} iterations; each cell's weak divergence held at zero, no free-surface detection\n",
                 lower(format!("{:?}", p.solver)),
                 lower(format!("{:?}", p.preconditioner)),
@@ -408,7 +459,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
                 }
                 pmpm::deck::DensityCorrection::None => "no density correction",
             };
-            out += &format!(
+            *out += &format!(
                 "  pressure         {} ({}), tolerance {:e}, at most {} iterations; rhs {}, beta = {}; {surface}; {density}\n",
                 lower(format!("{:?}", p.solver)),
                 lower(format!("{:?}", p.preconditioner)),
@@ -419,8 +470,17 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
             );
         }
     }
+}
+
+/// Frames, their size on disk, the checkpoint's, and the memory the run needs.
+fn output_and_memory<const D: usize>(
+    deck: &Deck,
+    n: f64,
+    geo: &pmpm::grid::GridGeometry<D>,
+    out: &mut String,
+) {
+    let s = &deck.simulation;
     let frames = (s.end_time / deck.output.interval.unwrap_or(s.end_time)).round() as usize + 1;
-    let n = sim.particles.len() as f64;
     // bytes per particle: a CSV row (about 17 characters per number), the .vtu's raw arrays,
     // the checkpoint's particle state
     let csv = 17.0 * (2 * D + 5) as f64;
@@ -438,7 +498,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         } else {
             0.0
         });
-    out += &format!(
+    *out += &format!(
         "  output           {} every {} s into {}: {frames} frames of about {}, {} in all, \
          and a checkpoint of {}\n",
         formats
@@ -453,7 +513,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         bytes(n * checkpoint + 8.0 * geo.node_count() as f64)
     );
     let k = usize::from(D == 3);
-    out += &format!(
+    *out += &format!(
         "  memory           about {} ({} MB, {} B per particle and {} B per grid node, from \
          the benchmarks)\n",
         bytes(pmpm::limits::memory(D, n, geo.node_count() as f64)),
@@ -461,10 +521,6 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         pmpm::limits::BYTES_PER_PARTICLE[k],
         pmpm::limits::BYTES_PER_NODE[k],
     );
-    for w in warn {
-        out += &format!("warning: {w}\n");
-    }
-    Ok(out)
 }
 
 /// The table `pmpm bench` prints: per phase seconds, ms per step and share of the wall time;
