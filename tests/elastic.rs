@@ -192,9 +192,11 @@ fn explicit_spinning_block_keeps_its_volume_and_loses_angular_momentum_to_flip()
 /// APIC keeps angular momentum in its transfers, counted with its affine part (Jiang,
 /// Schroeder, Selle, Teran & Stomakhin 2015), and the explicit update's grid forces keep it
 /// too: the explicit spinning block with APIC (quadratic B-splines and usl, the stable APIC
-/// setting for solids) keeps it to 7e-13 over 1.25 s and 12,500 steps; bound 1e-9. (Its
-/// particles' x x v part alone gives 2.9 % to the affine part in the first steps, which start
-/// from C_p = 0; FLIP with linear shapes loses 22 % of it steadily.)
+/// setting for solids) keeps it to 8e-13 over 1.25 s and 12,500 steps; bound 1e-9. It turns
+/// 1.247 times, where a rigid body turns 1.25 times and the stretching alone takes off 0.006
+/// (bound 1.23): C_p starts as the gradient of the initial velocity (with C_p = 0 the first
+/// steps moved 2.9 % of the particles' x x v momentum into the affine part, and the block
+/// turned 1.21 times). FLIP with linear shapes loses 22 % of it steadily.
 #[test]
 fn apic_keeps_the_spinning_blocks_angular_momentum() {
     let d = deck(
@@ -214,7 +216,7 @@ fn apic_keeps_the_spinning_blocks_angular_momentum() {
     );
     let drift = s.momentum_kept - 1.0;
     assert!(drift.abs() < 1e-9, "angular momentum: {drift:e}");
-    assert!(s.turns > 1.15, "turns {}", s.turns);
+    assert!(s.turns > 1.23, "turns {}", s.turns);
     assert!(s.worst_volume < 0.01, "volume change {}", s.worst_volume);
 }
 
