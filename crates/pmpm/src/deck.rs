@@ -1598,72 +1598,9 @@ impl Deck {
         let mut lattice = 0.0;
         for (i, b) in self.bodies.iter_mut().enumerate() {
             let k = format!("bodies[{i}]");
-            if !self.materials.iter().any(|m| m.name == b.material) {
-                let mut msg = format!("no material named \"{}\"", b.material);
-                if let Some(n) =
-                    nearest(&b.material, self.materials.iter().map(|m| m.name.as_str()))
-                {
-                    msg += &format!("; did you mean \"{n}\"?");
-                }
-                msg += &format!(
-                    " (defined: {})",
-                    self.materials
-                        .iter()
-                        .map(|m| format!("\"{}\"", m.name))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                );
-                return Err(c.err(format!("{k}.material"), msg));
-            }
+            check_body_material(&self.materials, &b.material, &k, c)?;
             let sh = &b.shape;
-            match sh.kind {
-                ShapeKind::Box => {
-                    for (name, v) in [("min", &sh.min), ("max", &sh.max)] {
-                        let v = v.as_ref().ok_or_else(|| {
-                            c.err(
-                                format!("{k}.shape.{name}"),
-                                "is required for type = \"box\"",
-                            )
-                        })?;
-                        c.vector(&format!("{k}.shape.{name}"), v, dim)?;
-                    }
-                    let (mn, mx) = sh.bounds();
-                    if let Some(d) = (0..dim).find(|&d| mn[d] >= mx[d]) {
-                        return Err(c.err(
-                            format!("{k}.shape.max"),
-                            format!("must exceed min in every direction: max[{d}] = {} <= min[{d}] = {}", mx[d], mn[d]),
-                        ));
-                    }
-                    if sh.center.is_some() || sh.radius.is_some() {
-                        return Err(c.err(
-                            format!("{k}.shape"),
-                            "a box takes min and max, not center or radius",
-                        ));
-                    }
-                }
-                ShapeKind::Sphere => {
-                    let ctr = sh.center.as_ref().ok_or_else(|| {
-                        c.err(
-                            format!("{k}.shape.center"),
-                            "is required for type = \"sphere\"",
-                        )
-                    })?;
-                    c.vector(&format!("{k}.shape.center"), ctr, dim)?;
-                    let r = sh.radius.ok_or_else(|| {
-                        c.err(
-                            format!("{k}.shape.radius"),
-                            "is required for type = \"sphere\"",
-                        )
-                    })?;
-                    c.positive(&format!("{k}.shape.radius"), r)?;
-                    if sh.min.is_some() || sh.max.is_some() {
-                        return Err(c.err(
-                            format!("{k}.shape"),
-                            "a sphere takes center and radius, not min or max",
-                        ));
-                    }
-                }
-            }
+            check_body_shape(sh, &k, dim, c)?;
             let (mn, mx) = sh.bounds();
             let tol = 1e-9 * self.grid.cell_size;
             if let Some(d) = (0..dim).find(|&d| mn[d] < lo[d] - tol || mx[d] > hi[d] + tol) {
@@ -1896,4 +1833,85 @@ impl Deck {
             toml::to_string_pretty(&deck).unwrap_or_else(|e| format!("# not written: {e}\n"));
         format!("# The deck as run by pmpm, every default filled in.\n{body}")
     }
+}
+
+/// A body's material is one of the deck's, by name (with the nearest name as a hint).
+fn check_body_material(
+    materials: &[MaterialDeck],
+    material: &str,
+    k: &str,
+    c: &Check,
+) -> Result<(), DeckError> {
+    if !materials.iter().any(|m| m.name == material) {
+        let mut msg = format!("no material named \"{}\"", material);
+        if let Some(n) = nearest(material, materials.iter().map(|m| m.name.as_str())) {
+            msg += &format!("; did you mean \"{n}\"?");
+        }
+        msg += &format!(
+            " (defined: {})",
+            materials
+                .iter()
+                .map(|m| format!("\"{}\"", m.name))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        return Err(c.err(format!("{k}.material"), msg));
+    }
+    Ok(())
+}
+
+/// A body's shape has the keys its type takes, and a box has positive extent.
+fn check_body_shape(sh: &ShapeDeck, k: &str, dim: usize, c: &Check) -> Result<(), DeckError> {
+    match sh.kind {
+        ShapeKind::Box => {
+            for (name, v) in [("min", &sh.min), ("max", &sh.max)] {
+                let v = v.as_ref().ok_or_else(|| {
+                    c.err(
+                        format!("{k}.shape.{name}"),
+                        "is required for type = \"box\"",
+                    )
+                })?;
+                c.vector(&format!("{k}.shape.{name}"), v, dim)?;
+            }
+            let (mn, mx) = sh.bounds();
+            if let Some(d) = (0..dim).find(|&d| mn[d] >= mx[d]) {
+                return Err(c.err(
+                    format!("{k}.shape.max"),
+                    format!(
+                        "must exceed min in every direction: max[{d}] = {} <= min[{d}] = {}",
+                        mx[d], mn[d]
+                    ),
+                ));
+            }
+            if sh.center.is_some() || sh.radius.is_some() {
+                return Err(c.err(
+                    format!("{k}.shape"),
+                    "a box takes min and max, not center or radius",
+                ));
+            }
+        }
+        ShapeKind::Sphere => {
+            let ctr = sh.center.as_ref().ok_or_else(|| {
+                c.err(
+                    format!("{k}.shape.center"),
+                    "is required for type = \"sphere\"",
+                )
+            })?;
+            c.vector(&format!("{k}.shape.center"), ctr, dim)?;
+            let r = sh.radius.ok_or_else(|| {
+                c.err(
+                    format!("{k}.shape.radius"),
+                    "is required for type = \"sphere\"",
+                )
+            })?;
+            c.positive(&format!("{k}.shape.radius"), r)?;
+            if sh.min.is_some() || sh.max.is_some() {
+                return Err(c.err(
+                    format!("{k}.shape"),
+                    "a sphere takes center and radius, not min or max",
+                ));
+            }
+        }
+    }
+    Ok(())
 }
