@@ -165,10 +165,9 @@ pub fn check_summary(deck: &Deck, file: &str) -> Result<String, Error> {
 /// The viscosity the PIC share of the transfer adds at the first step, against the fluids'
 /// own: a flow held to a small step (a viscous or sound-speed limit) is damped more by PIC's
 /// per-step smoothing than by its material (`Transfer::pic_viscosity`).
-fn pic_damping<const D: usize>(deck: &Deck, sim: &Simulation<D>) -> Option<String> {
+fn pic_damping<const D: usize>(deck: &Deck, sim: &Simulation<D>, dt: f64) -> Option<String> {
     let s = &deck.simulation;
     let transfer = s.transfer.unwrap_or_default();
-    let dt = s.dt.or_else(|| s.cfl.map(|cfl| sim.stable_dt(cfl)))?;
     let nu = transfer.pic_viscosity(s.flip_ratio, s.shape_function, sim.grid.geo.h, dt);
     if !(nu > 0.0 && nu.is_finite()) {
         return None;
@@ -232,10 +231,13 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         s.transfer.unwrap_or_default(),
         s.shape_function
     );
-    if let Some(line) = pic_damping(deck, &sim) {
+    // the first step: the fixed one, or the one cfl gives the initial state
+    let first_dt =
+        s.dt.unwrap_or_else(|| sim.stable_dt(s.cfl.expect("validated: dt or cfl")));
+    if let Some(line) = pic_damping(deck, &sim, first_dt) {
         out += &line;
     }
-    time_step(deck, &sim, &mut out, &mut warn);
+    time_step(deck, &sim, first_dt, &mut out, &mut warn);
     gravity_towards_open_faces(deck, sim.settings.gravity.as_slice(), &mut warn);
     step_limits(deck, &mut out);
     pressure(deck, &mut out);
@@ -325,11 +327,13 @@ fn rigid_bodies(deck: &Deck, dim: usize, out: &mut String) {
         );
     }
 }
-
+/// The time step at t = 0 (`dt0`: the fixed one, or the one cfl gives the initial state) and
+/// the steps to the end; a fixed step too large for a fall.
 /// The time step at t = 0 and the steps to the end; a fixed step too large for a fall.
 fn time_step<const D: usize>(
     deck: &Deck,
     sim: &Simulation<D>,
+    dt0: f64,
     out: &mut String,
     warn: &mut Vec<String>,
 ) {
@@ -338,7 +342,6 @@ fn time_step<const D: usize>(
     let dt = match (s.dt, s.cfl) {
         (Some(dt), _) => format!("fixed dt = {dt:e} s"),
         (None, Some(cfl)) => {
-            let dt0 = sim.stable_dt(cfl);
             if dt0.is_finite() {
                 format!("adaptive, cfl = {cfl}; at t = 0 dt = {dt0:.3e} s")
             } else {
