@@ -148,10 +148,7 @@ fn initial_affine<const D: usize>(
         let dv = (velocity.eval(&(x + e), 0.0) - velocity.eval(&(x - e), 0.0)) / (2.0 * eps);
         c.set_column(d, &dv);
     }
-    if isochoric {
-        c -= Matrix::<D>::identity() * (c.trace() / D as f64);
-    }
-    c
+    crate::transfer::affine(c, isochoric)
 }
 
 impl<const D: usize> Particles<D> {

@@ -108,7 +108,7 @@ pub struct TransferSettings<const D: usize> {
 /// APIC's rotation and shear (Jiang, Schroeder, Selle, Teran & Stomakhin, SIGGRAPH 2015) and
 /// drops only the dilatation, which an incompressible flow does not have.
 #[inline]
-fn affine<const D: usize>(b: Matrix<D>, isochoric: bool) -> Matrix<D> {
+pub(crate) fn affine<const D: usize>(b: Matrix<D>, isochoric: bool) -> Matrix<D> {
     if isochoric {
         b - Matrix::<D>::identity() * (b.trace() / D as f64)
     } else {
