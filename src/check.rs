@@ -84,7 +84,7 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
         && deck
             .materials
             .iter()
-            .all(pmpm::material::MaterialParams::is_solid)
+            .all(pmpm::deck::MaterialDeck::is_solid)
     {
         w.push("every material is a solid and the projection's pressure sits on the nodes: a solid under a steady load creeps with it (docs/method.md, \"One pressure per cell\"); set pressure.unknowns = \"cells\" with simulation.stress_update = \"usl\"".into());
     }
@@ -263,7 +263,7 @@ fn bodies<const D: usize>(
         .map(|b| {
             let mut one = deck.clone();
             one.bodies = vec![deck.bodies[b].clone()];
-            pmpm::particles::Particles::<D>::from_deck(&one, geo).len()
+            pmpm::build::particles::<D>(&one, geo).len()
         })
         .collect();
     let mut overlaps: Vec<(usize, usize, usize)> = Vec::new();

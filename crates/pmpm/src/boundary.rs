@@ -5,15 +5,39 @@
 //! wide shape functions (GIMP, B-splines) see the wall too; under the nodal projection a ghost
 //! node's normal component mirrors the node as far inside ([`Boundary::apply`]).
 
-use crate::deck::{BoundaryKind, Deck};
-
-use crate::pressure::PressureUnknowns;
+use serde::{Deserialize, Serialize};
 
 use crate::grid::{GridGeometry, Vector};
 use crate::particles::Particles;
-use crate::scheme::Scheme;
 use crate::shape::PAD;
 use rayon::prelude::*;
+
+/// Kind of a boundary face.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BoundaryKind {
+    /// v . n = v_wall . n
+    Slip,
+    /// v = v_wall
+    NoSlip,
+    /// Nothing imposed.
+    Open,
+    /// Periodic on both faces of the axis.
+    Periodic,
+}
+
+impl BoundaryKind {
+    /// The kind the deck names `s`.
+    pub fn from_name(s: &str) -> Option<Self> {
+        Some(match s {
+            "slip" => Self::Slip,
+            "no_slip" => Self::NoSlip,
+            "open" => Self::Open,
+            "periodic" => Self::Periodic,
+            _ => return None,
+        })
+    }
+}
 
 /// The conditions of all faces and the nodes they act on.
 #[derive(Debug, Clone)]
@@ -35,29 +59,20 @@ pub struct Boundary<const D: usize> {
 }
 
 impl<const D: usize> Boundary<D> {
-    /// Conditions of a validated deck on a grid.
-    pub fn new(deck: &Deck, geo: &GridGeometry<D>) -> Self {
-        let faces: Vec<(BoundaryKind, Vector<D>)> = deck.grid.boundary.faces()[..2 * D]
-            .iter()
-            .map(|f| {
-                let f = f.as_ref().expect("validated: every face filled in");
-                let v = f
-                    .velocity()
-                    .map(|v| {
-                        let c = v.compile().expect("validated expressions");
-                        c.eval(&geo.origin, 0.0)
-                    })
-                    .unwrap_or_else(Vector::<D>::zeros);
-                (f.kind(), v)
-            })
-            .collect();
-        let fields: Vec<Option<crate::field::CompiledField>> = deck.grid.boundary.faces()[..2 * D]
-            .iter()
-            .map(|f| {
-                let c = f.as_ref()?.velocity()?.compile().ok()?;
-                (!c.is_constant()).then_some(c)
-            })
-            .collect();
+    /// The faces' conditions on a grid: (kind, wall velocity at the origin at t = 0) per face
+    /// in the order x_min, x_max, y_min, ..., the wall velocities given by expressions that
+    /// vary, and the rigid bodies. `mirrors`: under the nodal projection a ghost node behind a
+    /// face mirrors the node as far inside it ([`Boundary::apply`]); the explicit scheme and
+    /// the cell projection hold it at the wall's value instead (the cell pressure's constraint
+    /// is solved with those values, and a mirror that followed the corrected velocity would
+    /// undo it: an elastic block then lost 3 % of its volume).
+    pub fn new(
+        faces: Vec<(BoundaryKind, Vector<D>)>,
+        fields: Vec<Option<crate::field::CompiledField>>,
+        mirrors: bool,
+        rigid: crate::rigid::RigidBodies<D>,
+        geo: &GridGeometry<D>,
+    ) -> Self {
         let mut nodes = Vec::new();
         for flat in 0..geo.node_count() {
             let idx = geo.multi(flat);
@@ -71,12 +86,6 @@ impl<const D: usize> Boundary<D> {
             }
         }
         nodes.retain(|&(_, f)| !matches!(faces[f].0, BoundaryKind::Open | BoundaryKind::Periodic));
-        // under the nodal projection a ghost node behind a face mirrors the node as far inside
-        // it. The explicit scheme and the cell projection hold it at the wall's value: the cell
-        // pressure's constraint is solved with those values, and a mirror that followed the
-        // corrected velocity would undo it (an elastic block then lost 3 % of its volume).
-        let mirrors = deck.simulation.scheme == Scheme::Projection
-            && deck.pressure.unknowns == PressureUnknowns::Nodes;
         let mirror = nodes
             .iter()
             .map(|&(i, f)| {
@@ -109,7 +118,7 @@ impl<const D: usize> Boundary<D> {
             mirror,
             fields,
             node_x,
-            rigid: crate::rigid::RigidBodies::new(deck),
+            rigid,
         };
         b.set_time(0.0, geo);
         b

@@ -16,6 +16,7 @@ pub use crate::pressure::PoissonRhs;
 pub use crate::pressure::PressureUnknowns;
 pub use crate::pressure::Quadrature;
 pub use crate::pressure::RigidFaces;
+pub use crate::pressure::{DensityCorrection, Preconditioner, PressureSettings, Solver};
 pub use crate::rigid::RigidSides;
 pub use crate::scheme::Scheme;
 pub use crate::shape::ShapeFunction;
@@ -24,35 +25,14 @@ pub use crate::transfer::Transfer;
 use std::fmt;
 use std::path::Path;
 
+pub use crate::boundary::BoundaryKind;
 pub use crate::error::DeckError;
-
-/// Kind of a boundary face.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum BoundaryKind {
-    /// v . n = v_wall . n
-    Slip,
-    /// v = v_wall
-    NoSlip,
-    /// Nothing imposed.
-    Open,
-    /// Periodic on both faces of the axis.
-    Periodic,
-}
+pub use crate::material::Model;
+use crate::material::{Law, MaterialParams, Newtonian, ViscoElastic};
+use crate::material::{NeoHookean, Viscoplastic, VonMises};
+pub use crate::particles::InitialStress;
 
 const BOUNDARY_KINDS: &[&str] = &["slip", "no_slip", "open", "periodic"];
-
-impl BoundaryKind {
-    fn from_name(s: &str) -> Option<Self> {
-        Some(match s {
-            "slip" => Self::Slip,
-            "no_slip" => Self::NoSlip,
-            "open" => Self::Open,
-            "periodic" => Self::Periodic,
-            _ => return None,
-        })
-    }
-}
 
 /// One face's condition: a kind, and for a moving wall its velocity.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -193,9 +173,7 @@ pub struct SimulationDeck {
     pub volume_limits: Option<[f64; 2]>,
 }
 
-/// The most cells a particle's volume may cover before the run stops: a particle that large
-/// has lost touch with the grid's resolution (a volume that grew without bound).
-pub const MAX_PARTICLE_CELLS: f64 = 4.0;
+pub use crate::scheme::MAX_PARTICLE_CELLS;
 
 /// The most frames, or checkpoints, a deck may ask for over its run: a million frames of even a
 /// small run fill a disk.
@@ -274,212 +252,6 @@ impl BoundaryDeck {
     }
 }
 
-/// Linear solver of the pressure Poisson equation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Solver {
-    /// Preconditioned conjugate gradient.
-    #[default]
-    Pcg,
-    /// Sparse Cholesky.
-    Direct,
-}
-
-/// Preconditioner of the conjugate gradient.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Preconditioner {
-    /// Diagonal scaling.
-    #[default]
-    Jacobi,
-    /// Incomplete Cholesky, no fill.
-    Ic0,
-    /// Geometric multigrid.
-    Multigrid,
-}
-
-/// How the projection keeps each particle's volume from drifting.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum DensityCorrection {
-    /// After each step, a second Poisson solve on the particles' volume error moves the
-    /// particles (and deforms their F) so that each one's volume J V0 returns towards V0
-    /// (`crates/pmpm/src/pressure/density.rs`). The default for fluids with a free surface.
-    #[default]
-    Positions,
-    /// None: the paper's scheme; the default without a free surface and for solids.
-    None,
-}
-
-/// `[pressure]`, used by the projection scheme.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-#[allow(missing_docs)]
-pub struct PressureDeck {
-    #[serde(default)]
-    pub solver: Solver,
-    #[serde(default)]
-    pub preconditioner: Preconditioner,
-    #[serde(default = "default_tolerance")]
-    pub tolerance: f64,
-    #[serde(default = "default_max_iterations")]
-    pub max_iterations: usize,
-    /// Most pressure solves per step with nodal unknowns: the first projects v*, each further
-    /// one the divergence the corrector and the wall conditions left (1: the paper's single
-    /// solve).
-    #[serde(default = "default_passes")]
-    pub passes: usize,
-    /// How p = 0 is imposed; `validate` fills it in (the level set).
-    #[serde(default)]
-    pub free_surface: Option<FreeSurface>,
-    #[serde(default = "default_vf_tolerance")]
-    pub volume_fraction_tolerance: f64,
-    #[serde(default = "default_beta")]
-    pub beta: f64,
-    #[serde(default)]
-    pub rhs: PoissonRhs,
-    /// Quadrature of L and the right-hand side (default: the particles).
-    #[serde(default)]
-    pub quadrature: Quadrature,
-    /// Bubble closing in the free-surface detection: a face-connected set of cells at or below
-    /// the volume-fraction tolerance with at most this many cells, not reaching an open face,
-    /// counts as filled (a gap the flow spread between particles, not air). 0 turns it off.
-    #[serde(default = "default_bubble_cells")]
-    pub bubble_cells: usize,
-    /// Volume correction (pmpm, experimental): the projection aims at div v = alpha (1 - J) / dt
-    /// instead of 0, with J the particles' volume ratio averaged over each cell, giving back the
-    /// fraction alpha of the volume the discrete projection let drift, per step. 0 (the
-    /// default) turns it off.
-    #[serde(default)]
-    pub volume_correction: f64,
-    /// How each particle's volume is kept from drifting; `validate` fills it in: "positions"
-    /// with a free surface, "none" without one (the container holds the volume).
-    #[serde(default)]
-    pub density_correction: Option<DensityCorrection>,
-    /// Where the pressure unknowns sit: "nodes" (METHOD.md, the default) or "cells".
-    #[serde(default)]
-    pub unknowns: PressureUnknowns,
-    /// How the nodal projection sees the rigid bodies' faces; left out, cut cells where they
-    /// apply ([`PressureDeck::cuts_cells`]), the nodes elsewhere.
-    #[serde(default)]
-    pub rigid_faces: Option<RigidFaces>,
-}
-
-fn default_tolerance() -> f64 {
-    1e-8
-}
-fn default_max_iterations() -> usize {
-    2000
-}
-fn default_passes() -> usize {
-    3
-}
-/// Gaps of up to 8 cells inside the fluid are closed (at h = a / 20 in the dam break 1 to 2
-/// cell gaps open; 8, 16 and 64 behave the same there).
-fn default_bubble_cells() -> usize {
-    8
-}
-/// Chorin's split, as in the paper.
-fn default_beta() -> f64 {
-    0.0
-}
-fn default_vf_tolerance() -> f64 {
-    0.3
-}
-
-impl PressureDeck {
-    /// Whether cut-cell rigid faces can apply with these settings: linear or GIMP shape
-    /// functions (with the B-splines a plate pushed into water let it through its face), the
-    /// level-set free surface and nodal unknowns.
-    pub fn cut_cells_apply(&self, shape: ShapeFunction) -> bool {
-        matches!(shape, ShapeFunction::Linear | ShapeFunction::Gimp)
-            && self.free_surface.unwrap_or_default() == FreeSurface::LevelSet
-            && self.unknowns == PressureUnknowns::Nodes
-    }
-
-    /// Whether the projection sees the rigid bodies' faces where they lie: asked for, or left
-    /// out where cut cells apply.
-    pub fn cuts_cells(&self, shape: ShapeFunction) -> bool {
-        match self.rigid_faces {
-            Some(RigidFaces::Cut) => true,
-            Some(RigidFaces::Nodes) => false,
-            None => self.cut_cells_apply(shape),
-        }
-    }
-}
-
-impl Default for PressureDeck {
-    fn default() -> Self {
-        Self {
-            solver: Solver::default(),
-            preconditioner: Preconditioner::default(),
-            tolerance: default_tolerance(),
-            max_iterations: default_max_iterations(),
-            passes: default_passes(),
-            free_surface: None,
-            volume_fraction_tolerance: default_vf_tolerance(),
-            beta: default_beta(),
-            rhs: PoissonRhs::default(),
-            quadrature: Quadrature::default(),
-            bubble_cells: default_bubble_cells(),
-            volume_correction: 0.0,
-            density_correction: None,
-            unknowns: PressureUnknowns::default(),
-            rigid_faces: None,
-        }
-    }
-}
-
-/// Constitutive model of a material.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Model {
-    /// Newtonian fluid: tau = 2 mu dev D.
-    #[default]
-    Newtonian,
-    /// Bingham fluid (yield stress, plastic viscosity), Papanastasiou-regularised.
-    Bingham,
-    /// Herschel-Bulkley fluid (yield stress, consistency, flow index), Papanastasiou-regularised.
-    HerschelBulkley,
-    /// Incompressible neo-Hookean solid (shear modulus).
-    NeoHookeanIncompressible,
-    /// Undrained clay: elastic-perfectly plastic von Mises (shear modulus, c_u).
-    VonMises,
-}
-
-impl Model {
-    /// The deck's name of the model.
-    pub fn name(self) -> &'static str {
-        match self {
-            Model::Newtonian => "newtonian",
-            Model::Bingham => "bingham",
-            Model::HerschelBulkley => "herschel_bulkley",
-            Model::NeoHookeanIncompressible => "neo_hookean_incompressible",
-            Model::VonMises => "von_mises",
-        }
-    }
-
-    /// The model's own keys: (key, required).
-    pub fn keys(self) -> &'static [(&'static str, bool)] {
-        match self {
-            Model::Newtonian => &[("viscosity", false)],
-            Model::Bingham => &[
-                ("viscosity", true),
-                ("yield_stress", true),
-                ("papanastasiou_exponent", true),
-            ],
-            Model::HerschelBulkley => &[
-                ("consistency", true),
-                ("flow_index", true),
-                ("yield_stress", true),
-                ("papanastasiou_exponent", true),
-            ],
-            Model::NeoHookeanIncompressible => &[("shear_modulus", true), ("viscosity", false)],
-            Model::VonMises => &[("shear_modulus", true), ("undrained_shear_strength", true)],
-        }
-    }
-}
-
 /// `[[materials]]`
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -519,6 +291,42 @@ pub struct MaterialDeck {
 }
 
 impl MaterialDeck {
+    /// The step's parameters of this validated entry.
+    pub fn params(&self) -> MaterialParams {
+        let m = self;
+        let law = match m.model {
+            Model::Newtonian => Law::Newtonian(Newtonian {
+                viscosity: m.viscosity,
+            }),
+            Model::Bingham | Model::HerschelBulkley => Law::Viscoplastic(Viscoplastic {
+                consistency: if m.model == Model::Bingham {
+                    m.viscosity
+                } else {
+                    m.consistency.unwrap_or(0.0)
+                },
+                flow_index: m.flow_index.unwrap_or(1.0),
+                yield_stress: m.yield_stress.unwrap_or(0.0),
+                exponent: m.papanastasiou_exponent.unwrap_or(0.0),
+            }),
+            Model::NeoHookeanIncompressible => Law::NeoHookean(ViscoElastic {
+                elastic: NeoHookean {
+                    shear_modulus: m.shear_modulus.unwrap_or(0.0),
+                },
+                viscosity: m.viscosity,
+            }),
+            Model::VonMises => Law::VonMises(VonMises {
+                shear_modulus: m.shear_modulus.unwrap_or(0.0),
+                strength: m.undrained_shear_strength.unwrap_or(0.0),
+            }),
+        };
+        MaterialParams {
+            model: m.model,
+            density: m.density,
+            bulk_modulus: m.bulk_modulus.unwrap_or(0.0),
+            law,
+        }
+    }
+
     /// A solid: a material with a shear modulus (its J is its deformation, its waves set the
     /// projection's step).
     pub fn is_solid(&self) -> bool {
@@ -694,14 +502,6 @@ impl ShapeDeck {
     }
 }
 
-/// Initial stress state of a body.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum InitialStress {
-    /// p = rho |g| (H - y) below the body's top H.
-    Hydrostatic,
-}
-
 /// `[[bodies]]`
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -809,7 +609,7 @@ pub struct Deck {
     pub grid: GridDeck,
     /// `[pressure]`
     #[serde(default)]
-    pub pressure: PressureDeck,
+    pub pressure: PressureSettings,
     /// `[[materials]]`
     pub materials: Vec<MaterialDeck>,
     /// `[[bodies]]`
@@ -1566,7 +1366,7 @@ impl Deck {
                 }
                 None => {}
             }
-            let solid = crate::material::MaterialParams::is_solid(m);
+            let solid = m.params().wave_speed(false) > 0.0;
             if !explicit && self.pressure.unknowns == PressureUnknowns::Cells && !solid {
                 return Err(c.err(
                     format!("{k}.model"),
@@ -1771,9 +1571,7 @@ impl Deck {
                          lower dt or use cfl",
                         viscous.0,
                         m.name,
-                        crate::material::Constitutive::max_viscosity(
-                            &crate::material::MaterialParams::new(m).law
-                        )
+                        crate::material::Constitutive::max_viscosity(&m.params().law)
                     ),
                 ));
             }
@@ -1795,7 +1593,7 @@ impl Deck {
         let explicit = self.simulation.scheme == Scheme::Explicit;
         self.materials
             .iter()
-            .map(|m| crate::material::MaterialParams::new(m).wave_speed(explicit))
+            .map(|m| m.params().wave_speed(explicit))
             .fold(0.0, f64::max)
     }
 
@@ -1810,7 +1608,7 @@ impl Deck {
             .iter()
             .enumerate()
             .map(|(i, m)| {
-                let p = crate::material::MaterialParams::new(m);
+                let p = m.params();
                 (p.viscous_dt_limit(h, self.simulation.dimension), i)
             })
             .fold((f64::INFINITY, 0), |a, b| if b.0 < a.0 { b } else { a });

@@ -309,6 +309,23 @@ impl<const D: usize> Grid<D> {
     }
 }
 
+/// The role of a node in the pressure solve.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum NodeKind {
+    /// No mass: not part of the fluid.
+    #[default]
+    Empty,
+    /// On the free surface: p = 0 (a Dirichlet node).
+    FreeSurface,
+    /// Inside the fluid: an unknown of the Poisson equation.
+    Interior,
+    /// Inside a rigid body (every cell around it covered), under the level-set free surface:
+    /// no unknown, and no Dirichlet value either. The wider shape functions couple the nodes
+    /// near a face to it; there its pressure reads as the coupled node's own, a Neumann
+    /// condition on the face (taken as 0, it pulled the face's pressure down by a tenth).
+    Solid,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

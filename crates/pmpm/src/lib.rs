@@ -19,6 +19,11 @@
 //! strain rate, stress, F, J                      material
 //! ```
 //!
+//! The deck (`deck`) is read and checked in one module and turned into a simulation in one
+//! other (`build`): each physics module defines the settings it takes (`PressureSettings`,
+//! `BoundaryKind`, `Model`, `RigidBox`, ...), and none of them reads the deck.
+//! `python3 scripts/module_cycles.py` lists the modules' imports and fails on a cycle.
+//!
 //! A dam break from Rust: a deck (the TOML of `docs/deck.md`, here inline), validated, a
 //! simulation built from it, and the step loop. [`run::run`] is the same loop with frames, checkpoints
 //! and time-step landing, as `pmpm run` uses it.
@@ -65,6 +70,7 @@
 pub mod atomic;
 pub mod averaging;
 pub mod boundary;
+pub mod build;
 pub mod checkpoint;
 pub mod deck;
 pub mod error;

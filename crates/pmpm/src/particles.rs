@@ -1,8 +1,16 @@
 //! Material points, stored as a struct of arrays, and their creation from the deck's bodies.
 
-use crate::deck::{Deck, InitialStress};
-use crate::grid::{GridGeometry, Vector};
+use crate::grid::Vector;
 use nalgebra::SMatrix;
+use serde::{Deserialize, Serialize};
+
+/// Initial stress state of a body.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InitialStress {
+    /// p = rho |g| (H - y) below the body's top H.
+    Hydrostatic,
+}
 
 /// D x D matrix of f64.
 pub type Matrix<const D: usize> = SMatrix<f64, D, D>;
@@ -126,132 +134,6 @@ pub fn permute<T: Copy, const D: usize>(
             field[j] = field[src];
             j = src;
         }
-    }
-}
-
-/// APIC's affine matrix C_p at t = 0: the gradient of the body's initial velocity field at `x`
-/// (central differences over `eps`; exact for the linear field of a rigid rotation or a shear,
-/// zero for a uniform velocity), less its trace under the projection as after every transfer.
-/// Left at zero, the first transfer drops the velocity's variation around each particle: a
-/// block spinning at one turn per second lost 2 to 3 % of its angular momentum in its first
-/// step.
-fn initial_affine<const D: usize>(
-    velocity: &crate::field::CompiledField,
-    x: &Vector<D>,
-    eps: f64,
-    isochoric: bool,
-) -> Matrix<D> {
-    let mut c = Matrix::<D>::zeros();
-    for d in 0..D {
-        let mut e = Vector::<D>::zeros();
-        e[d] = eps;
-        let dv = (velocity.eval(&(x + e), 0.0) - velocity.eval(&(x - e), 0.0)) / (2.0 * eps);
-        c.set_column(d, &dv);
-    }
-    crate::transfer::affine(c, isochoric)
-}
-
-impl<const D: usize> Particles<D> {
-    /// Fills every body of the deck with particles on a regular lattice of spacing
-    /// h / particles_per_cell, lattice points at the centres of the sub-cells.
-    pub fn from_deck(deck: &Deck, geo: &GridGeometry<D>) -> Self {
-        let mut ps = Particles::default();
-        // the hydrostatic initial stress takes the body force at the origin at t = 0
-        let g = deck
-            .simulation
-            .gravity
-            .compile()
-            .expect("validated expressions")
-            .eval(&geo.origin, 0.0);
-        let gnorm = g.norm();
-        let apic = deck.simulation.transfer == Some(crate::deck::Transfer::Apic);
-        let isochoric = deck.simulation.scheme == crate::deck::Scheme::Projection;
-        for body in &deck.bodies {
-            let mat = deck
-                .materials
-                .iter()
-                .position(|m| m.name == body.material)
-                .expect("validated: body material exists");
-            let rho = deck.materials[mat].density;
-            let ppc = body.particles_per_cell;
-            let spacing = geo.h / ppc as f64;
-            let vol = spacing.powi(D as i32);
-            let (lo, hi) = body.shape.bounds();
-            // lattice index range covering the body's bounding box
-            let first: [i64; D] =
-                std::array::from_fn(|d| ((lo[d] - geo.origin[d]) / spacing - 0.5).floor() as i64);
-            let last: [i64; D] =
-                std::array::from_fn(|d| ((hi[d] - geo.origin[d]) / spacing - 0.5).ceil() as i64);
-            let start = ps.len();
-            let velocity = body.velocity.compile().expect("validated expressions");
-            let mut idx = first;
-            'lattice: loop {
-                let x =
-                    Vector::<D>::from_fn(|d, _| geo.origin[d] + (idx[d] as f64 + 0.5) * spacing);
-                if geo.contains(&x) && body.shape.contains(x.as_slice()) {
-                    ps.x.push(x);
-                    ps.v.push(velocity.eval(&x, 0.0));
-                    if apic {
-                        ps.affine
-                            .push(initial_affine(&velocity, &x, 1e-3 * spacing, isochoric));
-                    }
-                    ps.mass.push(rho * vol);
-                    ps.volume0.push(vol);
-                    ps.material.push(mat as u16);
-                    ps.half_width.push(0.5 / ppc as f64);
-                }
-                for d in 0..D {
-                    idx[d] += 1;
-                    if idx[d] <= last[d] {
-                        continue 'lattice;
-                    }
-                    idx[d] = first[d];
-                }
-                break;
-            }
-            let n = ps.len();
-            ps.jacobian.resize(n, 1.0);
-            ps.pressure.resize(n, 0.0);
-            if body.stress == Some(InitialStress::Hydrostatic) && gnorm > 0.0 {
-                // p = rho |g| (H - y), H the body's top along -g
-                let down = g / gnorm;
-                let top = ps.x[start..]
-                    .iter()
-                    .map(|x| -x.dot(&down))
-                    .fold(f64::NEG_INFINITY, f64::max)
-                    + 0.5 * spacing;
-                for p in start..n {
-                    ps.pressure[p] = rho * gnorm * (top + ps.x[p].dot(&down));
-                    // With an equation of state p = K (1 - J) the particle is compressed: it fills
-                    // its lattice volume now, so its reference volume and mass are larger.
-                    if let Some(k) = deck.materials[mat].bulk_modulus {
-                        let j = 1.0 - ps.pressure[p] / k;
-                        ps.jacobian[p] = j;
-                        ps.volume0[p] = vol / j;
-                        ps.mass[p] = rho * vol / j;
-                    }
-                }
-            }
-        }
-        let n = ps.len();
-        ps.id = (0..n as u32).collect();
-        // the lattice loop grew the arrays by doubling: give back the unused half
-        ps.x.shrink_to_fit();
-        ps.v.shrink_to_fit();
-        ps.mass.shrink_to_fit();
-        ps.volume0.shrink_to_fit();
-        ps.material.shrink_to_fit();
-        ps.half_width.shrink_to_fit();
-        ps.affine.shrink_to_fit();
-        ps.jacobian.shrink_to_fit();
-        ps.pressure.shrink_to_fit();
-        ps.deformation = vec![Matrix::<D>::identity(); n];
-        ps.tau = vec![Matrix::<D>::zeros(); n];
-        ps.velocity_gradient = vec![Matrix::<D>::zeros(); n];
-        if !apic {
-            ps.affine = vec![Matrix::<D>::zeros(); n];
-        }
-        ps
     }
 }
 

@@ -24,10 +24,9 @@
 //! the pressure on the wet faces, int p n dS, is added: the corrector's gradient form pushes the
 //! material away from a face with it, whichever nodes carry the push.
 
-use crate::deck::Deck;
+use crate::grid::NodeKind;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::Particles;
-use crate::pressure::free_surface::NodeKind;
 use crate::shape::{ShapeFunction, Stencil, PAD};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -55,7 +54,20 @@ pub enum RigidSides {
 /// on a pressure solve with NaN when the surge reached it).
 const SNAP: f64 = 0.25;
 
-/// The deck's rigid bodies and the nodes each holds now.
+/// One rigid body as the settings give it: an axis-aligned box moving at a constant velocity.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RigidBox<const D: usize> {
+    /// Lower corner (m).
+    pub lo: Vector<D>,
+    /// Upper corner (m).
+    pub hi: Vector<D>,
+    /// Velocity (m/s).
+    pub velocity: Vector<D>,
+    /// How it holds the material on its trailing faces.
+    pub sides: RigidSides,
+}
+
+/// The rigid bodies and the nodes each holds now.
 #[derive(Debug, Clone, Default)]
 pub struct RigidBodies<const D: usize> {
     /// Lower corner at t = 0.
@@ -113,28 +125,15 @@ struct FacePoint<const D: usize> {
 }
 
 impl<const D: usize> RigidBodies<D> {
-    /// The bodies of a validated deck.
-    pub fn new(deck: &Deck) -> Self {
-        let v = |x: &[f64]| Vector::<D>::from_column_slice(x);
-        let n = deck.rigid_bodies.len();
+    /// The bodies, seen by the projection where their faces lie when `cut` (cut cells) or
+    /// through the nodes they hold.
+    pub fn new(bodies: &[RigidBox<D>], cut: bool) -> Self {
+        let n = bodies.len();
         Self {
-            lo: deck
-                .rigid_bodies
-                .iter()
-                .map(|b| v(&b.shape.bounds().0))
-                .collect(),
-            hi: deck
-                .rigid_bodies
-                .iter()
-                .map(|b| v(&b.shape.bounds().1))
-                .collect(),
-            velocity: deck
-                .rigid_bodies
-                .iter()
-                .map(|b| b.velocity.as_deref().map_or_else(Vector::<D>::zeros, v))
-                .collect(),
-            smooth: deck
-                .rigid_bodies
+            lo: bodies.iter().map(|b| b.lo).collect(),
+            hi: bodies.iter().map(|b| b.hi).collect(),
+            velocity: bodies.iter().map(|b| b.velocity).collect(),
+            smooth: bodies
                 .iter()
                 .map(|b| b.sides == RigidSides::Smooth)
                 .collect(),
@@ -146,8 +145,7 @@ impl<const D: usize> RigidBodies<D> {
             force: vec![Vector::<D>::zeros(); n],
             hit: Vec::new(),
             impulse: Vec::new(),
-            cut: deck.simulation.scheme == crate::deck::Scheme::Projection
-                && deck.pressure.cuts_cells(deck.simulation.shape_function),
+            cut,
             faces: Vec::new(),
             ghosts: Vec::new(),
             lines: [Vec::new(), Vec::new()],
@@ -506,8 +504,8 @@ impl<const D: usize> RigidBodies<D> {
     /// Puts back outside the bodies, at the step's end (`dt` after [`RigidBodies::set_time`]),
     /// the particles that the step carried into one: a particle inside a box is reflected
     /// across the face it is nearest to by as much as it went past it, and its velocity
-    /// relative to the body's into that face is removed, as [`crate::boundary::Boundary::confine`]
-    /// does at a wall. The grid holds a body's velocity on its nodes, not on its faces, so
+    /// relative to the body's into that face is removed, as the walls' `confine` does at a
+    /// wall. The grid holds a body's velocity on its nodes, not on its faces, so
     /// the velocity a particle interpolates between the last node outside and the first inside
     /// carries it up to half a cell into the body (a 3D dam break left a hundred particles
     /// inside a column). A face whose reflection would leave the grid (a face on a wall, or a

@@ -4,16 +4,14 @@
 //! state p = K (1 - J) inside the particle stress, `projection` (METHOD.md) from a Poisson solve
 //! between the predictor and the corrector.
 
-use crate::averaging::{NodalAveraging, VolumetricAveraging};
+use crate::averaging::NodalAveraging;
 use crate::boundary::Boundary;
-use crate::deck::Deck;
 use crate::error::Error;
 use crate::grid::CellBins;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::linalg::SolveError;
 use crate::material::{self, MaterialParams};
 use crate::particles::{Particles, PermuteScratch};
-use crate::pressure::PressureUnknowns;
 use crate::pressure::Projection;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
@@ -31,6 +29,10 @@ pub enum Scheme {
     /// Explicit, weakly compressible: p = K (1 - J).
     Explicit,
 }
+
+/// The most cells a particle's volume may cover before the run stops: a particle that large
+/// has lost touch with the grid's resolution (a volume that grew without bound).
+pub const MAX_PARTICLE_CELLS: f64 = 4.0;
 
 /// Particles that [`Simulation::check_particles`] caught leaving the grid or going non-finite.
 #[derive(Debug, Clone)]
@@ -61,19 +63,30 @@ pub struct StepPolicy {
     pub dt: Option<f64>,
 }
 
-impl StepPolicy {
-    /// The settings of a validated deck.
-    pub fn new(deck: &Deck) -> Self {
-        let s = &deck.simulation;
-        Self {
-            sort_interval: s.sort_interval,
-            damping: s.damping,
-            stress_update: s.stress_update,
-            volume_limits: s.volume_limits,
-            max_dt: s.max_dt,
-            dt: s.dt,
-        }
-    }
+/// What a simulation is made of at t = 0, each part built from its settings.
+pub struct Parts<const D: usize> {
+    /// The step's own settings.
+    pub policy: StepPolicy,
+    /// Material points.
+    pub particles: Particles<D>,
+    /// The grid's geometry.
+    pub geo: GridGeometry<D>,
+    /// Per-material parameters.
+    pub materials: Vec<MaterialParams>,
+    /// Transfer settings.
+    pub settings: TransferSettings<D>,
+    /// Wall conditions and rigid bodies.
+    pub boundary: Boundary<D>,
+    /// Time-integration scheme.
+    pub scheme: Scheme,
+    /// Probe positions.
+    pub probes: Vec<Vector<D>>,
+    /// The pressure projection (scheme = "projection").
+    pub projection: Option<Projection<D>>,
+    /// The nodal averaging of the volumetric strain rate, where it applies.
+    pub averaging: Option<NodalAveraging<D>>,
+    /// A body force given by expressions that vary in space or time.
+    pub body_force: Option<crate::field::CompiledField>,
 }
 
 /// The whole state of a run: particles, grid, settings, time.
@@ -119,161 +132,37 @@ pub struct Simulation<const D: usize> {
     pub timers: PhaseTimers,
 }
 
-/// The first expression field that is not a finite number where the run reads it at t = 0: a
-/// body's initial velocity at one of its particles, or the body force at the grid's origin
-/// (the hydrostatic initial stress) or at a particle. `check` calls the deck valid only when
-/// the run can start.
-fn not_finite<const D: usize>(
-    ps: &Particles<D>,
-    deck: &Deck,
-    gravity: impl Fn(&Vector<D>) -> Vector<D>,
-) -> Option<crate::deck::DeckError> {
-    let error = |key: String, x: &Vector<D>, value: &Vector<D>| crate::deck::DeckError {
-        file: String::new(),
-        key,
-        line_col: None,
-        message: format!(
-            "is not a finite number at ({}) at t = 0: ({}); change the expression there",
-            x.iter()
-                .map(|a| format!("{a:.6}"))
-                .collect::<Vec<_>>()
-                .join(", "),
-            value
-                .iter()
-                .map(|a| format!("{a}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-    };
-    let origin = Vector::<D>::from_column_slice(&deck.grid.origin);
-    let g = gravity(&origin);
-    if !g.iter().all(|a| a.is_finite()) {
-        return Some(error("simulation.gravity".into(), &origin, &g));
-    }
-    for (x, v) in ps.x.iter().zip(&ps.v) {
-        let g = gravity(x);
-        if !g.iter().all(|a| a.is_finite()) {
-            return Some(error("simulation.gravity".into(), x, &g));
-        }
-        if !v.iter().all(|a| a.is_finite()) {
-            let b = (0..deck.bodies.len())
-                .find(|&b| deck.bodies[b].shape.contains(x.as_slice()))
-                .unwrap_or(0);
-            return Some(error(format!("bodies[{b}].velocity"), x, v));
-        }
-    }
-    None
-}
-
 impl<const D: usize> Simulation<D> {
-    /// Sets up particles and grid from a validated deck.
-    pub fn new(deck: &Deck) -> Result<Self, Error> {
-        let g = &deck.grid;
-        let h = g.cell_size;
-        let cells: [usize; D] = std::array::from_fn(|d| (g.size[d] / h).round() as usize);
-        let faces = g.boundary.faces();
-        let periodic: [bool; D] = std::array::from_fn(|d| {
-            faces[2 * d].as_ref().map(|f| f.kind()) == Some(crate::deck::BoundaryKind::Periodic)
+    /// A simulation at t = 0 from its parts (the `build` module makes them from a deck).
+    pub fn from_parts(parts: Parts<D>) -> Self {
+        let n = parts.particles.len();
+        let probes = parts.probes;
+        let body_force = parts.body_force.map(|f| {
+            let at = parts.particles.x.iter().map(|x| f.eval(x, 0.0)).collect();
+            (f, at)
         });
-        let geo = GridGeometry::new(Vector::<D>::from_column_slice(&g.origin), h, cells)
-            .with_periodic(periodic);
-        let particles = Particles::from_deck(deck, &geo);
-        if let Some(b) = (0..deck.bodies.len()).find(|&b| {
-            !particles
-                .x
-                .iter()
-                .any(|x| deck.bodies[b].shape.contains(x.as_slice()))
-        }) {
-            return Err(crate::deck::DeckError {
-                file: String::new(),
-                key: format!("bodies[{b}].shape"),
-                line_col: None,
-                message: format!(
-                    "holds no particle: it is smaller than the particle spacing h / particles_per_cell = {}",
-                    h / deck.bodies[b].particles_per_cell as f64
-                ),
-            }
-            .into());
-        }
-        let gravity = deck
-            .simulation
-            .gravity
-            .compile()
-            .expect("validated expressions");
-        if let Some(why) = not_finite(&particles, deck, |x| gravity.eval(x, 0.0)) {
-            return Err(why.into());
-        }
-        let n_particles = particles.len();
-        let materials = MaterialParams::from_deck(deck);
-        let min_mass = particles.mass.iter().copied().fold(f64::INFINITY, f64::min);
-        let settings = TransferSettings {
-            shape: deck.simulation.shape_function,
-            transfer: deck.simulation.transfer.unwrap_or_default(),
-            flip_ratio: deck.simulation.flip_ratio,
-            gravity: gravity.eval(&geo.origin, 0.0),
-            pressure_weight: match deck.simulation.scheme {
-                Scheme::Explicit => 1.0,
-                // the projection applies its pressure on the grid
-                Scheme::Projection => 0.0,
-            },
-            // below a millionth of a particle's smallest weight a node is empty
-            mass_epsilon: 1e-12 * min_mass,
-            // with one pressure per cell (solids) the cells' constraint is built on v* as it is,
-            // and a solid's stress is real up to its edge
-            mass_floor: match (deck.simulation.scheme, deck.pressure.unknowns) {
-                (Scheme::Projection, PressureUnknowns::Nodes) => {
-                    LIGHT_NODE * least_density(&particles) * geo.h.powi(D as i32)
-                }
-                _ => 0.0,
-            },
-            isochoric_affine: deck.simulation.scheme == Scheme::Projection,
-        };
-        let boundary = Boundary::new(deck, &geo);
-        let scratch = P2gScratch::new(rayon::current_num_threads());
-        let probes: Vec<Vector<D>> = deck
-            .output
-            .probes
-            .iter()
-            .map(|p| Vector::<D>::from_column_slice(&p.position))
-            .collect();
-        let projection = (deck.simulation.scheme == Scheme::Projection)
-            .then(|| Projection::new(deck, &particles, &boundary));
-        // the projection with nodal pressures reads J with the nodally averaged dilatation (the
-        // F-bar idea): its velocity is divergence free node by node, in the weak sense, not at
-        // each particle, and the density correction restores volumes node by node
-        // (docs/method.md). A particle's own divergence let single particles in the
-        // lid-driven cavity grow to 4 cells (J = 16 at t = 5.9 s, h = 1/32)
-        let averaged = deck.simulation.scheme == Scheme::Projection
-            && deck.pressure.unknowns == crate::deck::PressureUnknowns::Nodes;
-        let averaging = (deck.simulation.volumetric_averaging == VolumetricAveraging::Nodal
-            || averaged)
-            .then(|| NodalAveraging::new(rayon::current_num_threads(), geo.node_count()));
-        let body_force = (!gravity.is_constant()).then(|| {
-            let f = particles.x.iter().map(|x| gravity.eval(x, 0.0)).collect();
-            (gravity, f)
-        });
-        Ok(Self {
+        Self {
             body_force,
-            projection,
-            averaging,
-            policy: StepPolicy::new(deck),
-            particles,
-            grid: Grid::new(geo),
-            materials,
-            settings,
-            boundary,
-            scheme: deck.simulation.scheme,
+            projection: parts.projection,
+            averaging: parts.averaging,
+            policy: parts.policy,
+            particles: parts.particles,
+            grid: Grid::new(parts.geo),
+            materials: parts.materials,
+            settings: parts.settings,
+            boundary: parts.boundary,
+            scheme: parts.scheme,
             time: 0.0,
             steps: 0,
             pressure_iterations: 0,
             probe_values: vec![0.0; probes.len() * (D + 1)],
             probes,
-            scratch,
-            advect: vec![Vector::<D>::zeros(); n_particles],
+            scratch: P2gScratch::new(rayon::current_num_threads()),
+            advect: vec![Vector::<D>::zeros(); n],
             sort_bins: CellBins::default(),
             sort_scratch: PermuteScratch::default(),
             timers: PhaseTimers::default(),
-        })
+        }
     }
 
     /// One time step of size `dt`, as METHOD.md sets it out.
@@ -457,7 +346,7 @@ impl<const D: usize> Simulation<D> {
             .as_ref()
             .is_some_and(|p| p.corrects_density());
         let rate = if corrects {
-            crate::pressure::density::DensityCorrection::<D>::rate(
+            crate::pressure::density::PositionCorrection::<D>::rate(
                 dt,
                 self.max_speed(),
                 self.settings.gravity.norm(),
@@ -485,13 +374,13 @@ impl<const D: usize> Simulation<D> {
 
     /// Stops the run if a particle's volume ratio J is not positive, left
     /// `simulation.volume_limits` where the deck gives them, or its volume grew past
-    /// [`crate::deck::MAX_PARTICLE_CELLS`] cells: its state no longer says anything about the
+    /// [`MAX_PARTICLE_CELLS`] cells: its state no longer says anything about the
     /// material, and its volume would go on into the output and the transfers.
     pub fn check_volumes(&self) -> Result<(), Error> {
         let limits = self.policy.volume_limits;
         let [lo, hi] = limits.unwrap_or([0.0, f64::INFINITY]);
         let cell = self.grid.geo.h.powi(D as i32);
-        let largest = crate::deck::MAX_PARTICLE_CELLS * cell;
+        let largest = MAX_PARTICLE_CELLS * cell;
         let ps = &self.particles;
         let bad = ps
             .jacobian
@@ -506,7 +395,7 @@ impl<const D: usize> Simulation<D> {
                 "its volume {:.3e} covers {:.1} cells (at most {} allowed)",
                 j * v0,
                 j * v0 / cell,
-                crate::deck::MAX_PARTICLE_CELLS
+                MAX_PARTICLE_CELLS
             )
         } else if let Some([lo, hi]) = limits {
             format!("J is outside simulation.volume_limits = [{lo}, {hi}]")
@@ -724,10 +613,10 @@ impl<const D: usize> Simulation<D> {
 /// The share of a full node's mass (the lightest material's density times h^D) below which
 /// the projection's predictor divides a node's internal force by that share instead of by
 /// the node's own mass ([`Grid::predict`]).
-const LIGHT_NODE: f64 = 0.1;
+pub(crate) const LIGHT_NODE: f64 = 0.1;
 
 /// The least density m_p / V0_p of the particles.
-fn least_density<const D: usize>(ps: &Particles<D>) -> f64 {
+pub(crate) fn least_density<const D: usize>(ps: &Particles<D>) -> f64 {
     ps.mass
         .iter()
         .zip(&ps.volume0)

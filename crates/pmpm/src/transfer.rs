@@ -143,7 +143,7 @@ impl<const D: usize> NodeSums<D> {
 /// particles lies in a band of cells, so the bands of all threads together cover about the
 /// occupied part of the grid once, instead of the whole grid once per thread. `T` is what a
 /// node accumulates: [`NodeSums`] for P2G, a weight and a weighted value for the volumetric
-/// averaging (`crate::averaging`).
+/// averaging.
 #[derive(Debug, Clone)]
 pub(crate) struct Band<T> {
     pub(crate) start: usize,

@@ -12,9 +12,59 @@ pub use neo_hookean::NeoHookean;
 pub use viscoplastic::Viscoplastic;
 pub use von_mises::VonMises;
 
-use crate::deck::{Deck, MaterialDeck, Model};
 use crate::particles::{Matrix, Particles};
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Constitutive model of a material.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Model {
+    /// Newtonian fluid: tau = 2 mu dev D.
+    #[default]
+    Newtonian,
+    /// Bingham fluid (yield stress, plastic viscosity), Papanastasiou-regularised.
+    Bingham,
+    /// Herschel-Bulkley fluid (yield stress, consistency, flow index), Papanastasiou-regularised.
+    HerschelBulkley,
+    /// Incompressible neo-Hookean solid (shear modulus).
+    NeoHookeanIncompressible,
+    /// Undrained clay: elastic-perfectly plastic von Mises (shear modulus, c_u).
+    VonMises,
+}
+
+impl Model {
+    /// The deck's name of the model.
+    pub fn name(self) -> &'static str {
+        match self {
+            Model::Newtonian => "newtonian",
+            Model::Bingham => "bingham",
+            Model::HerschelBulkley => "herschel_bulkley",
+            Model::NeoHookeanIncompressible => "neo_hookean_incompressible",
+            Model::VonMises => "von_mises",
+        }
+    }
+
+    /// The model's own keys: (key, required).
+    pub fn keys(self) -> &'static [(&'static str, bool)] {
+        match self {
+            Model::Newtonian => &[("viscosity", false)],
+            Model::Bingham => &[
+                ("viscosity", true),
+                ("yield_stress", true),
+                ("papanastasiou_exponent", true),
+            ],
+            Model::HerschelBulkley => &[
+                ("consistency", true),
+                ("flow_index", true),
+                ("yield_stress", true),
+                ("papanastasiou_exponent", true),
+            ],
+            Model::NeoHookeanIncompressible => &[("shear_modulus", true), ("viscosity", false)],
+            Model::VonMises => &[("shear_modulus", true), ("undrained_shear_strength", true)],
+        }
+    }
+}
 
 /// A constitutive model: the deviatoric stress of a particle from its velocity gradient and its
 /// state. The pressure is not the model's: the projection gives it, or the explicit scheme's
@@ -184,51 +234,6 @@ pub struct MaterialParams {
 }
 
 impl MaterialParams {
-    /// The deck's materials, in order.
-    pub fn from_deck(deck: &Deck) -> Vec<Self> {
-        deck.materials.iter().map(Self::new).collect()
-    }
-
-    /// Whether a `[[materials]]` entry is a solid: it has a shear modulus, so a shear wave.
-    pub fn is_solid(m: &MaterialDeck) -> bool {
-        Self::new(m).wave_speed(false) > 0.0
-    }
-
-    /// One validated `[[materials]]` entry.
-    pub fn new(m: &MaterialDeck) -> Self {
-        let law = match m.model {
-            Model::Newtonian => Law::Newtonian(Newtonian {
-                viscosity: m.viscosity,
-            }),
-            Model::Bingham | Model::HerschelBulkley => Law::Viscoplastic(Viscoplastic {
-                consistency: if m.model == Model::Bingham {
-                    m.viscosity
-                } else {
-                    m.consistency.unwrap_or(0.0)
-                },
-                flow_index: m.flow_index.unwrap_or(1.0),
-                yield_stress: m.yield_stress.unwrap_or(0.0),
-                exponent: m.papanastasiou_exponent.unwrap_or(0.0),
-            }),
-            Model::NeoHookeanIncompressible => Law::NeoHookean(ViscoElastic {
-                elastic: NeoHookean {
-                    shear_modulus: m.shear_modulus.unwrap_or(0.0),
-                },
-                viscosity: m.viscosity,
-            }),
-            Model::VonMises => Law::VonMises(VonMises {
-                shear_modulus: m.shear_modulus.unwrap_or(0.0),
-                strength: m.undrained_shear_strength.unwrap_or(0.0),
-            }),
-        };
-        MaterialParams {
-            model: m.model,
-            density: m.density,
-            bulk_modulus: m.bulk_modulus.unwrap_or(0.0),
-            law,
-        }
-    }
-
     /// Fastest wave the scheme integrates explicitly: the pressure wave sqrt((K + 4 G / 3) /
     /// rho) with the equation of state, the shear wave sqrt(G / rho) with the projection (which
     /// takes the volumetric part implicitly).

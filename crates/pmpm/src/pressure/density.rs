@@ -28,9 +28,9 @@
 //! the correction could ever give back.
 
 use super::free_surface::{self, Surface};
+use super::PressureSettings;
 use super::{describe_layout, FluidDomain, GaussPoints, Unknowns};
 use crate::boundary::Boundary;
-use crate::deck::PressureDeck;
 use crate::grid::{CellBins, GridGeometry, Vector};
 use crate::linalg::{EllMatrix, LinearSolver, SolveError, SolveParams, SolveStats, System};
 use crate::particles::{Matrix, Particles};
@@ -46,11 +46,11 @@ const MAX_RATE: f64 = 0.2;
 
 /// Corrections per cell crossing: the volume error is given back over the time
 /// h / (PACE max |v|), a third of the time a particle takes to cross a cell (see
-/// [`DensityCorrection::rate`]).
+/// [`PositionCorrection::rate`]).
 pub const PACE: f64 = 3.0;
 
 /// State and buffers of the density correction, reused from step to step.
-pub struct DensityCorrection<const D: usize> {
+pub struct PositionCorrection<const D: usize> {
     shape: ShapeFunction,
     tolerance: f64,
     max_iterations: usize,
@@ -86,7 +86,7 @@ pub struct DensityCorrection<const D: usize> {
     pub stats: SolveStats,
 }
 
-impl<const D: usize> DensityCorrection<D> {
+impl<const D: usize> PositionCorrection<D> {
     /// The share r of the volume error given back in a step of `dt`:
     /// r = min(1, max(PACE dt max|v| / h, dt / sqrt(2 h / |g|))), [`PACE`] corrections per
     /// cell crossing, however small the step (where the viscous limit sets a step far below
@@ -104,7 +104,7 @@ impl<const D: usize> DensityCorrection<D> {
     }
 
     /// The correction with the pressure's solver settings and free surface.
-    pub fn new(pd: &PressureDeck, shape: ShapeFunction, boundary: &Boundary<D>) -> Self {
+    pub fn new(pd: &PressureSettings, shape: ShapeFunction, boundary: &Boundary<D>) -> Self {
         Self {
             shape,
             tolerance: pd.tolerance,
@@ -463,7 +463,7 @@ mod tests {
             ps.jacobian[p] = 1.0 + 0.03 * (std::f64::consts::PI * x[0]).cos() * (3.0 * x[1]).sin();
         }
         let mut c =
-            DensityCorrection::<2>::new(&deck.pressure, ShapeFunction::Linear, &sim.boundary);
+            PositionCorrection::<2>::new(&deck.pressure, ShapeFunction::Linear, &sim.boundary);
         let (max0, mean0) = errors(&ps);
         let mut last = max0;
         for pass in 0..5 {
@@ -533,7 +533,7 @@ particles_per_cell = 2
         ] {
             let (deck, sim) = pool(name);
             let mut ps = sim.particles.clone();
-            let mut c = DensityCorrection::<2>::new(&deck.pressure, shape, &sim.boundary);
+            let mut c = PositionCorrection::<2>::new(&deck.pressure, shape, &sim.boundary);
             for _ in 0..3 {
                 c.correct(&mut ps, &sim.grid.geo, &sim.boundary, 1.0)
                     .unwrap();

@@ -30,22 +30,7 @@ pub enum FreeSurface {
     None,
 }
 
-/// The role of a node in the pressure solve.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum NodeKind {
-    /// No mass: not part of the fluid.
-    #[default]
-    Empty,
-    /// On the free surface: p = 0 (a Dirichlet node).
-    FreeSurface,
-    /// Inside the fluid: an unknown of the Poisson equation.
-    Interior,
-    /// Inside a rigid body (every cell around it covered), under the level-set free surface:
-    /// no unknown, and no Dirichlet value either. The wider shape functions couple the nodes
-    /// near a face to it; there its pressure reads as the coupled node's own, a Neumann
-    /// condition on the face (taken as 0, it pulled the face's pressure down by a tenth).
-    Solid,
-}
+pub use crate::grid::NodeKind;
 
 /// The free surface of one solve: the cells' volume fractions, the level set and each node's
 /// role, with the settings that find them. The stage "detect the free surface" of the
@@ -76,7 +61,7 @@ pub struct Surface {
 impl Surface {
     /// The settings of `[pressure]`, and which faces are open.
     pub fn new<const D: usize>(
-        pd: &crate::deck::PressureDeck,
+        pd: &super::PressureSettings,
         boundary: &crate::boundary::Boundary<D>,
     ) -> Self {
         Self::with_settings(
@@ -712,7 +697,7 @@ pub fn ghost_values<const D: usize>(
 #[allow(clippy::too_many_arguments)]
 pub fn surface_normal_stress<const D: usize>(
     geo: &GridGeometry<D>,
-    shape: crate::deck::ShapeFunction,
+    shape: crate::shape::ShapeFunction,
     bins: &CellBins,
     x: &[crate::grid::Vector<D>],
     half_width: &[f64],
@@ -1174,7 +1159,7 @@ mod tests {
         let half = vec![0.0; n];
         surface_normal_stress(
             &geo,
-            crate::deck::ShapeFunction::Linear,
+            crate::shape::ShapeFunction::Linear,
             &bins,
             &x,
             &half,

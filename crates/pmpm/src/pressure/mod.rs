@@ -14,9 +14,11 @@ pub mod assemble;
 pub mod cell;
 pub mod density;
 pub mod free_surface;
+mod settings;
+
+pub use settings::{DensityCorrection, Preconditioner, PressureSettings, Solver};
 
 use crate::boundary::Boundary;
-use crate::deck::{Deck, Preconditioner, Solver};
 use crate::grid::{CellBins, Grid, Vector};
 use crate::linalg::{
     Direct, EllMatrix, GridLayout, IncompleteCholesky, Jacobi, LinearSolver, Multigrid, Pcg,
@@ -147,13 +149,20 @@ pub struct Projection<const D: usize> {
     cells: Option<cell::CellProjection<D>>,
     /// The density correction after the step (`pressure.density_correction = "positions"`,
     /// nodal unknowns).
-    density: Option<density::DensityCorrection<D>>,
+    density: Option<density::PositionCorrection<D>>,
 }
 
 impl<const D: usize> Projection<D> {
-    /// The projection set up from a validated deck, for the given particles.
-    pub fn new(deck: &Deck, ps: &Particles<D>, boundary: &Boundary<D>) -> Self {
-        let pd = &deck.pressure;
+    /// The projection with validated settings, for the given particles and shape functions;
+    /// `traction_free` where a material is a solid (its free surface bears no pressure of its
+    /// own).
+    pub fn new(
+        pd: &PressureSettings,
+        shape: ShapeFunction,
+        traction_free: bool,
+        ps: &Particles<D>,
+        boundary: &Boundary<D>,
+    ) -> Self {
         let solver = linear_solver(pd);
         let particle_quadrature = usize::from(pd.quadrature == Quadrature::Particle);
         let volume_over_density = ps
@@ -167,7 +176,7 @@ impl<const D: usize> Projection<D> {
             max_iterations: pd.max_iterations,
             passes: pd.passes,
             beta: pd.beta,
-            shape: deck.simulation.shape_function,
+            shape,
             solver,
             bins: CellBins::default(),
             surface: free_surface::Surface::new(pd, boundary),
@@ -198,16 +207,13 @@ impl<const D: usize> Projection<D> {
             },
             pass_norms: Vec::with_capacity(pd.passes),
             singular: false,
-            traction_free: deck
-                .materials
-                .iter()
-                .any(crate::material::MaterialParams::is_solid),
+            traction_free,
             surface_pressure: Vec::new(),
             cells: (pd.unknowns == PressureUnknowns::Cells)
-                .then(|| cell::CellProjection::new(deck.simulation.shape_function)),
+                .then(|| cell::CellProjection::new(shape)),
             density: (pd.unknowns == PressureUnknowns::Nodes
-                && pd.density_correction == Some(crate::deck::DensityCorrection::Positions))
-            .then(|| density::DensityCorrection::new(pd, deck.simulation.shape_function, boundary)),
+                && pd.density_correction == Some(DensityCorrection::Positions))
+            .then(|| density::PositionCorrection::new(pd, shape, boundary)),
         }
     }
 
@@ -817,7 +823,7 @@ fn aim_at_volume<const D: usize>(
 }
 
 /// The linear solver `[pressure]` asks for.
-fn linear_solver(pd: &crate::deck::PressureDeck) -> LinearSolver {
+fn linear_solver(pd: &PressureSettings) -> LinearSolver {
     match (pd.solver, pd.preconditioner) {
         (Solver::Direct, _) => LinearSolver::Direct(Direct::default()),
         (Solver::Pcg, Preconditioner::Multigrid) => {

@@ -1,0 +1,353 @@
+//! The one place a checked deck becomes a simulation: each part (particles, materials,
+//! transfers, walls, rigid bodies, the projection) is built from the settings its module
+//! defines, and the step never sees the deck.
+
+use crate::averaging::{NodalAveraging, VolumetricAveraging};
+use crate::boundary::{Boundary, BoundaryKind};
+use crate::deck::{Deck, DeckError, MaterialDeck};
+use crate::error::Error;
+use crate::grid::{GridGeometry, Vector};
+use crate::material::MaterialParams;
+use crate::particles::{InitialStress, Matrix, Particles};
+use crate::pressure::{PressureUnknowns, Projection};
+use crate::rigid::{RigidBodies, RigidBox};
+use crate::scheme::{least_density, Parts, Scheme, Simulation, StepPolicy, LIGHT_NODE};
+use crate::transfer::{Transfer, TransferSettings};
+
+impl<const D: usize> Simulation<D> {
+    /// Sets up particles, grid and every part of the step from a validated deck.
+    pub fn new(deck: &Deck) -> Result<Self, Error> {
+        let g = &deck.grid;
+        let h = g.cell_size;
+        let cells: [usize; D] = std::array::from_fn(|d| (g.size[d] / h).round() as usize);
+        let faces = g.boundary.faces();
+        let periodic: [bool; D] = std::array::from_fn(|d| {
+            faces[2 * d].as_ref().map(|f| f.kind()) == Some(BoundaryKind::Periodic)
+        });
+        let geo = GridGeometry::new(Vector::<D>::from_column_slice(&g.origin), h, cells)
+            .with_periodic(periodic);
+        let particles = particles(deck, &geo);
+        if let Some(b) = (0..deck.bodies.len()).find(|&b| {
+            !particles
+                .x
+                .iter()
+                .any(|x| deck.bodies[b].shape.contains(x.as_slice()))
+        }) {
+            return Err(DeckError {
+            file: String::new(),
+            key: format!("bodies[{b}].shape"),
+            line_col: None,
+            message: format!(
+                "holds no particle: it is smaller than the particle spacing h / particles_per_cell = {}",
+                h / deck.bodies[b].particles_per_cell as f64
+            ),
+        }
+        .into());
+        }
+        let gravity = deck
+            .simulation
+            .gravity
+            .compile()
+            .expect("validated expressions");
+        if let Some(why) = not_finite(&particles, deck, |x| gravity.eval(x, 0.0)) {
+            return Err(why.into());
+        }
+        let materials: Vec<MaterialParams> =
+            deck.materials.iter().map(MaterialDeck::params).collect();
+        let min_mass = particles.mass.iter().copied().fold(f64::INFINITY, f64::min);
+        let settings = TransferSettings {
+            shape: deck.simulation.shape_function,
+            transfer: deck.simulation.transfer.unwrap_or_default(),
+            flip_ratio: deck.simulation.flip_ratio,
+            gravity: gravity.eval(&geo.origin, 0.0),
+            pressure_weight: match deck.simulation.scheme {
+                Scheme::Explicit => 1.0,
+                // the projection applies its pressure on the grid
+                Scheme::Projection => 0.0,
+            },
+            // below a millionth of a particle's smallest weight a node is empty
+            mass_epsilon: 1e-12 * min_mass,
+            // with one pressure per cell (solids) the cells' constraint is built on v* as it is,
+            // and a solid's stress is real up to its edge
+            mass_floor: match (deck.simulation.scheme, deck.pressure.unknowns) {
+                (Scheme::Projection, PressureUnknowns::Nodes) => {
+                    LIGHT_NODE * least_density(&particles) * geo.h.powi(D as i32)
+                }
+                _ => 0.0,
+            },
+            isochoric_affine: deck.simulation.scheme == Scheme::Projection,
+        };
+        let boundary = boundary(deck, &geo);
+        let probes: Vec<Vector<D>> = deck
+            .output
+            .probes
+            .iter()
+            .map(|p| Vector::<D>::from_column_slice(&p.position))
+            .collect();
+        let projection = (deck.simulation.scheme == Scheme::Projection).then(|| {
+            Projection::new(
+                &deck.pressure,
+                deck.simulation.shape_function,
+                deck.materials.iter().any(MaterialDeck::is_solid),
+                &particles,
+                &boundary,
+            )
+        });
+        // the projection with nodal pressures reads J with the nodally averaged dilatation (the
+        // F-bar idea): its velocity is divergence free node by node, in the weak sense, not at
+        // each particle, and the density correction restores volumes node by node
+        // (docs/method.md). A particle's own divergence let single particles in the
+        // lid-driven cavity grow to 4 cells (J = 16 at t = 5.9 s, h = 1/32)
+        let averaged = deck.simulation.scheme == Scheme::Projection
+            && deck.pressure.unknowns == PressureUnknowns::Nodes;
+        let averaging = (deck.simulation.volumetric_averaging == VolumetricAveraging::Nodal
+            || averaged)
+            .then(|| NodalAveraging::new(rayon::current_num_threads(), geo.node_count()));
+        let parts = Parts {
+            policy: step_policy(deck),
+            particles,
+            geo,
+            materials,
+            settings,
+            boundary,
+            scheme: deck.simulation.scheme,
+            probes,
+            projection,
+            averaging,
+            body_force: (!gravity.is_constant()).then_some(gravity),
+        };
+        Ok(Self::from_parts(parts))
+    }
+}
+
+/// The step's own settings of a validated deck.
+pub fn step_policy(deck: &Deck) -> StepPolicy {
+    let s = &deck.simulation;
+    StepPolicy {
+        sort_interval: s.sort_interval,
+        damping: s.damping,
+        stress_update: s.stress_update,
+        volume_limits: s.volume_limits,
+        max_dt: s.max_dt,
+        dt: s.dt,
+    }
+}
+
+/// The walls and rigid bodies of a validated deck on a grid.
+pub fn boundary<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Boundary<D> {
+    let faces: Vec<(BoundaryKind, Vector<D>)> = deck.grid.boundary.faces()[..2 * D]
+        .iter()
+        .map(|f| {
+            let f = f.as_ref().expect("validated: every face filled in");
+            let v = f
+                .velocity()
+                .map(|v| {
+                    let c = v.compile().expect("validated expressions");
+                    c.eval(&geo.origin, 0.0)
+                })
+                .unwrap_or_else(Vector::<D>::zeros);
+            (f.kind(), v)
+        })
+        .collect();
+    let fields: Vec<Option<crate::field::CompiledField>> = deck.grid.boundary.faces()[..2 * D]
+        .iter()
+        .map(|f| {
+            let c = f.as_ref()?.velocity()?.compile().ok()?;
+            (!c.is_constant()).then_some(c)
+        })
+        .collect();
+    // under the nodal projection a ghost node behind a face mirrors the node as far inside it
+    let mirrors = deck.simulation.scheme == Scheme::Projection
+        && deck.pressure.unknowns == PressureUnknowns::Nodes;
+    Boundary::new(faces, fields, mirrors, rigid_bodies(deck), geo)
+}
+
+/// The rigid bodies of a validated deck.
+pub fn rigid_bodies<const D: usize>(deck: &Deck) -> RigidBodies<D> {
+    let v = |x: &[f64]| Vector::<D>::from_column_slice(x);
+    let bodies: Vec<RigidBox<D>> = deck
+        .rigid_bodies
+        .iter()
+        .map(|b| {
+            let (lo, hi) = b.shape.bounds();
+            RigidBox {
+                lo: v(&lo),
+                hi: v(&hi),
+                velocity: b.velocity.as_deref().map_or_else(Vector::<D>::zeros, v),
+                sides: b.sides,
+            }
+        })
+        .collect();
+    let cut = deck.simulation.scheme == Scheme::Projection
+        && deck.pressure.cuts_cells(deck.simulation.shape_function);
+    RigidBodies::new(&bodies, cut)
+}
+
+/// Fills every body of the deck with particles on a regular lattice of spacing
+/// h / particles_per_cell, lattice points at the centres of the sub-cells.
+pub fn particles<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Particles<D> {
+    let mut ps = Particles::default();
+    // the hydrostatic initial stress takes the body force at the origin at t = 0
+    let g = deck
+        .simulation
+        .gravity
+        .compile()
+        .expect("validated expressions")
+        .eval(&geo.origin, 0.0);
+    let gnorm = g.norm();
+    let apic = deck.simulation.transfer == Some(Transfer::Apic);
+    let isochoric = deck.simulation.scheme == Scheme::Projection;
+    for body in &deck.bodies {
+        let mat = deck
+            .materials
+            .iter()
+            .position(|m| m.name == body.material)
+            .expect("validated: body material exists");
+        let rho = deck.materials[mat].density;
+        let ppc = body.particles_per_cell;
+        let spacing = geo.h / ppc as f64;
+        let vol = spacing.powi(D as i32);
+        let (lo, hi) = body.shape.bounds();
+        // lattice index range covering the body's bounding box
+        let first: [i64; D] =
+            std::array::from_fn(|d| ((lo[d] - geo.origin[d]) / spacing - 0.5).floor() as i64);
+        let last: [i64; D] =
+            std::array::from_fn(|d| ((hi[d] - geo.origin[d]) / spacing - 0.5).ceil() as i64);
+        let start = ps.len();
+        let velocity = body.velocity.compile().expect("validated expressions");
+        let mut idx = first;
+        'lattice: loop {
+            let x = Vector::<D>::from_fn(|d, _| geo.origin[d] + (idx[d] as f64 + 0.5) * spacing);
+            if geo.contains(&x) && body.shape.contains(x.as_slice()) {
+                ps.x.push(x);
+                ps.v.push(velocity.eval(&x, 0.0));
+                if apic {
+                    ps.affine
+                        .push(initial_affine(&velocity, &x, 1e-3 * spacing, isochoric));
+                }
+                ps.mass.push(rho * vol);
+                ps.volume0.push(vol);
+                ps.material.push(mat as u16);
+                ps.half_width.push(0.5 / ppc as f64);
+            }
+            for d in 0..D {
+                idx[d] += 1;
+                if idx[d] <= last[d] {
+                    continue 'lattice;
+                }
+                idx[d] = first[d];
+            }
+            break;
+        }
+        let n = ps.len();
+        ps.jacobian.resize(n, 1.0);
+        ps.pressure.resize(n, 0.0);
+        if body.stress == Some(InitialStress::Hydrostatic) && gnorm > 0.0 {
+            // p = rho |g| (H - y), H the body's top along -g
+            let down = g / gnorm;
+            let top = ps.x[start..]
+                .iter()
+                .map(|x| -x.dot(&down))
+                .fold(f64::NEG_INFINITY, f64::max)
+                + 0.5 * spacing;
+            for p in start..n {
+                ps.pressure[p] = rho * gnorm * (top + ps.x[p].dot(&down));
+                // With an equation of state p = K (1 - J) the particle is compressed: it fills
+                // its lattice volume now, so its reference volume and mass are larger.
+                if let Some(k) = deck.materials[mat].bulk_modulus {
+                    let j = 1.0 - ps.pressure[p] / k;
+                    ps.jacobian[p] = j;
+                    ps.volume0[p] = vol / j;
+                    ps.mass[p] = rho * vol / j;
+                }
+            }
+        }
+    }
+    let n = ps.len();
+    ps.id = (0..n as u32).collect();
+    // the lattice loop grew the arrays by doubling: give back the unused half
+    ps.x.shrink_to_fit();
+    ps.v.shrink_to_fit();
+    ps.mass.shrink_to_fit();
+    ps.volume0.shrink_to_fit();
+    ps.material.shrink_to_fit();
+    ps.half_width.shrink_to_fit();
+    ps.affine.shrink_to_fit();
+    ps.jacobian.shrink_to_fit();
+    ps.pressure.shrink_to_fit();
+    ps.deformation = vec![Matrix::<D>::identity(); n];
+    ps.tau = vec![Matrix::<D>::zeros(); n];
+    ps.velocity_gradient = vec![Matrix::<D>::zeros(); n];
+    if !apic {
+        ps.affine = vec![Matrix::<D>::zeros(); n];
+    }
+    ps
+}
+
+/// APIC's affine matrix C_p at t = 0: the gradient of the body's initial velocity field at `x`
+/// (central differences over `eps`; exact for the linear field of a rigid rotation or a shear,
+/// zero for a uniform velocity), less its trace under the projection as after every transfer.
+/// Left at zero, the first transfer drops the velocity's variation around each particle: a
+/// block spinning at one turn per second lost 2 to 3 % of its angular momentum in its first
+/// step.
+fn initial_affine<const D: usize>(
+    velocity: &crate::field::CompiledField,
+    x: &Vector<D>,
+    eps: f64,
+    isochoric: bool,
+) -> Matrix<D> {
+    let mut c = Matrix::<D>::zeros();
+    for d in 0..D {
+        let mut e = Vector::<D>::zeros();
+        e[d] = eps;
+        let dv = (velocity.eval(&(x + e), 0.0) - velocity.eval(&(x - e), 0.0)) / (2.0 * eps);
+        c.set_column(d, &dv);
+    }
+    crate::transfer::affine(c, isochoric)
+}
+
+/// The first expression field that is not a finite number where the run reads it at t = 0: a
+/// body's initial velocity at one of its particles, or the body force at the grid's origin
+/// (the hydrostatic initial stress) or at a particle. `check` calls the deck valid only when
+/// the run can start.
+fn not_finite<const D: usize>(
+    ps: &Particles<D>,
+    deck: &Deck,
+    gravity: impl Fn(&Vector<D>) -> Vector<D>,
+) -> Option<DeckError> {
+    let error = |key: String, x: &Vector<D>, value: &Vector<D>| DeckError {
+        file: String::new(),
+        key,
+        line_col: None,
+        message: format!(
+            "is not a finite number at ({}) at t = 0: ({}); change the expression there",
+            x.iter()
+                .map(|a| format!("{a:.6}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            value
+                .iter()
+                .map(|a| format!("{a}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
+    let origin = Vector::<D>::from_column_slice(&deck.grid.origin);
+    let g = gravity(&origin);
+    if !g.iter().all(|a| a.is_finite()) {
+        return Some(error("simulation.gravity".into(), &origin, &g));
+    }
+    for (x, v) in ps.x.iter().zip(&ps.v) {
+        let g = gravity(x);
+        if !g.iter().all(|a| a.is_finite()) {
+            return Some(error("simulation.gravity".into(), x, &g));
+        }
+        if !v.iter().all(|a| a.is_finite()) {
+            let b = (0..deck.bodies.len())
+                .find(|&b| deck.bodies[b].shape.contains(x.as_slice()))
+                .unwrap_or(0);
+            return Some(error(format!("bodies[{b}].velocity"), x, v));
+        }
+    }
+    None
+}
