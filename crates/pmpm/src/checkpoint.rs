@@ -343,6 +343,28 @@ fn consistent<const D: usize>(
     node_pressure_len: Option<usize>,
     variable_body_force: bool,
 ) -> Result<(), String> {
+    consistent_driver(s)?;
+    consistent_particles(s, n, materials, geo)?;
+    if variable_body_force && s.body_force.len() != n * D {
+        return Err("it holds no body force values".into());
+    }
+    if node_pressure_len.is_some() && s.volume_over_density.len() != n {
+        return Err("it holds no projection state".into());
+    }
+    if let Some(len) = node_pressure_len {
+        // empty before the first step has sized it
+        if !s.node_pressure.is_empty() && s.node_pressure.len() != len {
+            return Err(format!(
+                "its node pressure holds {} values, the grid has {len} nodes",
+                s.node_pressure.len()
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The time and the driver's clocks and frame list of a decoded state ([`consistent`]).
+fn consistent_driver(s: &State) -> Result<(), String> {
     if !(s.time.is_finite() && s.time >= 0.0) {
         return Err(format!("its time is {}", s.time));
     }
@@ -357,6 +379,27 @@ fn consistent<const D: usize>(
             d.pvd.len()
         ));
     }
+    // the frame list goes into particles.pvd as it is
+    if let Some((_, name)) = d.pvd.iter().find(|(t, name)| {
+        !t.is_finite()
+            || !name
+                .strip_prefix("frames/particles_")
+                .and_then(|r| r.strip_suffix(".vtu"))
+                .is_some_and(|k| k.len() == 6 && k.bytes().all(|c| c.is_ascii_digit()))
+    }) {
+        return Err(format!("its frame list names {name:?}"));
+    }
+    Ok(())
+}
+
+/// The particle fields of a decoded state: their lengths, ids, material indices, finite and
+/// positive values, and positions inside the grid ([`consistent`]).
+fn consistent_particles<const D: usize>(
+    s: &State,
+    n: usize,
+    materials: usize,
+    geo: &crate::grid::GridGeometry<D>,
+) -> Result<(), String> {
     let lengths: [(&str, usize, usize); 12] = [
         ("x", s.x.len(), n * D),
         ("v", s.v.len(), n * D),
@@ -433,31 +476,6 @@ fn consistent<const D: usize>(
             return Err(format!(
                 "particle {} lies outside the grid, at {x:?}",
                 s.id[p]
-            ));
-        }
-    }
-    if variable_body_force && s.body_force.len() != n * D {
-        return Err("it holds no body force values".into());
-    }
-    if node_pressure_len.is_some() && s.volume_over_density.len() != n {
-        return Err("it holds no projection state".into());
-    }
-    // the frame list goes into particles.pvd as it is
-    if let Some((_, name)) = d.pvd.iter().find(|(t, name)| {
-        !t.is_finite()
-            || !name
-                .strip_prefix("frames/particles_")
-                .and_then(|r| r.strip_suffix(".vtu"))
-                .is_some_and(|k| k.len() == 6 && k.bytes().all(|c| c.is_ascii_digit()))
-    }) {
-        return Err(format!("its frame list names {name:?}"));
-    }
-    if let Some(len) = node_pressure_len {
-        // empty before the first step has sized it
-        if !s.node_pressure.is_empty() && s.node_pressure.len() != len {
-            return Err(format!(
-                "its node pressure holds {} values, the grid has {len} nodes",
-                s.node_pressure.len()
             ));
         }
     }

@@ -67,6 +67,21 @@ pub struct RigidBox<const D: usize> {
     pub sides: RigidSides,
 }
 
+/// Relative tolerance (in cells) of the node-to-face comparisons.
+const EPS: f64 = 1e-9;
+
+/// One body's faces at the current time and the nodes it may hold ([`RigidBodies::set_time`]).
+struct Span<const D: usize> {
+    face_lo: Vector<D>,
+    face_hi: Vector<D>,
+    /// Per axis, whether the lower and upper faces can meet material (not on or beyond a wall).
+    live_lo: [bool; D],
+    live_hi: [bool; D],
+    /// First and last node index (with the padding) of the range.
+    first: [usize; D],
+    last: [isize; D],
+}
+
 /// The rigid bodies and the nodes each holds now.
 #[derive(Debug, Clone, Default)]
 pub struct RigidBodies<const D: usize> {
@@ -191,153 +206,184 @@ impl<const D: usize> RigidBodies<D> {
         self.owner.resize(geo.node_count(), (usize::MAX, 0));
         self.nodes.clear();
         self.ghosts.clear();
-        let all = (1u8 << D) - 1;
-        let eps = 1e-9;
-        let (grid_lo, grid_hi) = (geo.origin, geo.upper());
         for b in 0..self.len() {
-            let (face_lo, face_hi) = self.bounds(b);
-            let (mut lo, mut hi) = (face_lo, face_hi);
-            // ahead of a moving face, the nodes up to a cell from it (but not a whole cell)
-            // push the material with the body: a node row stays where it is while the body
-            // passes, and material a body pushes would otherwise move away from the last row
-            // inside it and lose contact until the face reaches the next row. Half a cell is
-            // not enough with the nodal pressure: a plate pushed into water then bears a third
-            // to a half of its hydrostatic load (the water under it packs into a layer a cell
-            // below the face, the cell between reads as a free surface and takes p = 0; the
-            // notes of src/validation/footing.rs). With cut cells the face's flux pushes the
-            // material instead.
-            let lead = if self.cut {
-                0.0
-            } else {
-                geo.h * (1.0 - 2.0 * eps)
-            };
-            // a face on a wall, or beyond it, meets no material
-            let live_lo: [bool; D] = std::array::from_fn(|d| face_lo[d] > grid_lo[d] + eps * geo.h);
-            let live_hi: [bool; D] = std::array::from_fn(|d| face_hi[d] < grid_hi[d] - eps * geo.h);
-            for d in 0..D {
-                let v = self.velocity[b][d];
-                if self.cut {
-                    // the nodes within SNAP of a face outside it hold its normal (below)
-                    if live_lo[d] {
-                        lo[d] -= SNAP * geo.h;
-                    }
-                    if live_hi[d] {
-                        hi[d] += SNAP * geo.h;
-                    }
-                } else if v < 0.0 {
-                    lo[d] -= lead;
-                } else if v > 0.0 {
-                    hi[d] += lead;
-                }
-            }
-            let first: [usize; D] = std::array::from_fn(|d| {
-                let s = ((lo[d] - geo.origin[d]) / geo.h - eps).ceil().max(0.0);
-                PAD + (s as usize).min(geo.cells[d])
-            });
-            let last: [isize; D] = std::array::from_fn(|d| {
-                let s = ((hi[d] - geo.origin[d]) / geo.h + eps).floor();
-                PAD as isize + (s as isize).min(geo.cells[d] as isize)
-            });
-            if (0..D).any(|d| last[d] < first[d] as isize) {
+            let Some(span) = self.span(b, geo) else {
                 continue;
-            }
-            self.reach[b] = (
-                Vector::<D>::from_fn(|d, _| first[d] as f64 - PAD as f64),
-                Vector::<D>::from_fn(|d, _| last[d] as f64 - PAD as f64),
-            );
-            // the components a node holds. Ahead of a leading face, the components along which
-            // it leads: the body pushes the material there, but has not reached it and does
-            // not drag it sideways. On or inside the box, all; but with smooth sides, a node
-            // on faces that do not lead or less than a cell inside them (and on no leading
-            // face) holds their normals only. With cut cells a node on a face or less than a
-            // cell inside it leaves that face's normal to the pressure (rough sides hold the
-            // other components, smooth ones none), unless the open part of its cell is thinner
-            // than SNAP; a node outside a face but within SNAP of it holds the normal.
-            let v = self.velocity[b];
-            let (cut, smooth) = (self.cut, self.smooth[b]);
-            let held = |idx: &[usize; D]| -> u8 {
-                let (mut normals, mut ahead, mut leading) = (0u8, 0u8, false);
-                let xn = geo.node_position(idx);
-                for d in 0..D {
-                    let x = xn[d];
-                    if (x - face_lo[d]) / geo.h < -eps || (face_hi[d] - x) / geo.h < -eps {
-                        ahead |= 1 << d;
-                        continue;
-                    }
-                    let (in_lo, in_hi) = ((x - face_lo[d]) / geo.h, (face_hi[d] - x) / geo.h);
-                    if cut {
-                        if (live_lo[d] && in_lo < 1.0 - SNAP) || (live_hi[d] && in_hi < 1.0 - SNAP)
-                        {
-                            normals |= 1 << d;
-                        }
-                    } else if (in_lo < eps && v[d] < 0.0) || (in_hi < eps && v[d] > 0.0) {
-                        leading = true;
-                    } else if (in_lo < 1.0 - eps && v[d] >= 0.0)
-                        || (in_hi < 1.0 - eps && v[d] <= 0.0)
-                    {
-                        // on a face that does not lead, or in the first row of nodes inside
-                        // it (a face midway between node rows, as the docs advise, has no
-                        // node on it)
-                        normals |= 1 << d;
-                    }
-                }
-                if ahead != 0 {
-                    return ahead;
-                }
-                if cut {
-                    return if smooth && normals != 0 {
-                        0
-                    } else {
-                        all & !normals
-                    };
-                }
-                if !smooth || leading || normals == 0 {
-                    all
-                } else {
-                    normals
-                }
             };
-            let mut idx = first;
+            self.reach[b] = (
+                Vector::<D>::from_fn(|d, _| span.first[d] as f64 - PAD as f64),
+                Vector::<D>::from_fn(|d, _| span.last[d] as f64 - PAD as f64),
+            );
+            let mut idx = span.first;
             'nodes: loop {
                 let i = geo.flat(&idx);
-                let mut h = held(&idx);
-                if cut {
-                    // less than half a cell inside a face: the ghost value of the normal
-                    // component (the nearer face where the body is thinner than two cells)
-                    let xn = geo.node_position(&idx);
-                    for d in 0..D {
-                        let below =
-                            (live_lo[d] && idx[d] > 0).then(|| (xn[d] - face_lo[d], idx[d] - 1));
-                        let above = (live_hi[d] && idx[d] + 1 < geo.nodes[d])
-                            .then(|| (face_hi[d] - xn[d], idx[d] + 1));
-                        let near = match (below, above) {
-                            (Some(l), Some(u)) => Some(if l.0 <= u.0 { l } else { u }),
-                            (l, u) => l.or(u),
-                        };
-                        if let Some((a, beyond)) = near {
-                            if a >= -eps * geo.h && a <= (0.5 + eps) * geo.h {
-                                let mut out = idx;
-                                out[d] = beyond;
-                                let a = a.max(0.0);
-                                self.ghosts.push((i, b, d, geo.flat(&out), a / (geo.h - a)));
-                                h |= 1 << d;
-                            }
-                        }
-                    }
+                let mut h = self.held(b, &span, &idx, geo);
+                if self.cut {
+                    h |= self.ghost_normals(b, &span, &idx, geo);
                 }
                 self.nodes.push((i, b, h));
                 self.owner[i] = (b, h);
                 for d in 0..D {
-                    if (idx[d] as isize) < last[d] {
+                    if (idx[d] as isize) < span.last[d] {
                         idx[d] += 1;
                         continue 'nodes;
                     }
-                    idx[d] = first[d];
+                    idx[d] = span.first[d];
                 }
                 break;
             }
         }
         self.place_face_points(geo);
+    }
+
+    /// The faces of body `b` now, which of them can meet material, and the range of nodes it
+    /// holds (none when the range is empty).
+    fn span(&self, b: usize, geo: &GridGeometry<D>) -> Option<Span<D>> {
+        let eps = EPS;
+        let (grid_lo, grid_hi) = (geo.origin, geo.upper());
+        let (face_lo, face_hi) = self.bounds(b);
+        let (mut lo, mut hi) = (face_lo, face_hi);
+        // ahead of a moving face, the nodes up to a cell from it (but not a whole cell)
+        // push the material with the body: a node row stays where it is while the body
+        // passes, and material a body pushes would otherwise move away from the last row
+        // inside it and lose contact until the face reaches the next row. Half a cell is
+        // not enough with the nodal pressure: a plate pushed into water then bears a third
+        // to a half of its hydrostatic load (the water under it packs into a layer a cell
+        // below the face, the cell between reads as a free surface and takes p = 0; the
+        // notes of src/validation/footing.rs). With cut cells the face's flux pushes the
+        // material instead.
+        let lead = if self.cut {
+            0.0
+        } else {
+            geo.h * (1.0 - 2.0 * eps)
+        };
+        // a face on a wall, or beyond it, meets no material
+        let live_lo: [bool; D] = std::array::from_fn(|d| face_lo[d] > grid_lo[d] + eps * geo.h);
+        let live_hi: [bool; D] = std::array::from_fn(|d| face_hi[d] < grid_hi[d] - eps * geo.h);
+        for d in 0..D {
+            let v = self.velocity[b][d];
+            if self.cut {
+                // the nodes within SNAP of a face outside it hold its normal (`held`)
+                if live_lo[d] {
+                    lo[d] -= SNAP * geo.h;
+                }
+                if live_hi[d] {
+                    hi[d] += SNAP * geo.h;
+                }
+            } else if v < 0.0 {
+                lo[d] -= lead;
+            } else if v > 0.0 {
+                hi[d] += lead;
+            }
+        }
+        let first: [usize; D] = std::array::from_fn(|d| {
+            let s = ((lo[d] - geo.origin[d]) / geo.h - eps).ceil().max(0.0);
+            PAD + (s as usize).min(geo.cells[d])
+        });
+        let last: [isize; D] = std::array::from_fn(|d| {
+            let s = ((hi[d] - geo.origin[d]) / geo.h + eps).floor();
+            PAD as isize + (s as isize).min(geo.cells[d] as isize)
+        });
+        (0..D)
+            .all(|d| last[d] >= first[d] as isize)
+            .then_some(Span {
+                face_lo,
+                face_hi,
+                live_lo,
+                live_hi,
+                first,
+                last,
+            })
+    }
+
+    /// The components body `b` holds on the node `idx` of its span. Ahead of a leading face,
+    /// the components along which it leads: the body pushes the material there, but has not
+    /// reached it and does not drag it sideways. On or inside the box, all; but with smooth
+    /// sides, a node on faces that do not lead or less than a cell inside them (and on no
+    /// leading face) holds their normals only. With cut cells a node on a face or less than a
+    /// cell inside it leaves that face's normal to the pressure (rough sides hold the other
+    /// components, smooth ones none), unless the open part of its cell is thinner than SNAP; a
+    /// node outside a face but within SNAP of it holds the normal.
+    fn held(&self, b: usize, span: &Span<D>, idx: &[usize; D], geo: &GridGeometry<D>) -> u8 {
+        let eps = EPS;
+        let all = (1u8 << D) - 1;
+        let v = self.velocity[b];
+        let (cut, smooth) = (self.cut, self.smooth[b]);
+        let (face_lo, face_hi) = (span.face_lo, span.face_hi);
+        let (mut normals, mut ahead, mut leading) = (0u8, 0u8, false);
+        let xn = geo.node_position(idx);
+        for d in 0..D {
+            let x = xn[d];
+            if (x - face_lo[d]) / geo.h < -eps || (face_hi[d] - x) / geo.h < -eps {
+                ahead |= 1 << d;
+                continue;
+            }
+            let (in_lo, in_hi) = ((x - face_lo[d]) / geo.h, (face_hi[d] - x) / geo.h);
+            if cut {
+                if (span.live_lo[d] && in_lo < 1.0 - SNAP)
+                    || (span.live_hi[d] && in_hi < 1.0 - SNAP)
+                {
+                    normals |= 1 << d;
+                }
+            } else if (in_lo < eps && v[d] < 0.0) || (in_hi < eps && v[d] > 0.0) {
+                leading = true;
+            } else if (in_lo < 1.0 - eps && v[d] >= 0.0) || (in_hi < 1.0 - eps && v[d] <= 0.0) {
+                // on a face that does not lead, or in the first row of nodes inside it (a face
+                // midway between node rows, as the docs advise, has no node on it)
+                normals |= 1 << d;
+            }
+        }
+        if ahead != 0 {
+            return ahead;
+        }
+        if cut {
+            return if smooth && normals != 0 {
+                0
+            } else {
+                all & !normals
+            };
+        }
+        if !smooth || leading || normals == 0 {
+            all
+        } else {
+            normals
+        }
+    }
+
+    /// With cut cells, the normals a node less than half a cell inside a face of body `b` holds
+    /// by the ghost value of the normal component (the nearer face where the body is thinner
+    /// than two cells); each such node is recorded in `ghosts`.
+    fn ghost_normals(
+        &mut self,
+        b: usize,
+        span: &Span<D>,
+        idx: &[usize; D],
+        geo: &GridGeometry<D>,
+    ) -> u8 {
+        let eps = EPS;
+        let i = geo.flat(idx);
+        let xn = geo.node_position(idx);
+        let mut h = 0u8;
+        for d in 0..D {
+            let below =
+                (span.live_lo[d] && idx[d] > 0).then(|| (xn[d] - span.face_lo[d], idx[d] - 1));
+            let above = (span.live_hi[d] && idx[d] + 1 < geo.nodes[d])
+                .then(|| (span.face_hi[d] - xn[d], idx[d] + 1));
+            let near = match (below, above) {
+                (Some(l), Some(u)) => Some(if l.0 <= u.0 { l } else { u }),
+                (l, u) => l.or(u),
+            };
+            if let Some((a, beyond)) = near {
+                if a >= -eps * geo.h && a <= (0.5 + eps) * geo.h {
+                    let mut out = *idx;
+                    out[d] = beyond;
+                    let a = a.max(0.0);
+                    self.ghosts.push((i, b, d, geo.flat(&out), a / (geo.h - a)));
+                    h |= 1 << d;
+                }
+            }
+        }
+        h
     }
 
     /// The quadrature points of the faces that can meet the material: on each face inside the

@@ -156,44 +156,53 @@ fn run_dim<const D: usize>(
     // times are compared with a tolerance far below any step, so that frame k lands at k interval
     let eps = 1e-9 * interval.min(end);
     let checkpoint_path = dir.join("checkpoint.bin");
-    let (mut out, mut driver) =
-        open_output(deck, &mut sim, file, dir, opts, checkpoint_interval, eps)?;
-    let start_steps = sim.steps;
-    observer.started(&status(&sim, end, start_steps, 0.0, out.frames, 0.0));
+    let (out, driver) = open_output(deck, &mut sim, file, dir, opts, checkpoint_interval, eps)?;
+    let mut w = Writing {
+        out,
+        driver,
+        checkpoint_path,
+        interval,
+        checkpoint_interval,
+        eps,
+        end,
+        start,
+        start_steps: sim.steps,
+        // a resumed run's last good state is the checkpoint it started from
+        last_checkpoint: opts.resume.as_ref().map(|_| sim.time),
+    };
+    observer.started(&status(&sim, end, w.start_steps, 0.0, w.out.frames, 0.0));
     if opts.resume.is_none() {
-        out.frame(&sim, 0.0, 0.0)
+        w.out
+            .frame(&sim, 0.0, 0.0)
             .map_err(|e| write_failure_hint(e, None, ""))?;
-        driver.next_frame = interval;
+        w.driver.next_frame = interval;
     }
     let mut last_dt = 0.0;
-    // a resumed run's last good state is the checkpoint it started from
-    let mut last_checkpoint: Option<f64> = opts.resume.as_ref().map(|_| sim.time);
     sim.timers.lap(Phase::Other);
     let result = loop {
         if sim.time >= end - eps || opts.max_steps.is_some_and(|n| sim.steps >= n) {
             break Ok(());
         }
-        let next_frame = driver.next_frame;
-        let dt = next_dt(deck, &sim, next_frame, eps);
+        let dt = next_dt(deck, &sim, w.driver.next_frame, eps);
         let t0 = sim.time;
         let stepped = sim.step(dt);
-        let (iters, max_iters) = &mut driver.iterations;
+        let (iters, max_iters) = &mut w.driver.iterations;
         *iters += sim.pressure_iterations as u64;
         *max_iters = (*max_iters).max(sim.pressure_iterations);
         sim.timers.lap(Phase::Other);
-        if let Err(e) = out.probe_row(t0, &sim) {
+        if let Err(e) = w.out.probe_row(t0, &sim) {
             break Err(e);
         }
         if stepped.is_ok() {
-            if let Err(e) = out.rigid_row(&sim) {
+            if let Err(e) = w.out.rigid_row(&sim) {
                 break Err(e);
             }
         }
         if let Err(e) = stepped {
-            let resume = resume_command(file, &checkpoint_path, dir, deck);
+            let resume = resume_command(file, &w.checkpoint_path, dir, deck);
             break Err(blow_up_hint(
                 e.with_file(file),
-                last_checkpoint,
+                w.last_checkpoint,
                 &resume,
                 file,
             ));
@@ -204,14 +213,80 @@ fn run_dim<const D: usize>(
             .as_ref()
             .is_some_and(|f| f.load(Ordering::SeqCst));
         let last = opts.max_steps.is_some_and(|n| sim.steps >= n);
-        let at_end = sim.time >= end - eps;
-        if sim.time >= next_frame - eps || at_end || last || interrupted {
-            if let Err(e) = out.frame(&sim, dt, start.elapsed().as_secs_f64()) {
-                break Err(e);
-            }
-            driver.next_frame = next_after(driver.next_frame, sim.time + eps, interval);
-            let wall = start.elapsed().as_secs_f64();
-            let mut s = status(&sim, end, start_steps, dt, out.frames, wall);
+        if let Err(e) = w.after_step(deck, &mut sim, dt, last, interrupted, observer) {
+            break Err(e);
+        }
+        sim.timers.lap(Phase::Output);
+        let wall = start.elapsed().as_secs_f64();
+        observer.stepped(&status(&sim, end, w.start_steps, dt, w.out.frames, wall));
+        if interrupted {
+            break Err(Error::Interrupted(format!(
+                "interrupted at step {}, t = {:.6} s; the frame and a checkpoint are written. \
+                 To go on: {}",
+                sim.steps,
+                sim.time,
+                resume_command(file, &w.checkpoint_path, dir, deck)
+            )));
+        }
+    };
+    let flushed = w.out.finish();
+    let resume = resume_command(file, &w.checkpoint_path, dir, deck);
+    result.map_err(|e| write_failure_hint(e, w.last_checkpoint, &resume))?;
+    flushed.map_err(|e| write_failure_hint(e, w.last_checkpoint, &resume))?;
+    let summary = RunSummary {
+        steps: sim.steps,
+        frames: w.out.frames,
+        particles: sim.particles.len(),
+        wall_seconds: start.elapsed().as_secs_f64(),
+        time: sim.time,
+        timers: sim.timers.clone(),
+        pressure_iterations: w.driver.iterations,
+        peak_memory: peak_memory(),
+        last_dt,
+    };
+    Ok(summary)
+}
+
+/// What the driver's loop writes and when: the output, the clocks of frames and checkpoints,
+/// and the last checkpoint written.
+struct Writing {
+    out: OutputWriter,
+    driver: DriverState,
+    checkpoint_path: std::path::PathBuf,
+    interval: f64,
+    checkpoint_interval: f64,
+    /// Tolerance of the time comparisons (far below any step).
+    eps: f64,
+    end: f64,
+    start: Instant,
+    /// Steps taken before this run started (a resumed run).
+    start_steps: u64,
+    /// The time of the last checkpoint written (a resumed run: the one it started from).
+    last_checkpoint: Option<f64>,
+}
+
+impl Writing {
+    /// After a step of `dt`: the frame, the final probe row and the checkpoint that are due.
+    /// At the end there are all three; at the `last` step asked for (a benchmark), a frame and
+    /// the probe row; when `interrupted`, a frame and a checkpoint.
+    fn after_step<const D: usize>(
+        &mut self,
+        deck: &Deck,
+        sim: &mut Simulation<D>,
+        dt: f64,
+        last: bool,
+        interrupted: bool,
+        observer: &mut dyn Observer,
+    ) -> Result<(), Error> {
+        let eps = self.eps;
+        let at_end = sim.time >= self.end - eps;
+        if sim.time >= self.driver.next_frame - eps || at_end || last || interrupted {
+            self.out
+                .frame(sim, dt, self.start.elapsed().as_secs_f64())?;
+            self.driver.next_frame =
+                next_after(self.driver.next_frame, sim.time + eps, self.interval);
+            let wall = self.start.elapsed().as_secs_f64();
+            let mut s = status(sim, self.end, self.start_steps, dt, self.out.frames, wall);
             s.max_speed = sim.max_speed();
             observer.frame_written(&s);
         }
@@ -219,55 +294,25 @@ fn run_dim<const D: usize>(
             // the final state's probe row, before the last checkpoint: a run killed after
             // that checkpoint is complete
             sim.particles_to_grid();
-            if let Err(e) = out.probe_row(sim.time, &sim) {
-                break Err(e);
-            }
+            self.out.probe_row(sim.time, sim)?;
         }
-        let checkpoint_due = sim.time >= driver.next_checkpoint - eps;
+        let checkpoint_due = sim.time >= self.driver.next_checkpoint - eps;
         if checkpoint_due || at_end || interrupted {
-            driver.next_checkpoint =
-                next_after(driver.next_checkpoint, sim.time + eps, checkpoint_interval);
-            driver.frames = out.frames;
-            driver.pvd.clone_from(&out.pvd);
+            self.driver.next_checkpoint = next_after(
+                self.driver.next_checkpoint,
+                sim.time + eps,
+                self.checkpoint_interval,
+            );
+            self.driver.frames = self.out.frames;
+            self.driver.pvd.clone_from(&self.out.pvd);
             // the time series reach the disk before the checkpoint that a resume cuts them
             // back to: a crash after it loses no row
-            if let Err(e) = out.sync() {
-                break Err(e);
-            }
-            if let Err(e) = checkpoint::write(&checkpoint_path, deck, &sim, &driver) {
-                break Err(e);
-            }
-            last_checkpoint = Some(sim.time);
+            self.out.sync()?;
+            checkpoint::write(&self.checkpoint_path, deck, sim, &self.driver)?;
+            self.last_checkpoint = Some(sim.time);
         }
-        sim.timers.lap(Phase::Output);
-        let wall = start.elapsed().as_secs_f64();
-        observer.stepped(&status(&sim, end, start_steps, dt, out.frames, wall));
-        if interrupted {
-            break Err(Error::Interrupted(format!(
-                "interrupted at step {}, t = {:.6} s; the frame and a checkpoint are written. \
-                 To go on: {}",
-                sim.steps,
-                sim.time,
-                resume_command(file, &checkpoint_path, dir, deck)
-            )));
-        }
-    };
-    let flushed = out.finish();
-    let resume = resume_command(file, &checkpoint_path, dir, deck);
-    result.map_err(|e| write_failure_hint(e, last_checkpoint, &resume))?;
-    flushed.map_err(|e| write_failure_hint(e, last_checkpoint, &resume))?;
-    let summary = RunSummary {
-        steps: sim.steps,
-        frames: out.frames,
-        particles: sim.particles.len(),
-        wall_seconds: start.elapsed().as_secs_f64(),
-        time: sim.time,
-        timers: sim.timers.clone(),
-        pressure_iterations: driver.iterations,
-        peak_memory: peak_memory(),
-        last_dt,
-    };
-    Ok(summary)
+        Ok(())
+    }
 }
 
 /// The output directory and the driver's clocks: a new run claims the directory (only once

@@ -173,6 +173,29 @@ fn coarsen(
     fine_row_of: &[u32],
     coarse: &mut Level,
 ) -> bool {
+    let Some(mut lay) = coarse_layout(fine_layout) else {
+        return false;
+    };
+    let n_fine = fine_layout.index.len();
+    let n_coarse = number_rows(fine_layout, &mut lay, coarse);
+    if n_coarse == 0 || n_coarse * 10 > n_fine * 9 {
+        coarse.layout = lay;
+        return false;
+    }
+    link_parents(fine_layout, &lay, coarse);
+    link_children(fine_layout, fine_row_of, &lay, coarse);
+    galerkin(fine_a, &lay, coarse);
+    inverse_diagonal(&coarse.a, &mut coarse.inverse_diagonal);
+    for v in [&mut coarse.x, &mut coarse.b, &mut coarse.r] {
+        v.resize(n_coarse, 0.0);
+    }
+    coarse.layout = lay;
+    true
+}
+
+/// The coarse grid's nodes (every other fine node) and reach, without its rows; `None` where a
+/// periodic axis cannot be halved.
+fn coarse_layout(fine_layout: &GridLayout) -> Option<GridLayout> {
     let dim = fine_layout.dim;
     // a coarse row reaches the coarse nodes whose fine images are within reach + 2 fine nodes
     let reach = (fine_layout.reach + 2) / 2;
@@ -191,39 +214,42 @@ fn coarsen(
                 || fine_layout.offset[d] % 2 != 0
                 || lay.cells[d] < 2 * reach + 2)
         {
-            return false;
+            return None;
         }
     }
-    // parents of each fine row: n even -> n / 2 (weight 1), odd -> (n -+ 1) / 2 (1/2 each)
-    let corners = 1usize << dim;
-    let n_fine = fine_layout.index.len();
-    coarse.parents.resize(n_fine * corners, 0);
-    coarse.parent_weights.resize(n_fine * corners, 0.0);
-    // nodes first: mark the coarse nodes that are parents, number them in node order
-    let n_nodes = lay.node_count();
-    coarse.row_of.clear();
-    coarse.row_of.resize(n_nodes, u32::MAX);
-    let parent_nodes = |lay: &GridLayout, n: &[u32; 3], k: usize| -> Option<([usize; 3], f64)> {
-        let mut p = [0isize; 3];
-        let mut w = 1.0;
-        for d in 0..dim {
-            let v = n[d] as isize;
-            let bit = (k >> d) & 1;
-            if v % 2 == 0 {
-                if bit == 1 {
-                    return None;
-                }
-                p[d] = v / 2;
-            } else {
-                p[d] = (v - 1) / 2 + bit as isize;
-                w *= 0.5;
+    Some(lay)
+}
+
+/// Parent `k` (of 2^D) of the fine node `n` on the coarse layout, with its weight: n even ->
+/// n / 2 (weight 1, only k's bit 0), odd -> (n -+ 1) / 2 (1/2 each).
+fn parent_node(lay: &GridLayout, n: &[u32; 3], k: usize) -> Option<([usize; 3], f64)> {
+    let mut p = [0isize; 3];
+    let mut w = 1.0;
+    for d in 0..lay.dim {
+        let v = n[d] as isize;
+        let bit = (k >> d) & 1;
+        if v % 2 == 0 {
+            if bit == 1 {
+                return None;
             }
+            p[d] = v / 2;
+        } else {
+            p[d] = (v - 1) / 2 + bit as isize;
+            w *= 0.5;
         }
-        lay.canonical(p).map(|c| (c, w))
-    };
+    }
+    lay.canonical(p).map(|c| (c, w))
+}
+
+/// Numbers the coarse nodes that are parents of fine rows, in node order: `coarse.row_of` and
+/// the layout's index. Returns the number of coarse rows.
+fn number_rows(fine_layout: &GridLayout, lay: &mut GridLayout, coarse: &mut Level) -> usize {
+    let corners = 1usize << lay.dim;
+    coarse.row_of.clear();
+    coarse.row_of.resize(lay.node_count(), u32::MAX);
     for n in &fine_layout.index {
         for k in 0..corners {
-            if let Some((c, _)) = parent_nodes(&lay, n, k) {
+            if let Some((c, _)) = parent_node(lay, n, k) {
                 coarse.row_of[lay.flat(&c)] = 0;
             }
         }
@@ -238,7 +264,7 @@ fn coarsen(
             let mut rem = f;
             let mut idx = [0u32; 3];
             // axis 0 varies fastest
-            for (d, v) in idx.iter_mut().enumerate().take(dim) {
+            for (d, v) in idx.iter_mut().enumerate().take(lay.dim) {
                 *v = (rem % lay.nodes[d]) as u32;
                 rem /= lay.nodes[d];
             }
@@ -246,34 +272,47 @@ fn coarsen(
         }
     }
     lay.index = index;
-    let n_coarse = rows as usize;
-    if n_coarse == 0 || n_coarse * 10 > n_fine * 9 {
-        coarse.layout = lay;
-        return false;
-    }
-    {
-        let row_of = &coarse.row_of;
-        coarse
-            .parents
-            .par_chunks_mut(corners)
-            .zip(coarse.parent_weights.par_chunks_mut(corners))
-            .zip(fine_layout.index.par_iter())
-            .for_each(|((ps, ws), n)| {
-                for k in 0..corners {
-                    match parent_nodes(&lay, n, k) {
-                        Some((c, w)) => {
-                            ps[k] = row_of[lay.flat(&c)];
-                            ws[k] = w;
-                        }
-                        None => {
-                            ps[k] = 0;
-                            ws[k] = 0.0;
-                        }
+    rows as usize
+}
+
+/// Each fine row's 2^D parents (coarse rows) and weights: the prolongation P.
+fn link_parents(fine_layout: &GridLayout, lay: &GridLayout, coarse: &mut Level) {
+    let corners = 1usize << lay.dim;
+    let n_fine = fine_layout.index.len();
+    coarse.parents.resize(n_fine * corners, 0);
+    coarse.parent_weights.resize(n_fine * corners, 0.0);
+    let row_of = &coarse.row_of;
+    coarse
+        .parents
+        .par_chunks_mut(corners)
+        .zip(coarse.parent_weights.par_chunks_mut(corners))
+        .zip(fine_layout.index.par_iter())
+        .for_each(|((ps, ws), n)| {
+            for k in 0..corners {
+                match parent_node(lay, n, k) {
+                    Some((c, w)) => {
+                        ps[k] = row_of[lay.flat(&c)];
+                        ws[k] = w;
+                    }
+                    None => {
+                        ps[k] = 0;
+                        ws[k] = 0.0;
                     }
                 }
-            });
-    }
-    // children of each coarse row: the fine nodes 2 I + delta, delta in {-1, 0, 1}^D
+            }
+        });
+}
+
+/// Each coarse row's children, the fine nodes 2 I + delta with delta in {-1, 0, 1}^D, and
+/// their weights: the restriction P^T.
+fn link_children(
+    fine_layout: &GridLayout,
+    fine_row_of: &[u32],
+    lay: &GridLayout,
+    coarse: &mut Level,
+) {
+    let dim = lay.dim;
+    let n_coarse = lay.index.len();
     let kids = 3usize.pow(dim as u32);
     coarse.children.resize(n_coarse * kids, 0);
     coarse.child_weights.resize(n_coarse * kids, 0.0);
@@ -307,58 +346,55 @@ fn coarsen(
                 }
             }
         });
-    // Galerkin operator A_c = P^T A P, gathered per coarse row
-    let span = 2 * reach + 1;
-    let width = span.pow(dim as u32);
+}
+
+/// The Galerkin operator A_c = P^T A P, gathered per coarse row.
+fn galerkin(fine_a: &EllMatrix, lay: &GridLayout, coarse: &mut Level) {
+    let corners = 1usize << lay.dim;
+    let kids = 3usize.pow(lay.dim as u32);
+    let n_coarse = lay.index.len();
+    let span = 2 * lay.reach + 1;
+    let width = span.pow(lay.dim as u32);
     coarse.a.reshape(n_coarse, width);
-    {
-        let (children, child_weights) = (&coarse.children, &coarse.child_weights);
-        let (parents, parent_weights) = (&coarse.parents, &coarse.parent_weights);
-        let fw = fine_a.width;
-        let lay = &lay;
-        coarse
-            .a
-            .cols
-            .par_chunks_mut(width)
-            .zip(coarse.a.vals.par_chunks_mut(width))
-            .enumerate()
-            .for_each(|(row, (cols, vals))| {
-                let i = &lay.index[row];
-                // slots start unused (column = row, value 0)
-                cols.fill(row as u32);
-                vals.fill(0.0);
-                for k in 0..kids {
-                    let wr = child_weights[row * kids + k];
-                    if wr == 0.0 {
+    let (children, child_weights) = (&coarse.children, &coarse.child_weights);
+    let (parents, parent_weights) = (&coarse.parents, &coarse.parent_weights);
+    let fw = fine_a.width;
+    coarse
+        .a
+        .cols
+        .par_chunks_mut(width)
+        .zip(coarse.a.vals.par_chunks_mut(width))
+        .enumerate()
+        .for_each(|(row, (cols, vals))| {
+            let i = &lay.index[row];
+            // slots start unused (column = row, value 0)
+            cols.fill(row as u32);
+            vals.fill(0.0);
+            for k in 0..kids {
+                let wr = child_weights[row * kids + k];
+                if wr == 0.0 {
+                    continue;
+                }
+                let r = children[row * kids + k] as usize;
+                for s in 0..fw {
+                    let a = fine_a.vals[r * fw + s];
+                    if a == 0.0 {
                         continue;
                     }
-                    let r = children[row * kids + k] as usize;
-                    for s in 0..fw {
-                        let a = fine_a.vals[r * fw + s];
-                        if a == 0.0 {
+                    let c = fine_a.cols[r * fw + s] as usize;
+                    for q in 0..corners {
+                        let wc = parent_weights[c * corners + q];
+                        if wc == 0.0 {
                             continue;
                         }
-                        let c = fine_a.cols[r * fw + s] as usize;
-                        for q in 0..corners {
-                            let wc = parent_weights[c * corners + q];
-                            if wc == 0.0 {
-                                continue;
-                            }
-                            let jr = parents[c * corners + q];
-                            let slot = lay.slot(i, &lay.index[jr as usize]);
-                            cols[slot] = jr;
-                            vals[slot] += wr * a * wc;
-                        }
+                        let jr = parents[c * corners + q];
+                        let slot = lay.slot(i, &lay.index[jr as usize]);
+                        cols[slot] = jr;
+                        vals[slot] += wr * a * wc;
                     }
                 }
-            });
-    }
-    inverse_diagonal(&coarse.a, &mut coarse.inverse_diagonal);
-    for v in [&mut coarse.x, &mut coarse.b, &mut coarse.r] {
-        v.resize(n_coarse, 0.0);
-    }
-    coarse.layout = lay;
-    true
+            }
+        });
 }
 
 /// `sweeps` weighted-Jacobi sweeps on A x = b; `zero_start`: x starts at 0 (the first sweep is

@@ -444,8 +444,38 @@ impl<const D: usize> Projection<D> {
         skip: (f64, f64),
         timers: &mut PhaseTimers,
     ) -> Result<Option<(f64, SolveStats)>, SolveError> {
-        // 4. (div v*)_p after the wall conditions and, for the flux form, w_p: the part of v*
-        //    the walls removed; then L and the right-hand side
+        // 4. (div v*) after the wall conditions, then L and the right-hand side, the solve
+        self.sample_divergence(ps, grid, boundary, dt, first);
+        self.assemble_pass(ps, grid, boundary, dt, first);
+        timers.lap(Phase::Assembly);
+        // a sequential sum: the same bits on any number of threads
+        let norm = self.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
+        self.pass_norms.push(norm);
+        let skip_below = skip.0;
+        if !first && (norm <= skip_below || norm >= skip.1) {
+            return Ok(None);
+        }
+        let stats = self.solve(&grid.geo, first, skip.0 / norm)?;
+        let level_set = self.surface.level_set().is_some();
+        self.store_pressure(&grid.geo, first, level_set);
+        timers.lap(Phase::Solve);
+        // 5. particle pressure and (grad dp)_p, then the corrector
+        self.correct_velocity(ps, grid, boundary, mass_epsilon, dt, level_set);
+        timers.lap(Phase::Corrector);
+        Ok(Some((norm, stats)))
+    }
+
+    /// Stage 4 of a pass, first half: (div v*) and, for the flux form, w (the part of v* the
+    /// walls removed) at the quadrature points, after the wall conditions; on the first pass
+    /// with the cell quadrature, its Gauss points from where the particles are.
+    fn sample_divergence(
+        &mut self,
+        ps: &Particles<D>,
+        grid: &mut Grid<D>,
+        boundary: &Boundary<D>,
+        dt: f64,
+        first: bool,
+    ) {
         let shape = self.shape;
         let flux = self.rhs_form == PoissonRhs::Flux;
         if !first {
@@ -516,6 +546,23 @@ impl<const D: usize> Projection<D> {
         if flux {
             boundary.apply(&mut grid.velocity_new);
         }
+    }
+
+    /// Stage 4 of a pass, second half: L (first pass only) and the right-hand side, with the
+    /// flux through the rigid bodies' faces where they cut cells.
+    fn assemble_pass(
+        &mut self,
+        ps: &Particles<D>,
+        grid: &Grid<D>,
+        boundary: &Boundary<D>,
+        dt: f64,
+        first: bool,
+    ) {
+        let shape = self.shape;
+        let flux = self.rhs_form == PoissonRhs::Flux;
+        let geo = &grid.geo;
+        let level_set = self.surface.level_set().is_some();
+        let cell = self.quadrature == Quadrature::Cell || level_set;
         let quadrature = if cell {
             self.gauss.quadrature(flux)
         } else {
@@ -570,21 +617,6 @@ impl<const D: usize> Projection<D> {
                 &mut self.rhs,
             );
         }
-        timers.lap(Phase::Assembly);
-        // a sequential sum: the same bits on any number of threads
-        let norm = self.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
-        self.pass_norms.push(norm);
-        let skip_below = skip.0;
-        if !first && (norm <= skip_below || norm >= skip.1) {
-            return Ok(None);
-        }
-        let stats = self.solve(&grid.geo, first, skip.0 / norm)?;
-        self.store_pressure(&grid.geo, first, level_set);
-        timers.lap(Phase::Solve);
-        // 5. particle pressure and (grad dp)_p, then the corrector
-        self.correct_velocity(ps, grid, boundary, mass_epsilon, dt, level_set);
-        timers.lap(Phase::Corrector);
-        Ok(Some((norm, stats)))
     }
 
     /// Stage 4 of a pass: solves L dp = rhs for the unknowns, from the last step's pressure
