@@ -6,7 +6,7 @@ use pmpm::run::{self, RunOptions};
 use pmpm::Error;
 use pmpm_cli::check;
 use pmpm_cli::progress::{self, Progress};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 /// pmpm: material point method for incompressible materials (water, mud, clay, rubber).
@@ -265,105 +265,12 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             quiet,
             force,
             resume,
-        } => {
-            progress::catch_interrupts();
-            let d = run::load(&deck)?;
-            let file = deck.display().to_string();
-            pmpm::limits::refuse_beyond_limits(&d, &file, allow_large)?;
-            let dir = output.unwrap_or_else(|| PathBuf::from(&d.output.directory));
-            let from = match &resume {
-                Some(p) => format!(" from {}", p.display()),
-                None => String::new(),
-            };
-            let mut progress = Progress::new(
-                quiet,
-                d.simulation.scheme == Scheme::Projection,
-                format!("{:?} run of {file}{from}", d.simulation.scheme),
-                warning_lines(&d, &file),
-            );
-            let summary = run::run(
-                &d,
-                &file,
-                &dir,
-                &RunOptions {
-                    force,
-                    max_steps: None,
-                    resume,
-                    interrupt: Some(progress::interrupt_flag()),
-                },
-                &mut progress,
-            )?;
-            if !quiet {
-                eprintln!(
-                    "pmpm: done: {} steps, {} frames, {:.2} s wall, last dt = {:.3e} s, output in {}",
-                    summary.steps,
-                    summary.frames,
-                    summary.wall_seconds,
-                    summary.last_dt,
-                    dir.display()
-                );
-            }
-            Ok(0)
-        }
+        } => run_command(&deck, output, quiet, force, resume, allow_large),
         Command::Bench {
             deck,
             steps,
             output,
-        } => {
-            // Ctrl-C or SIGTERM ends the timed run at a step and removes the scratch folder
-            progress::catch_interrupts();
-            let d = run::load(&deck)?;
-            pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
-            let scratch = output.is_none();
-            let dir = output.unwrap_or_else(|| {
-                std::env::temp_dir().join(format!("pmpm-bench-{}", std::process::id()))
-            });
-            let file = deck.display().to_string();
-            let summary = run::run(
-                &d,
-                &file,
-                &dir,
-                &RunOptions {
-                    force: true,
-                    max_steps: steps,
-                    resume: None,
-                    interrupt: Some(progress::interrupt_flag()),
-                },
-                // the deck's warnings only, as the run starts
-                &mut Progress::new(true, false, String::new(), warning_lines(&d, &file)),
-            );
-            let removed = scratch.then(|| std::fs::remove_dir_all(&dir));
-            // a message that points to a checkpoint or a file in the scratch folder says that
-            // the folder is gone (or that it could not be removed)
-            let scratch_note = match &removed {
-                Some(Ok(())) => "; the bench ran in a scratch folder, now removed: pmpm bench \
-                                 --output DIR keeps its files"
-                    .to_string(),
-                Some(Err(e)) => format!(
-                    "; the bench's scratch folder {} could not be removed ({e})",
-                    dir.display()
-                ),
-                None => String::new(),
-            };
-            let summary = summary.map_err(|e| match e {
-                // its resume command points into the removed folder
-                Error::Interrupted(_) if scratch => {
-                    Error::Interrupted(format!("bench interrupted{scratch_note}"))
-                }
-                e => e.with_note(&scratch_note),
-            })?;
-            if let Some(Err(e)) = removed {
-                eprintln!(
-                    "warning: the bench's scratch folder {} could not be removed: {e}",
-                    dir.display()
-                );
-            }
-            print!(
-                "{}",
-                check::bench_report(&d, &file, &summary, rayon::current_num_threads())
-            );
-            Ok(0)
-        }
+        } => bench_command(&deck, steps, output, allow_large),
         Command::Check { deck } => {
             let d = run::load(&deck)?;
             pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
@@ -420,4 +327,114 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             Ok(0)
         }
     }
+}
+
+/// `pmpm run`: the deck run to its end, with a progress bar unless `quiet`.
+fn run_command(
+    deck: &Path,
+    output: Option<PathBuf>,
+    quiet: bool,
+    force: bool,
+    resume: Option<PathBuf>,
+    allow_large: bool,
+) -> Result<usize, Error> {
+    progress::catch_interrupts();
+    let d = run::load(deck)?;
+    let file = deck.display().to_string();
+    pmpm::limits::refuse_beyond_limits(&d, &file, allow_large)?;
+    let dir = output.unwrap_or_else(|| PathBuf::from(&d.output.directory));
+    let from = match &resume {
+        Some(p) => format!(" from {}", p.display()),
+        None => String::new(),
+    };
+    let mut progress = Progress::new(
+        quiet,
+        d.simulation.scheme == Scheme::Projection,
+        format!("{:?} run of {file}{from}", d.simulation.scheme),
+        warning_lines(&d, &file),
+    );
+    let summary = run::run(
+        &d,
+        &file,
+        &dir,
+        &RunOptions {
+            force,
+            max_steps: None,
+            resume,
+            interrupt: Some(progress::interrupt_flag()),
+        },
+        &mut progress,
+    )?;
+    if !quiet {
+        eprintln!(
+            "pmpm: done: {} steps, {} frames, {:.2} s wall, last dt = {:.3e} s, output in {}",
+            summary.steps,
+            summary.frames,
+            summary.wall_seconds,
+            summary.last_dt,
+            dir.display()
+        );
+    }
+    Ok(0)
+}
+
+/// `pmpm bench`: the deck timed phase by phase, in a scratch folder unless `output` is given.
+fn bench_command(
+    deck: &Path,
+    steps: Option<u64>,
+    output: Option<PathBuf>,
+    allow_large: bool,
+) -> Result<usize, Error> {
+    // Ctrl-C or SIGTERM ends the timed run at a step and removes the scratch folder
+    progress::catch_interrupts();
+    let d = run::load(deck)?;
+    pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
+    let scratch = output.is_none();
+    let dir = output
+        .unwrap_or_else(|| std::env::temp_dir().join(format!("pmpm-bench-{}", std::process::id())));
+    let file = deck.display().to_string();
+    let summary = run::run(
+        &d,
+        &file,
+        &dir,
+        &RunOptions {
+            force: true,
+            max_steps: steps,
+            resume: None,
+            interrupt: Some(progress::interrupt_flag()),
+        },
+        // the deck's warnings only, as the run starts
+        &mut Progress::new(true, false, String::new(), warning_lines(&d, &file)),
+    );
+    let removed = scratch.then(|| std::fs::remove_dir_all(&dir));
+    // a message that points to a checkpoint or a file in the scratch folder says that
+    // the folder is gone (or that it could not be removed)
+    let scratch_note = match &removed {
+        Some(Ok(())) => "; the bench ran in a scratch folder, now removed: pmpm bench \
+                         --output DIR keeps its files"
+            .to_string(),
+        Some(Err(e)) => format!(
+            "; the bench's scratch folder {} could not be removed ({e})",
+            dir.display()
+        ),
+        None => String::new(),
+    };
+    let summary = summary.map_err(|e| match e {
+        // its resume command points into the removed folder
+        Error::Interrupted(_) if scratch => {
+            Error::Interrupted(format!("bench interrupted{scratch_note}"))
+        }
+        e => e.with_note(&scratch_note),
+    })?;
+    if let Some(Err(e)) = removed {
+        eprintln!(
+            "warning: the bench's scratch folder {} could not be removed: {e}",
+            dir.display()
+        );
+    }
+    print!(
+        "{}",
+        check::bench_report(&d, &file, &summary, rayon::current_num_threads())
+    );
+    Ok(0)
 }

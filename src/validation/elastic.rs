@@ -206,8 +206,6 @@ fn spin(d: &Deck) -> Result<Spin, String> {
 /// The case.
 pub fn run(ctx: &Ctx) -> Result<Section, String> {
     let quick = ctx.opts.quick;
-    let shear = RHO * GRAV * H / LOAD;
-    let exact = column_top_displacement(shear, None);
     // (W, h): the slender column (H / W = 10) and the stubby one (H / W = 5), 10 cells across;
     // quick mode: the slender one at 5 cells across
     let slender = if quick { (0.1, 0.02) } else { (0.1, 0.01) };
@@ -223,6 +221,23 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
         bound: "Column: |u / u_analytic - 1| <= 5% at H / W = 10 on the no-slip floor (the issue). Spinning block: volume within 1% throughout, by both measures, over at least one full turn (the issue).".into(),
         ..Default::default()
     };
+    columns(ctx, &mut s, slender, stubby)?;
+    spinning_block(ctx, &mut s)?;
+    s.figures = vec!["elastic_column.png".into(), "elastic_spin.png".into()];
+    Ok(s)
+}
+
+/// The column's rows, notes and figure: both schemes at both slendernesses on both floors,
+/// then the nodal pressure and its volume correction. `slender` and `stubby` are (W, h).
+fn columns(
+    ctx: &Ctx,
+    s: &mut Section,
+    slender: (f64, f64),
+    stubby: (f64, f64),
+) -> Result<(), String> {
+    let quick = ctx.opts.quick;
+    let shear = RHO * GRAV * H / LOAD;
+    let exact = column_top_displacement(shear, None);
     let mut hist_series = Vec::new();
     for scheme in ["explicit", "projection"] {
         let proj = scheme == "projection";
@@ -294,44 +309,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
             ));
         }
     }
-    // the nodal pressure (the default) on the same column: it never comes to rest
-    let exact_u = column_top_displacement(shear, None);
-    let mut nodal = column_deck("projection", slender.0, slender.1, true)?;
-    nodal.pressure.unknowns = PressureUnknowns::Nodes;
-    nodal.simulation.stress_update = pmpm::deck::StressUpdate::Musl;
-    // settlement error, creep and volume change of a column run, in one cell
-    let summary = |c: &Column| {
-        format!(
-            "{}; {}; {}",
-            pct(c.u / exact_u - 1.0),
-            sci(c.creep),
-            pct(c.volume)
-        )
-    };
-    let c = column(&nodal)?;
-    s.rows.push(Row::report(
-        "projection, unknowns = \"nodes\": column H/W = 10, no-slip floor: u_top / u_analytic - 1; creep over the last quarter (m/s); volume change",
-        summary(&c),
-    ));
-    hist_series.push(Series::line(
-        "projection, unknowns = \"nodes\", H/W = 10, no-slip floor",
-        c.history,
-        colors::PROJ3,
-    ));
-    // the particles' J fed back into the nodal projection (`pressure.volume_correction`, off
-    // by default): it stops the creep, but where the column comes to rest depends on alpha
-    for alpha in [0.03, 0.1] {
-        let mut d = nodal.clone();
-        d.pressure.volume_correction = alpha;
-        d.simulation.end_time = 0.4;
-        let c = column(&d)?;
-        s.rows.push(Row::report(
-            format!(
-                "projection, volume_correction = {alpha}: column H/W = 10, no-slip floor, to t = 0.4 s: u_top / u_analytic - 1; creep over the last quarter (m/s); volume change"
-            ),
-            summary(&c),
-        ));
-    }
+    nodal_columns(s, slender, &mut hist_series)?;
     hist_series.push(Series::line(
         "analytic, incompressible",
         vec![(0.0, 1.0), (0.16, 1.0)],
@@ -354,7 +332,11 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
         900,
         550,
     )?;
-    // the spinning block
+    Ok(())
+}
+
+/// The spinning block's rows, note and figure, both schemes.
+fn spinning_block(ctx: &Ctx, s: &mut Section) -> Result<(), String> {
     let mut vol_series = Vec::new();
     for scheme in ["explicit", "projection"] {
         let proj = scheme == "projection";
@@ -415,6 +397,53 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
         900,
         550,
     )?;
-    s.figures = vec!["elastic_column.png".into(), "elastic_spin.png".into()];
-    Ok(s)
+    Ok(())
+}
+
+/// The projection's column with the nodal pressure (the default), which never comes to rest,
+/// and with its volume correction: rows of `s`, and a line of `hist_series`.
+fn nodal_columns(
+    s: &mut Section,
+    slender: (f64, f64),
+    hist_series: &mut Vec<Series>,
+) -> Result<(), String> {
+    let shear = RHO * GRAV * H / LOAD;
+    let exact_u = column_top_displacement(shear, None);
+    let mut nodal = column_deck("projection", slender.0, slender.1, true)?;
+    nodal.pressure.unknowns = PressureUnknowns::Nodes;
+    nodal.simulation.stress_update = pmpm::deck::StressUpdate::Musl;
+    // settlement error, creep and volume change of a column run, in one cell
+    let summary = |c: &Column| {
+        format!(
+            "{}; {}; {}",
+            pct(c.u / exact_u - 1.0),
+            sci(c.creep),
+            pct(c.volume)
+        )
+    };
+    let c = column(&nodal)?;
+    s.rows.push(Row::report(
+        "projection, unknowns = \"nodes\": column H/W = 10, no-slip floor: u_top / u_analytic - 1; creep over the last quarter (m/s); volume change",
+        summary(&c),
+    ));
+    hist_series.push(Series::line(
+        "projection, unknowns = \"nodes\", H/W = 10, no-slip floor",
+        c.history,
+        colors::PROJ3,
+    ));
+    // the particles' J fed back into the nodal projection (`pressure.volume_correction`, off
+    // by default): it stops the creep, but where the column comes to rest depends on alpha
+    for alpha in [0.03, 0.1] {
+        let mut d = nodal.clone();
+        d.pressure.volume_correction = alpha;
+        d.simulation.end_time = 0.4;
+        let c = column(&d)?;
+        s.rows.push(Row::report(
+            format!(
+                "projection, volume_correction = {alpha}: column H/W = 10, no-slip floor, to t = 0.4 s: u_top / u_analytic - 1; creep over the last quarter (m/s); volume change"
+            ),
+            summary(&c),
+        ));
+    }
+    Ok(())
 }
