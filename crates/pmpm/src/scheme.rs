@@ -63,6 +63,17 @@ pub struct StepPolicy {
     pub dt: Option<f64>,
 }
 
+/// The step's work buffers, reused from step to step.
+struct Work<const D: usize> {
+    /// Per-thread node accumulators of P2G.
+    p2g: P2gScratch<D>,
+    /// Per-particle velocity that moves it this step (interpolated v^{n+1}).
+    advect: Vec<Vector<D>>,
+    /// Cells of the particles, for the periodic sort.
+    sort_bins: CellBins,
+    sort_scratch: PermuteScratch<D>,
+}
+
 /// What a simulation is made of at t = 0, each part built from its settings.
 pub struct Parts<const D: usize> {
     /// The step's own settings.
@@ -122,12 +133,7 @@ pub struct Simulation<const D: usize> {
     pub projection: Option<Projection<D>>,
     /// The nodal averaging of the volumetric strain rate (`volumetric_averaging = "nodal"`).
     averaging: Option<NodalAveraging<D>>,
-    scratch: P2gScratch<D>,
-    /// Per-particle velocity that moves it this step (interpolated v^{n+1}).
-    advect: Vec<Vector<D>>,
-    /// Cells of the particles, for the periodic sort.
-    sort_bins: CellBins,
-    sort_scratch: PermuteScratch<D>,
+    work: Work<D>,
     /// Wall-clock seconds per phase of the step.
     pub timers: PhaseTimers,
 }
@@ -157,10 +163,12 @@ impl<const D: usize> Simulation<D> {
             pressure_iterations: 0,
             probe_values: vec![0.0; probes.len() * (D + 1)],
             probes,
-            scratch: P2gScratch::new(rayon::current_num_threads()),
-            advect: vec![Vector::<D>::zeros(); n],
-            sort_bins: CellBins::default(),
-            sort_scratch: PermuteScratch::default(),
+            work: Work {
+                p2g: P2gScratch::new(rayon::current_num_threads()),
+                advect: vec![Vector::<D>::zeros(); n],
+                sort_bins: CellBins::default(),
+                sort_scratch: PermuteScratch::default(),
+            },
             timers: PhaseTimers::default(),
         }
     }
@@ -288,12 +296,12 @@ impl<const D: usize> Simulation<D> {
                     &mut self.particles,
                     &self.grid,
                     &self.settings,
-                    &mut self.advect,
+                    &mut self.work.advect,
                 );
                 transfer::remap_velocity(
                     &self.particles,
                     &mut self.grid,
-                    &mut self.scratch,
+                    &mut self.work.p2g,
                     &self.settings,
                 );
                 self.boundary.apply(&mut self.grid.velocity_new);
@@ -301,7 +309,7 @@ impl<const D: usize> Simulation<D> {
                     &mut self.particles,
                     &self.grid,
                     &self.settings,
-                    &self.advect,
+                    &self.work.advect,
                     dt,
                 );
             }
@@ -437,11 +445,11 @@ impl<const D: usize> Simulation<D> {
     /// Reorders the particles and every per-particle array of the step by cell (a stable
     /// counting sort, so the order depends only on the positions, not on the threads).
     pub fn sort_particles(&mut self) {
-        self.sort_bins.sort(&self.grid.geo, &self.particles.x);
-        let order = &self.sort_bins.order;
-        let scratch = &mut self.sort_scratch;
+        self.work.sort_bins.sort(&self.grid.geo, &self.particles.x);
+        let order = &self.work.sort_bins.order;
+        let scratch = &mut self.work.sort_scratch;
         self.particles.permute(order, scratch);
-        crate::particles::permute(&mut self.advect, order, scratch);
+        crate::particles::permute(&mut self.work.advect, order, scratch);
         if let Some((_, f)) = &mut self.body_force {
             crate::particles::permute(f, order, scratch);
         }
@@ -464,7 +472,7 @@ impl<const D: usize> Simulation<D> {
         transfer::particles_to_grid(
             &self.particles,
             &mut self.grid,
-            &mut self.scratch,
+            &mut self.work.p2g,
             &self.settings,
             self.body_force.as_ref().map(|(_, f)| &f[..]),
         );

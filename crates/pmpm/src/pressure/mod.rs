@@ -87,15 +87,53 @@ pub enum RigidFaces {
     Cut,
 }
 
-/// State and work buffers of the projection, reused from step to step.
-pub struct Projection<const D: usize> {
+/// The projection's settings, read once from [`PressureSettings`].
+#[derive(Debug, Clone, Copy)]
+struct Settings {
     tolerance: f64,
     max_iterations: usize,
     /// Most solves per step (`pressure.passes`, [`Projection::pass`]).
     passes: usize,
     /// Share of p^n in the predictor (0: Chorin, 1: incremental).
-    pub beta: f64,
+    beta: f64,
     shape: ShapeFunction,
+    rhs_form: PoissonRhs,
+    quadrature: Quadrature,
+    /// alpha of `pressure.volume_correction`.
+    volume_correction: f64,
+    /// A material is a solid (shear modulus > 0): the free surface carries p = n . tau . n
+    /// instead of 0 ([`free_surface::surface_normal_stress`]).
+    traction_free: bool,
+}
+
+/// The projection's work buffers, sized as the particles and the grid need them.
+#[derive(Default)]
+struct Work<const D: usize> {
+    solution: Vec<f64>,
+    /// V_p^0 V_p^0 / m_p = V_p / rho_p per particle (permuted with the particles).
+    volume_over_density: Vec<f64>,
+    /// The particle quadrature's (div v*)_p and w_p (the cell quadrature keeps them at its
+    /// Gauss points).
+    divergence: Vec<f64>,
+    velocity_star: Vec<Vector<D>>,
+    /// v* before the wall conditions.
+    unconstrained: Vec<Vector<D>>,
+    /// Per cell, the particles' volume ratio J averaged with the weights V_p^0.
+    cell_jacobian: Vec<f64>,
+    /// Scratch for the ghost values (the second and the first layer).
+    ghost: [Vec<f64>; 2],
+    /// Per node, 0 in the velocity components the walls and rigid bodies hold, 1 elsewhere.
+    held: Vec<Vector<D>>,
+    extended: Vec<Vector<D>>,
+    gauss: GaussPoints<D>,
+    pressure_gradient: Vec<Vector<D>>,
+    /// p^{n+1} on the free-surface nodes when `traction_free` (0 elsewhere).
+    surface_pressure: Vec<f64>,
+}
+
+/// State and work buffers of the projection, reused from step to step.
+pub struct Projection<const D: usize> {
+    settings: Settings,
     solver: LinearSolver,
     bins: CellBins,
     /// The free surface of the last solve: volume fractions, level set, each node's role.
@@ -106,7 +144,6 @@ pub struct Projection<const D: usize> {
     pub matrix: EllMatrix,
     /// The last right-hand side.
     pub rhs: Vec<f64>,
-    solution: Vec<f64>,
     /// The last pass's solved pressure increment per node: p^{n+1} - beta p^n after the first
     /// (the Dirichlet values on the free surface, 0 on empty nodes), the increment of a further
     /// one (0 on the free surface).
@@ -114,24 +151,7 @@ pub struct Projection<const D: usize> {
     /// Node pressure p^{n+1} of the last solve (the free-surface value on free-surface nodes, 0
     /// on empty ones).
     pub previous: Vec<f64>,
-    /// V_p^0 V_p^0 / m_p = V_p / rho_p per particle (permuted with the particles).
-    volume_over_density: Vec<f64>,
-    divergence: Vec<f64>,
-    velocity_star: Vec<Vector<D>>,
-    unconstrained: Vec<Vector<D>>,
-    rhs_form: PoissonRhs,
-    quadrature: Quadrature,
-    /// alpha of `pressure.volume_correction`.
-    volume_correction: f64,
-    /// Per cell, the particles' volume ratio J averaged with the weights V_p^0.
-    cell_jacobian: Vec<f64>,
-    /// Scratch for the ghost values (the second and the first layer).
-    ghost: [Vec<f64>; 2],
-    /// Per node, 0 in the velocity components the walls and rigid bodies hold, 1 elsewhere.
-    held: Vec<Vector<D>>,
-    extended: Vec<Vector<D>>,
-    gauss: GaussPoints<D>,
-    pressure_gradient: Vec<Vector<D>>,
+    work: Work<D>,
     /// Statistics of the last solve.
     pub stats: SolveStats,
     /// The last step's right-hand-side norm per pass, solved or not: what divergence each pass
@@ -139,11 +159,6 @@ pub struct Projection<const D: usize> {
     pub pass_norms: Vec<f64>,
     /// Whether the last system had no free-surface node (pressure fixed up to a constant).
     pub singular: bool,
-    /// A material is a solid (shear modulus > 0): the free surface carries p = n . tau . n
-    /// instead of 0 ([`free_surface::surface_normal_stress`]).
-    traction_free: bool,
-    /// p^{n+1} on the free-surface nodes when `traction_free` (0 elsewhere).
-    surface_pressure: Vec<f64>,
     /// With `pressure.unknowns = "cells"`, the cell projection (then `previous` holds the
     /// cell pressures, numbered like their cells' lower-corner nodes).
     cells: Option<cell::CellProjection<D>>,
@@ -172,43 +187,40 @@ impl<const D: usize> Projection<D> {
             .map(|(v, m)| v * v / m)
             .collect();
         Self {
-            tolerance: pd.tolerance,
-            max_iterations: pd.max_iterations,
-            passes: pd.passes,
-            beta: pd.beta,
-            shape,
+            settings: Settings {
+                tolerance: pd.tolerance,
+                max_iterations: pd.max_iterations,
+                passes: pd.passes,
+                beta: pd.beta,
+                shape,
+                rhs_form: pd.rhs,
+                quadrature: pd.quadrature,
+                volume_correction: pd.volume_correction,
+                traction_free,
+            },
             solver,
             bins: CellBins::default(),
             surface: free_surface::Surface::new(pd, boundary),
             unknowns: Unknowns::default(),
             matrix: EllMatrix::default(),
             rhs: Vec::new(),
-            solution: Vec::new(),
             node_pressure: Vec::new(),
             previous: Vec::new(),
-            volume_over_density,
-            // the particle quadrature's values at the particles (the cell quadrature keeps
-            // them at its Gauss points)
-            divergence: vec![0.0; particle_quadrature * ps.len()],
-            velocity_star: vec![Vector::<D>::zeros(); particle_quadrature * ps.len()],
-            unconstrained: Vec::new(),
-            rhs_form: pd.rhs,
-            quadrature: pd.quadrature,
-            volume_correction: pd.volume_correction,
-            cell_jacobian: Vec::new(),
-            ghost: [Vec::new(), Vec::new()],
-            held: Vec::new(),
-            extended: Vec::new(),
-            gauss: GaussPoints::default(),
-            pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
+            work: Work {
+                volume_over_density,
+                // the particle quadrature's values at the particles (the cell quadrature
+                // keeps them at its Gauss points)
+                divergence: vec![0.0; particle_quadrature * ps.len()],
+                velocity_star: vec![Vector::<D>::zeros(); particle_quadrature * ps.len()],
+                pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
+                ..Default::default()
+            },
             stats: SolveStats {
                 iterations: 0,
                 relative_residual: 0.0,
             },
             pass_norms: Vec::with_capacity(pd.passes),
             singular: false,
-            traction_free,
-            surface_pressure: Vec::new(),
             cells: (pd.unknowns == PressureUnknowns::Cells)
                 .then(|| cell::CellProjection::new(shape)),
             density: (pd.unknowns == PressureUnknowns::Nodes
@@ -232,7 +244,7 @@ impl<const D: usize> Projection<D> {
         if self.cells.is_some() || kinds.is_empty() {
             return;
         }
-        let shape = self.shape;
+        let shape = self.settings.shape;
         (
             ps.x.par_iter(),
             ps.half_width.par_iter(),
@@ -280,12 +292,12 @@ impl<const D: usize> Projection<D> {
 
     /// V_p / rho_p per particle (for checkpoints).
     pub fn volume_over_density(&self) -> &[f64] {
-        &self.volume_over_density
+        &self.work.volume_over_density
     }
 
     /// Restores V_p / rho_p per particle from a checkpoint.
     pub fn restore_volume_over_density(&mut self, v: Vec<f64>) {
-        self.volume_over_density = v;
+        self.work.volume_over_density = v;
     }
 
     /// Follows a reordering of the particles ([`Particles::permute`]): the arrays that live
@@ -295,7 +307,7 @@ impl<const D: usize> Projection<D> {
         order: &[u32],
         scratch: &mut crate::particles::PermuteScratch<D>,
     ) {
-        crate::particles::permute(&mut self.volume_over_density, order, scratch);
+        crate::particles::permute(&mut self.work.volume_over_density, order, scratch);
     }
 
     /// Steps 3 to 5 of METHOD.md on v* (in `grid.velocity_new`, wall conditions applied):
@@ -318,8 +330,8 @@ impl<const D: usize> Projection<D> {
         dt: f64,
         timers: &mut PhaseTimers,
     ) -> Result<SolveStats, SolveError> {
-        let shape = self.shape;
-        let beta = self.beta;
+        let shape = self.settings.shape;
+        let beta = self.settings.beta;
         let n_nodes = grid.geo.node_count();
         self.node_pressure.resize(n_nodes, 0.0);
         self.previous.resize(n_nodes, 0.0);
@@ -332,8 +344,8 @@ impl<const D: usize> Projection<D> {
                 boundary,
                 &self.bins,
                 &mut self.solver,
-                self.tolerance,
-                self.max_iterations,
+                self.settings.tolerance,
+                self.settings.max_iterations,
                 mass_epsilon,
                 dt,
                 shape,
@@ -361,8 +373,8 @@ impl<const D: usize> Projection<D> {
         );
         let free = self.unknowns.number(geo, &self.surface.kinds);
         // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is
-        self.surface_pressure.resize(n_nodes, 0.0);
-        if self.traction_free {
+        self.work.surface_pressure.resize(n_nodes, 0.0);
+        if self.settings.traction_free {
             free_surface::surface_normal_stress(
                 geo,
                 shape,
@@ -374,14 +386,17 @@ impl<const D: usize> Projection<D> {
                 &self.surface.fraction,
                 &self.surface.open,
                 &self.surface.kinds,
-                &mut self.surface_pressure,
+                &mut self.work.surface_pressure,
             );
         }
         timers.lap(Phase::FreeSurface);
         // the unknown is p^{n+1} - beta p^n
         {
-            let (kinds, prev, surface) =
-                (&self.surface.kinds, &self.previous, &self.surface_pressure);
+            let (kinds, prev, surface) = (
+                &self.surface.kinds,
+                &self.previous,
+                &self.work.surface_pressure,
+            );
             self.node_pressure
                 .par_iter_mut()
                 .enumerate()
@@ -399,9 +414,9 @@ impl<const D: usize> Projection<D> {
         let (mut first_norm, mut last_norm) = (0.0, f64::INFINITY);
         self.pass_norms.clear();
         let mut iterations = 0;
-        for pass in 0..self.passes {
+        for pass in 0..self.settings.passes {
             let first = pass == 0;
-            let skip = (self.tolerance * first_norm, last_norm);
+            let skip = (self.settings.tolerance * first_norm, last_norm);
             match self.pass(ps, grid, boundary, mass_epsilon, dt, first, skip, timers)? {
                 Some((norm, stats)) => {
                     if first {
@@ -476,15 +491,15 @@ impl<const D: usize> Projection<D> {
         dt: f64,
         first: bool,
     ) {
-        let shape = self.shape;
-        let flux = self.rhs_form == PoissonRhs::Flux;
+        let shape = self.settings.shape;
+        let flux = self.settings.rhs_form == PoissonRhs::Flux;
         if !first {
             // a further pass measures the divergence of the velocity the particles will take,
             // with the wall conditions: what the walls remove from the corrector's velocity is
             // not flow through them
             boundary.apply(&mut grid.velocity_new);
         }
-        self.unconstrained.clone_from(&grid.velocity_new);
+        self.work.unconstrained.clone_from(&grid.velocity_new);
         if flux {
             // only the normal part enters the wall flux: a no-slip wall's tangential condition
             // is not flow through it (and the tangential condition is applied below)
@@ -493,11 +508,11 @@ impl<const D: usize> Projection<D> {
             boundary.apply(&mut grid.velocity_new);
         }
         let v_star = &grid.velocity_new;
-        let v_free = &self.unconstrained;
+        let v_free = &self.work.unconstrained;
         let geo = &grid.geo;
         // the ghost-fluid condition needs the matrix over whole cells: the cell quadrature
         let level_set = self.surface.level_set().is_some();
-        let cell = self.quadrature == Quadrature::Cell || level_set;
+        let cell = self.settings.quadrature == Quadrature::Cell || level_set;
         if cell && first {
             let domain = level_set.then(|| FluidDomain {
                 shape,
@@ -505,7 +520,7 @@ impl<const D: usize> Projection<D> {
                 solid: self.surface.solid(),
                 cut: boundary.rigid.cuts_cells().then_some(&boundary.rigid),
             });
-            self.gauss.build(
+            self.work.gauss.build(
                 geo,
                 &self.bins,
                 &self.surface.fraction,
@@ -516,7 +531,7 @@ impl<const D: usize> Projection<D> {
             );
         }
         let (qx, qhw, qdiv, qw, qcell) = if cell {
-            let g = &mut self.gauss;
+            let g = &mut self.work.gauss;
             (
                 &g.x,
                 &g.half_width,
@@ -528,19 +543,19 @@ impl<const D: usize> Projection<D> {
             (
                 &ps.x,
                 &ps.half_width,
-                &mut self.divergence,
-                &mut self.velocity_star,
+                &mut self.work.divergence,
+                &mut self.work.velocity_star,
                 None,
             )
         };
         velocity_at_points(geo, shape, v_star, v_free, qx, qhw, qdiv, qw);
-        if self.volume_correction > 0.0 && first {
+        if self.settings.volume_correction > 0.0 && first {
             // the discrete projection keeps the grid velocity divergence free in the weak
             // sense, not each particle's: the particles' J drifts, and a solid under a steady
             // load creeps with it. Aim at div v = alpha (1 - J) / dt, which gives back the
             // fraction alpha of the drift per step.
-            let rate = self.volume_correction / dt;
-            let cj = &mut self.cell_jacobian;
+            let rate = self.settings.volume_correction / dt;
+            let cj = &mut self.work.cell_jacobian;
             aim_at_volume(geo, &self.bins, ps, qcell, rate, cj, qdiv);
         }
         if flux {
@@ -558,26 +573,30 @@ impl<const D: usize> Projection<D> {
         dt: f64,
         first: bool,
     ) {
-        let shape = self.shape;
-        let flux = self.rhs_form == PoissonRhs::Flux;
+        let shape = self.settings.shape;
+        let flux = self.settings.rhs_form == PoissonRhs::Flux;
         let geo = &grid.geo;
         let level_set = self.surface.level_set().is_some();
-        let cell = self.quadrature == Quadrature::Cell || level_set;
+        let cell = self.settings.quadrature == Quadrature::Cell || level_set;
         let quadrature = if cell {
-            self.gauss.quadrature(flux)
+            self.work.gauss.quadrature(flux)
         } else {
             ParticleQuadrature {
                 x: &ps.x,
                 half_width: &ps.half_width,
                 volume: &ps.volume0,
-                volume_over_density: &self.volume_over_density,
-                divergence: &self.divergence,
-                velocity: &self.velocity_star,
+                volume_over_density: &self.work.volume_over_density,
+                divergence: &self.work.divergence,
+                velocity: &self.work.velocity_star,
                 flux,
                 templates: None,
             }
         };
-        let bins = if cell { &self.gauss.bins } else { &self.bins };
+        let bins = if cell {
+            &self.work.gauss.bins
+        } else {
+            &self.bins
+        };
         if first {
             assemble::assemble(
                 geo,
@@ -630,11 +649,14 @@ impl<const D: usize> Projection<D> {
     ) -> Result<SolveStats, SolveError> {
         // solve; Chorin's form starts from the last step's pressure at the same nodes, a
         // further pass from zero
-        self.solution.resize(self.unknowns.node_of_row.len(), 0.0);
+        self.work
+            .solution
+            .resize(self.unknowns.node_of_row.len(), 0.0);
         {
             let prev = &self.previous;
-            let warm = first && self.beta == 0.0;
-            self.solution
+            let warm = first && self.settings.beta == 0.0;
+            self.work
+                .solution
                 .par_iter_mut()
                 .zip(self.unknowns.node_of_row.par_iter())
                 .for_each(|(x, &i)| *x = if warm { prev[i as usize] } else { 0.0 });
@@ -645,7 +667,7 @@ impl<const D: usize> Projection<D> {
         }
         if first {
             let u = &mut self.unknowns;
-            describe_layout(&mut u.layout, geo, self.shape, &u.node_of_row);
+            describe_layout(&mut u.layout, geo, self.settings.shape, &u.node_of_row);
         }
         let system = System {
             matrix: &self.matrix,
@@ -653,17 +675,17 @@ impl<const D: usize> Projection<D> {
             singular: self.singular,
         };
         let mut params = SolveParams {
-            tolerance: self.tolerance,
-            max_iterations: self.max_iterations,
+            tolerance: self.settings.tolerance,
+            max_iterations: self.settings.max_iterations,
         };
         let stats = if first {
             self.solver
-                .solve(&system, &self.rhs, &mut self.solution, params)?
+                .solve(&system, &self.rhs, &mut self.work.solution, params)?
         } else {
             // to the first solve's accuracy: its tolerance relative to the first right-hand side
             params.tolerance = further_tolerance;
             self.solver
-                .solve_again(&system, &self.rhs, &mut self.solution, params)?
+                .solve_again(&system, &self.rhs, &mut self.work.solution, params)?
         };
         Ok(stats)
     }
@@ -672,7 +694,7 @@ impl<const D: usize> Projection<D> {
     /// solids' extension), and p^{n+1} kept for the next step.
     fn store_pressure(&mut self, geo: &crate::grid::GridGeometry<D>, first: bool, level_set: bool) {
         {
-            let (sol, node_of_row) = (&self.solution, &self.unknowns.node_of_row);
+            let (sol, node_of_row) = (&self.work.solution, &self.unknowns.node_of_row);
             let dp = &mut self.node_pressure;
             for (r, &i) in node_of_row.iter().enumerate() {
                 dp[i as usize] = sol[r];
@@ -681,7 +703,7 @@ impl<const D: usize> Projection<D> {
             if level_set {
                 // the free-surface nodes take the ghost values that put p = 0 on the surface
                 let (kinds, phi) = (&self.surface.kinds, &self.surface.phi);
-                let [out, first] = &mut self.ghost;
+                let [out, first] = &mut self.work.ghost;
                 free_surface::ghost_values(geo, kinds, phi, dp, out, first);
                 std::mem::swap(dp, out);
                 if self.surface.solid().is_some() {
@@ -692,7 +714,7 @@ impl<const D: usize> Projection<D> {
             // p^{n+1} = beta p^n + dp on the fluid's nodes after the first pass, plus dp after
             // each further one: the memory of the next step (on the free surface its own
             // value, or the ghost value)
-            let keep = if first { self.beta } else { 1.0 };
+            let keep = if first { self.settings.beta } else { 1.0 };
             let kinds = &self.surface.kinds;
             self.previous
                 .par_iter_mut()
@@ -727,16 +749,17 @@ impl<const D: usize> Projection<D> {
         if level_set {
             // the nodes no pressure reached take the held velocity of the walls around them
             boundary.apply(&mut grid.velocity_new);
-            self.held.clear();
-            self.held
+            self.work.held.clear();
+            self.work
+                .held
                 .resize(grid.geo.node_count(), Vector::<D>::repeat(1.0));
-            boundary.hold_still(&mut self.held);
+            boundary.hold_still(&mut self.work.held);
             free_surface::extend_velocity(
                 &grid.geo,
                 &self.surface.kinds,
-                &self.held,
+                &self.work.held,
                 &mut grid.velocity_new,
-                &mut self.extended,
+                &mut self.work.extended,
             );
         }
     }
@@ -750,7 +773,7 @@ impl<const D: usize> Projection<D> {
         geo: &crate::grid::GridGeometry<D>,
         after_solve: bool,
     ) {
-        let shape = self.shape;
+        let shape = self.settings.shape;
         let total = &self.previous;
         let grad_field = if after_solve {
             &self.node_pressure
@@ -762,7 +785,7 @@ impl<const D: usize> Projection<D> {
             ps.x.par_iter(),
             ps.half_width.par_iter(),
             ps.pressure.par_iter_mut(),
-            self.pressure_gradient.par_iter_mut(),
+            self.work.pressure_gradient.par_iter_mut(),
         )
             .into_par_iter()
             .for_each(|(x, &lp, pp, gp)| {
@@ -784,9 +807,9 @@ impl<const D: usize> Projection<D> {
     /// node from the particles around it.
     fn correct(&self, ps: &Particles<D>, grid: &mut Grid<D>, mass_epsilon: f64, scale: f64) {
         let geo = &grid.geo;
-        let shape = self.shape;
+        let shape = self.settings.shape;
         let bins = &self.bins;
-        let (vol, gp) = (&ps.volume0, &self.pressure_gradient);
+        let (vol, gp) = (&ps.volume0, &self.work.pressure_gradient);
         let (xs, hw) = (&ps.x, &ps.half_width);
         grid.velocity_new
             .par_iter_mut()
