@@ -33,16 +33,16 @@ impl<const D: usize> Simulation<D> {
                 .iter()
                 .any(|x| deck.bodies[b].shape.contains(x.as_slice()))
         }) {
+            let spacing = h / deck.bodies[b].particles_per_cell as f64;
             return Err(DeckError {
-            file: String::new(),
-            key: format!("bodies[{b}].shape"),
-            line_col: None,
-            message: format!(
-                "holds no particle: it is smaller than the particle spacing h / particles_per_cell = {}",
-                h / deck.bodies[b].particles_per_cell as f64
-            ),
-        }
-        .into());
+                file: String::new(),
+                key: format!("bodies[{b}].shape"),
+                line_col: None,
+                message: format!(
+                    "holds no particle: it is smaller than the particle spacing h / particles_per_cell = {spacing}"
+                ),
+            }
+            .into());
         }
         let gravity = deck
             .simulation
