@@ -8,4 +8,5 @@
 pub mod check;
 pub mod plot;
 pub mod progress;
+pub mod table;
 pub mod validation;

@@ -368,7 +368,7 @@ fn read_times(dir: &Path) -> Vec<(usize, f64)> {
     f.iter().zip(time).map(|(&f, t)| (f as usize, t)).collect()
 }
 
-/// A CSV file of numbers with a header line.
+/// A CSV file of numbers with a header line, read as [`crate::table::Table`] reads it.
 struct Table {
     header: Vec<String>,
     rows: Vec<Vec<f64>>,
@@ -377,38 +377,12 @@ struct Table {
 impl Table {
     fn read(path: &Path) -> Result<Self, Error> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let mut lines = text.lines();
-        let header: Vec<String> = lines
-            .next()
-            .unwrap_or("")
-            .split(',')
-            .map(|s| s.trim().to_string())
-            .collect();
-        let mut rows = Vec::new();
-        for (i, line) in lines.enumerate() {
-            if line.trim().is_empty() {
-                continue;
-            }
-            let row = line
-                .split(',')
-                .map(|s| s.trim().parse::<f64>())
-                .collect::<Result<Vec<f64>, _>>()
-                .ok()
-                .filter(|r| r.len() == header.len());
-            match row {
-                Some(r) => rows.push(r),
-                None => {
-                    return Err(Error::Usage(format!(
-                        "{}: line {}: expected {} numbers ({})",
-                        path.display(),
-                        i + 2,
-                        header.len(),
-                        header.join(",")
-                    )))
-                }
-            }
-        }
-        Ok(Self { header, rows })
+        let t = crate::table::Table::parse(&text)
+            .map_err(|e| Error::Usage(format!("{}: {e}", path.display())))?;
+        Ok(Self {
+            header: t.header,
+            rows: t.rows,
+        })
     }
 
     fn index(&self, name: &str) -> Option<usize> {

@@ -535,17 +535,7 @@ pub(crate) fn run_deck<const D: usize>(
 
 /// Reads a reference CSV: `#` lines skipped, one header row, then numeric columns.
 pub(crate) fn read_csv(path: &Path) -> Result<Vec<Vec<f64>>, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let mut rows = Vec::new();
-    for line in text
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .skip(1)
-    {
-        let row: Result<Vec<f64>, _> = line.split(',').map(|v| v.trim().parse::<f64>()).collect();
-        rows.push(row.map_err(|e| format!("{}: {line:?}: {e}", path.display()))?);
-    }
-    Ok(rows)
+    Ok(crate::table::Table::read(path)?.rows)
 }
 
 /// A reference table compiled in from `validation/reference/` (published tables only).
@@ -566,19 +556,9 @@ pub(crate) fn reference_table(name: &str) -> Vec<Vec<f64>> {
         "ghia_1982_re1000_u_vertical_centerline",
         "ghia_1982_re1000_v_horizontal_centerline"
     );
-    text.lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .skip(1)
-        .map(|l| {
-            l.split(',')
-                .map(|v| {
-                    v.trim()
-                        .parse::<f64>()
-                        .expect("compiled-in table is numeric")
-                })
-                .collect()
-        })
-        .collect()
+    crate::table::Table::parse(text)
+        .expect("compiled-in table is numeric")
+        .rows
 }
 
 /// Linear interpolation of (xs, ys) at x (xs increasing; clamped to the ends).
