@@ -236,25 +236,15 @@ fn rigid_bodies_csv_has_a_row_per_step() {
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let text = std::fs::read_to_string(out.join("rigid_bodies.csv")).unwrap();
-    let mut lines = text.lines();
+    let bodies = pmpm_cli::table::Table::read(&out.join("rigid_bodies.csv")).unwrap();
     assert_eq!(
-        lines.next(),
-        Some("time,shelf_ux,shelf_uy,shelf_fx,shelf_fy")
+        bodies.header,
+        ["time", "shelf_ux", "shelf_uy", "shelf_fx", "shelf_fy"]
     );
-    let rows: Vec<Vec<f64>> = lines
-        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
-        .collect();
-    let series = std::fs::read_to_string(out.join("series.csv")).unwrap();
-    let steps: usize = series
-        .lines()
-        .last()
-        .unwrap()
-        .split(',')
-        .nth(2)
-        .unwrap()
-        .parse()
-        .unwrap();
+    let rows = bodies.rows;
+    let series = pmpm_cli::table::Table::read(&out.join("series.csv")).unwrap();
+    assert_eq!(series.header[2], "step");
+    let steps = series.rows.last().unwrap()[2] as usize;
     assert_eq!(rows.len(), steps);
     assert!((rows.last().unwrap()[0] - 0.05).abs() < 1e-9);
     // at rest, no displacement

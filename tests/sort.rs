@@ -109,12 +109,9 @@ fn frames_list_particles_by_id() {
         .filter(|p| p.extension().is_some_and(|e| e == "csv"))
         .max()
         .unwrap();
-    let text = std::fs::read_to_string(&last).unwrap();
-    let ids: Vec<usize> = text
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').next().unwrap().parse().unwrap())
-        .collect();
+    let frame = pmpm_cli::table::Table::read(&last).unwrap();
+    assert_eq!(frame.header[0], "id");
+    let ids: Vec<usize> = frame.rows.iter().map(|r| r[0] as usize).collect();
     assert_eq!(ids.len(), 100, "5 x 5 cells, 2 x 2 particles each");
     assert!(ids.iter().enumerate().all(|(k, &id)| k == id), "{last:?}");
 }
