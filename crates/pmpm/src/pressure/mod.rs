@@ -510,9 +510,8 @@ impl<const D: usize> Projection<D> {
         let v_star = &grid.velocity_new;
         let v_free = &self.work.unconstrained;
         let geo = &grid.geo;
-        // the ghost-fluid condition needs the matrix over whole cells: the cell quadrature
         let level_set = self.surface.level_set().is_some();
-        let cell = self.settings.quadrature == Quadrature::Cell || level_set;
+        let cell = self.cell_quadrature();
         if cell && first {
             let domain = level_set.then(|| FluidDomain {
                 shape,
@@ -563,6 +562,12 @@ impl<const D: usize> Projection<D> {
         }
     }
 
+    /// Whether this step integrates at the cells' Gauss points: asked for, or needed by the
+    /// ghost-fluid condition, whose matrix is taken over whole cells.
+    fn cell_quadrature(&self) -> bool {
+        self.settings.quadrature == Quadrature::Cell || self.surface.level_set().is_some()
+    }
+
     /// Stage 4 of a pass, second half: L (first pass only) and the right-hand side, with the
     /// flux through the rigid bodies' faces where they cut cells.
     fn assemble_pass(
@@ -576,8 +581,7 @@ impl<const D: usize> Projection<D> {
         let shape = self.settings.shape;
         let flux = self.settings.rhs_form == PoissonRhs::Flux;
         let geo = &grid.geo;
-        let level_set = self.surface.level_set().is_some();
-        let cell = self.settings.quadrature == Quadrature::Cell || level_set;
+        let cell = self.cell_quadrature();
         let quadrature = if cell {
             self.work.gauss.quadrature(flux)
         } else {
