@@ -1,4 +1,4 @@
-//! Wall conditions on grid velocities (METHOD.md eq. 3 and 6): slip, no-slip, open, moving; and
+//! Wall conditions on grid velocities (docs/method.md, steps 2 and 6): slip, no-slip, open, moving; and
 //! the nodes of rigid bodies ([`crate::rigid`]), which take the body's velocity.
 //!
 //! A face's condition holds on its wall nodes and on the ghost nodes behind it, so that the

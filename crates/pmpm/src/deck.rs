@@ -1,4 +1,4 @@
-//! The input deck of `DECK.md`: serde types, defaults and validation.
+//! The input deck of `docs/deck.md`: serde types, defaults and validation.
 //!
 //! A deck is read in two passes. [`Deck::parse`] turns TOML into the typed structs below, with
 //! unknown keys, wrong types and unknown enum values reported against the key path and the line

@@ -1,4 +1,4 @@
-//! Vector fields of the deck given by numbers or by expressions in x, y, z and t (DECK.md,
+//! Vector fields of the deck given by numbers or by expressions in x, y, z and t (docs/deck.md,
 //! "Fields given by expressions"): initial velocity, body force, wall velocity.
 //!
 //! Expressions are parsed and evaluated by exmex (a well-kept parser, MIT/Apache); this module

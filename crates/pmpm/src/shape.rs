@@ -1,4 +1,4 @@
-//! Shape functions N_i(x) of the background grid and their gradients (METHOD.md, "Discretisation").
+//! Shape functions N_i(x) of the background grid and their gradients (docs/method.md).
 //!
 //! Every kind here is a tensor product of a 1D kernel, so a particle's stencil is K nodes per
 //! direction (K = 2 linear, 3 GIMP and quadratic B-spline, 4 cubic B-spline) and the weights of

@@ -7,7 +7,7 @@
 
 use std::time::Instant;
 
-/// A phase of the time step (METHOD.md's order), plus the driver's own work.
+/// A phase of the time step (docs/method.md's order), plus the driver's own work.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Phase {
     /// Sorting the particles by cell (every `simulation.sort_interval` steps).

@@ -1,4 +1,4 @@
-//! Particle-to-grid and grid-to-particle transfers (METHOD.md steps 1 and 6): PIC, FLIP, APIC.
+//! Particle-to-grid and grid-to-particle transfers (docs/method.md, steps 1 and 7): PIC, FLIP, APIC.
 //!
 //! P2G is parallel and deterministic: the particles are cut into one contiguous range per rayon
 //! thread, each range scatters into its own node buffer (over the band of nodes it reaches),

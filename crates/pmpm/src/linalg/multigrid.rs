@@ -4,7 +4,7 @@
 //!
 //! The levels follow the background grid (in the spirit of McAdams, Sifakis & Teran 2010, "A
 //! parallel multigrid Poisson solver for fluids simulation on large grids"), but the unknowns
-//! here are the nodes of the finite-element Poisson matrix (METHOD.md step 4), not MAC cells,
+//! here are the nodes of the finite-element Poisson matrix (docs/method.md, step 4), not MAC cells,
 //! and its rows are only the fluid's interior nodes. So each coarse operator is the Galerkin
 //! product A_c = P^T A P with P the multilinear interpolation from the coarse nodes (every
 //! other fine node) to the fine ones: it sees the free surface, the walls and the density jumps

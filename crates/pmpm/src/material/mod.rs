@@ -1,4 +1,4 @@
-//! Constitutive update at the particles (METHOD.md step 6): strain rate, deviatoric stress,
+//! Constitutive update at the particles (docs/method.md, step 7): strain rate, deviatoric stress,
 //! deformation gradient, volume; and, for the explicit scheme, the equation of state.
 //!
 //! Every model gives only the deviatoric stress, behind [`Constitutive`]; the pressure is the

@@ -1,4 +1,4 @@
-//! Assembly of the pressure Poisson equation (METHOD.md step 4) with particle quadrature:
+//! Assembly of the pressure Poisson equation (docs/method.md, step 4) with particle quadrature:
 //!
 //! ```text
 //! sum_j L_ij p_j = -(1/dt) sum_p V_p N_ip (div v*)_p,   L_ij = sum_p (V_p / rho_p) G_ip . G_jp

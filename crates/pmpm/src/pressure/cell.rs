@@ -6,7 +6,7 @@
 //! the B-bar element of nearly incompressible elasticity, written here for the particles'
 //! quadrature.
 //!
-//! Why: the nodal projection of METHOD.md keeps a divergence dt (L - D M^-1 G) p after the
+//! Why: the nodal projection of docs/method.md keeps a divergence dt (L - D M^-1 G) p after the
 //! correction. That residual is what damps the equal-order checkerboard, and it vanishes for
 //! a linear pressure, but under a steady pressure with curvature it drains volume every step:
 //! a solid at rest under its own weight creeps (docs/method.md, "Where the volume goes"). Here

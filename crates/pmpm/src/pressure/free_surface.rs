@@ -1,4 +1,4 @@
-//! Free-surface detection (METHOD.md step 3): which nodes carry p = 0.
+//! Free-surface detection (docs/method.md, step 3): which nodes carry p = 0.
 //!
 //! A cell counts as filled when the volume of the particles in it exceeds
 //! `volume_fraction_tolerance` of the cell's volume. A node with mass is an unknown of the

@@ -1,4 +1,4 @@
-//! The projection step of METHOD.md (steps 3 to 5): free surface, pressure Poisson equation,
+//! The projection step of docs/method.md (steps 3 to 6): free surface, pressure Poisson equation,
 //! solve, corrector, pressure to the particles.
 //!
 //! [`Projection::project`] runs between the predictor (v* on the nodes, wall conditions
@@ -41,7 +41,7 @@ pub enum PoissonRhs {
     /// dp/dn = rho (v* - v_wall) . n / dt, exact under gravity.
     #[default]
     Flux,
-    /// METHOD.md's -(1/dt) sum_p V_p N_ip (div v*)_p with v* after the wall conditions
+    /// docs/method.md's -(1/dt) sum_p V_p N_ip (div v*)_p with v* after the wall conditions
     /// (dp/dn = 0 on walls), the paper's form.
     Divergence,
 }
@@ -50,7 +50,7 @@ pub enum PoissonRhs {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum PressureUnknowns {
-    /// One pressure per node, the velocity's own shape functions (METHOD.md): a free-surface
+    /// One pressure per node, the velocity's own shape functions (docs/method.md): a free-surface
     /// detection gives p = 0, and the projection's residual dt (L - D M^-1 G) p damps the
     /// equal-order checkerboard.
     #[default]
@@ -70,7 +70,7 @@ pub enum Quadrature {
     /// G_ip . G_jp.
     Particle,
     /// 2^D Gauss points per cell, weighted by the cell's volume fraction min(phi_c, 1), with the
-    /// cell's density (METHOD.md's alternative): L and the right-hand side do not see where the
+    /// cell's density (docs/method.md's alternative): L and the right-hand side do not see where the
     /// particles sit inside the fluid, only how full each cell is.
     #[default]
     Cell,
@@ -310,7 +310,7 @@ impl<const D: usize> Projection<D> {
         crate::particles::permute(&mut self.work.volume_over_density, order, scratch);
     }
 
-    /// Steps 3 to 5 of METHOD.md on v* (in `grid.velocity_new`, wall conditions applied):
+    /// Steps 3 to 6 of docs/method.md on v* (in `grid.velocity_new`, wall conditions applied):
     /// with beta > 0 applies -beta grad p^n, then finds the free surface, assembles and solves
     /// the Poisson equation for the pressure (its increment when beta > 0), corrects the node
     /// velocities and interpolates the new pressure to the particles. The caller re-applies the

@@ -87,7 +87,7 @@ pub struct PressureSettings {
     /// with a free surface, "none" without one (the container holds the volume).
     #[serde(default)]
     pub density_correction: Option<DensityCorrection>,
-    /// Where the pressure unknowns sit: "nodes" (METHOD.md, the default) or "cells".
+    /// Where the pressure unknowns sit: "nodes" (docs/method.md, the default) or "cells".
     #[serde(default)]
     pub unknowns: PressureUnknowns,
     /// How the nodal projection sees the rigid bodies' faces; left out, cut cells where they
