@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{deck, in_pool};
+use common::{deck, drive, in_pool};
 use pmpm::scheme::Simulation;
 use pmpm_cli::validation::bingham::CASE;
 
@@ -39,14 +39,10 @@ shape = {{ type = "box", min = [0.0, 0.0], max = [0.3125, 1.0] }}
     ))
 }
 
-/// Runs `d` to its end time at cfl 0.5.
+/// Runs `d` to its end time through the driver.
 fn run_to_end(d: &pmpm::Deck) -> Simulation<2> {
     let mut sim = Simulation::<2>::new(d).unwrap();
-    let end = d.simulation.end_time;
-    while sim.time < end - 1e-12 {
-        let dt = sim.stable_dt(0.5).min(end - sim.time);
-        sim.step(dt).unwrap();
-    }
+    drive(d, &mut sim, |_, _| true);
     sim
 }
 

@@ -83,3 +83,16 @@ pub fn deck(text: &str) -> pmpm::Deck {
     d.validate("test.toml").expect("test deck is valid");
     d
 }
+
+/// Steps `sim` to the end time of its deck `d` through the driver `pmpm run` uses: the deck's
+/// fixed `dt` or its adaptive step at its `cfl`, landing on frame times as the deck says.
+/// `each` sees the state and the step after every step and returns `false` to stop early.
+pub fn drive<const D: usize>(
+    d: &pmpm::Deck,
+    sim: &mut pmpm::scheme::Simulation<D>,
+    each: impl FnMut(&pmpm::scheme::Simulation<D>, &pmpm::driver::Step) -> bool,
+) {
+    pmpm::driver::Driver::new(pmpm::build::clock(d))
+        .run(sim, each)
+        .expect("the run reaches its end time");
+}

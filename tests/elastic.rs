@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::in_pool;
+use common::{drive, in_pool};
 use pmpm::scheme::Simulation;
 use pmpm::Deck;
 
@@ -16,16 +16,10 @@ fn deck(text: &str, edit: impl FnOnce(&mut Deck)) -> Deck {
 
 fn run(d: &Deck, mut each: impl FnMut(&Simulation<2>)) -> Simulation<2> {
     let mut sim = Simulation::<2>::new(d).unwrap();
-    let end = d.simulation.end_time;
-    while sim.time < end - 1e-12 {
-        let dt = match d.simulation.dt {
-            Some(dt) => dt,
-            None => sim.stable_dt(d.simulation.cfl.unwrap()),
-        }
-        .min(end - sim.time);
-        sim.step(dt).unwrap();
-        each(&sim);
-    }
+    drive(d, &mut sim, |sim, _| {
+        each(sim);
+        true
+    });
     sim
 }
 
@@ -377,10 +371,7 @@ unknowns = "cells"
     let d = deck(text, |_| {});
     let (volume, speed) = in_pool(2, || {
         let mut sim = Simulation::<3>::new(&d).unwrap();
-        while sim.time < d.simulation.end_time - 1e-12 {
-            let dt = sim.stable_dt(0.5).min(d.simulation.end_time - sim.time);
-            sim.step(dt).unwrap();
-        }
+        drive(&d, &mut sim, |_, _| true);
         let ps = &sim.particles;
         let v: f64 = (0..ps.len()).map(|p| ps.volume(p)).sum();
         (v / ps.volume0.iter().sum::<f64>() - 1.0, sim.max_speed())

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::in_pool;
+use common::{drive, in_pool};
 use pmpm::deck::VolumetricAveraging;
 use pmpm::scheme::Simulation;
 use pmpm::Deck;
@@ -64,9 +64,8 @@ fn mode_frequency_of(h: f64, edit: impl FnOnce(&mut Deck)) -> f64 {
     in_pool(2, || {
         let mut sim = Simulation::<2>::new(&d).unwrap();
         let mut series = vec![(0.0, sim.kinetic_energy())];
-        while sim.time < d.simulation.end_time {
-            let dt = sim.stable_dt(0.5);
-            sim.step(dt).unwrap();
+        let mut omega = None;
+        drive(&d, &mut sim, |sim, _| {
             series.push((sim.time, sim.kinetic_energy()));
             let n = series.len();
             if n >= 3 && series[n - 2].1 < series[n - 3].1 && series[n - 2].1 <= series[n - 1].1 {
@@ -75,10 +74,11 @@ fn mode_frequency_of(h: f64, edit: impl FnOnce(&mut Deck)) -> f64 {
                 let num = (t1 - t0).powi(2) * (e1 - e2) - (t1 - t2).powi(2) * (e1 - e0);
                 let den = (t1 - t0) * (e1 - e2) - (t1 - t2) * (e1 - e0);
                 let t_min = t1 - 0.5 * num / den;
-                return PI / (2.0 * t_min);
+                omega = Some(PI / (2.0 * t_min));
             }
-        }
-        panic!("no kinetic energy minimum before t = {}", sim.time)
+            omega.is_none()
+        });
+        omega.unwrap_or_else(|| panic!("no kinetic energy minimum before t = {}", sim.time))
     })
 }
 

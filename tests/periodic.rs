@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{deck, in_pool};
+use common::{deck, drive, in_pool};
 use pmpm::scheme::Simulation;
 
 /// Start-up of plane Poiseuille flow (Morris, Fox & Zhu 1997 parameters: channel L = 1e-3 m,
@@ -53,11 +53,7 @@ shape = { type = "box", min = [0.0, 0.0], max = [3.0e-4, 1.0e-3] }
     };
     let err = in_pool(2, || {
         let mut sim = Simulation::<2>::new(&d).unwrap();
-        let end = d.simulation.end_time;
-        while sim.time < end - 1e-12 {
-            let dt = sim.stable_dt(0.5).min(end - sim.time);
-            sim.step(dt).unwrap();
-        }
+        drive(&d, &mut sim, |_, _| true);
         let ps = &sim.particles;
         let mut worst = 0.0f64;
         for p in 0..ps.len() {

@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{deck, in_pool};
+use common::{deck, drive, in_pool};
 use pmpm::scheme::Simulation;
 use pmpm::Deck;
 
@@ -49,10 +49,7 @@ fn free_fall(d: &Deck, transfer: &str) {
         let mut sim = Simulation::<2>::new(d).unwrap();
         let y0: Vec<f64> = sim.particles.x.iter().map(|x| x[1]).collect();
         let x0: Vec<f64> = sim.particles.x.iter().map(|x| x[0]).collect();
-        let dt = 1.0e-6;
-        for _ in 0..100_000 {
-            sim.step(dt).unwrap();
-        }
+        drive(d, &mut sim, |_, _| true);
         let t = sim.time;
         assert!((t - 0.1).abs() < 1e-9, "t = {t}");
         let mut worst = 0.0f64;
@@ -106,7 +103,7 @@ name = "base"
 position = [0.1, 0.0]
 "#,
     );
-    in_pool(2, || hydrostatic::<2>(&d, 0.4, 0.01, 2.0));
+    in_pool(2, || hydrostatic::<2>(&d, 0.4, 0.01));
 }
 
 /// The same column in 3D with the explicit scheme (0.1 x 0.1 m, H = 0.2 m, h = 0.02 m, 2,000
@@ -143,23 +140,22 @@ name = "base"
 position = [0.05, 0.05, 0.0]
 "#,
     );
-    in_pool(2, || hydrostatic::<3>(&d, 0.2, 0.02, 1.0));
+    in_pool(2, || hydrostatic::<3>(&d, 0.2, 0.02));
 }
 
-/// Runs a settling column of height `h_col` (m) on a grid of cell size `h` to `end` (s) and
-/// checks the bottom cell layer's mean pressure and the base probe's last quarter.
-fn hydrostatic<const D: usize>(d: &Deck, h_col: f64, h: f64, end: f64) {
+/// Runs a settling column of height `h_col` (m) on a grid of cell size `h` to the deck's end
+/// time and checks the bottom cell layer's mean pressure and the base probe's last quarter.
+fn hydrostatic<const D: usize>(d: &Deck, h_col: f64, h: f64) {
     let mut sim = Simulation::<D>::new(d).unwrap();
+    let end = d.simulation.end_time;
     let (rho, g) = (1000.0, 9.81);
     let up = D - 1;
     let rgh = rho * g * h_col;
     let mut history = Vec::new();
-    while sim.time < end - 1e-12 {
-        let dt = sim.stable_dt(0.4).min(end - sim.time);
-        let t0 = sim.time;
-        sim.step(dt).unwrap();
-        history.push((t0, sim.probe_values[0]));
-    }
+    drive(d, &mut sim, |sim, step| {
+        history.push((step.t0, sim.probes.values[0]));
+        true
+    });
     let range = |a: f64, b: f64| {
         let v: Vec<f64> = history
             .iter()
@@ -250,10 +246,7 @@ particles_per_cell = 2
         ));
         let worst = in_pool(2, || {
             let mut sim = Simulation::<2>::new(&d).unwrap();
-            while sim.time < 1.5 - 1e-12 {
-                let dt = sim.stable_dt(0.5).min(1.5 - sim.time);
-                sim.step(dt).unwrap();
-            }
+            drive(&d, &mut sim, |_, _| true);
             // particle rows of the initial lattice, h / 2 apart
             let ps = &sim.particles;
             let mut rows: std::collections::BTreeMap<i64, (f64, f64, usize)> = Default::default();

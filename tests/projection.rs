@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{deck, in_pool};
+use common::{deck, drive, in_pool};
 use pmpm::scheme::Simulation;
 use pmpm::Deck;
 
@@ -88,7 +88,7 @@ struct Rest {
     max_move: f64,
 }
 
-/// Runs a deck at its fixed dt to its end time and compares the particle pressure with
+/// Runs a deck (at its fixed dt) to its end time and compares the particle pressure with
 /// `exact(y)` (up to a constant when `up_to_constant`).
 fn run_at_rest<const D: usize>(
     d: &Deck,
@@ -98,18 +98,15 @@ fn run_at_rest<const D: usize>(
 ) -> (Rest, Simulation<D>) {
     let mut sim = Simulation::<D>::new(d).unwrap();
     let x0 = sim.particles.x.clone();
-    let dt = d.simulation.dt.unwrap();
-    let n = (d.simulation.end_time / dt).round() as usize;
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for _ in 0..n {
-        let t0 = sim.time;
-        sim.step(dt).unwrap();
+    drive(d, &mut sim, |sim, step| {
         // the probe samples the state at the start of the step
-        if t0 >= 0.05 - 1e-12 {
-            lo = lo.min(sim.probe_values[0]);
-            hi = hi.max(sim.probe_values[0]);
+        if step.t0 >= 0.05 - 1e-12 {
+            lo = lo.min(sim.probes.values[0]);
+            hi = hi.max(sim.probes.values[0]);
         }
-    }
+        true
+    });
     let ps = &sim.particles;
     let err: Vec<f64> = (0..ps.len())
         .map(|p| ps.pressure[p] - exact(ps.x[p][D - 1]))
@@ -626,16 +623,15 @@ fn further_pressure_passes_shrink_the_divergence_left() {
     let (second, third) = in_pool(2, || {
         let mut sim = Simulation::<2>::new(&d).unwrap();
         let (mut second, mut third) = (Vec::new(), Vec::new());
-        while sim.time < d.simulation.end_time - 1e-12 {
-            let dt = sim.stable_dt(0.5).min(d.simulation.end_time - sim.time);
-            sim.step(dt).unwrap();
+        drive(&d, &mut sim, |sim, _| {
             let n = &sim.projection.as_ref().unwrap().pass_norms;
             assert!(n.len() >= 2, "step {}: {n:?}", sim.steps);
             second.push(n[1] / n[0]);
             if n.len() == 3 {
                 third.push(n[2] / n[1]);
             }
-        }
+            true
+        });
         (second, third)
     });
     let stats = |r: &[f64]| {
@@ -663,10 +659,7 @@ fn a_gimp_dam_break_keeps_its_volume() {
     d.simulation.shape_function = pmpm::deck::ShapeFunction::Gimp;
     let sim = in_pool(2, || {
         let mut sim = Simulation::<2>::new(&d).unwrap();
-        while sim.time < d.simulation.end_time - 1e-12 {
-            let dt = sim.stable_dt(0.5).min(d.simulation.end_time - sim.time);
-            sim.step(dt).unwrap();
-        }
+        drive(&d, &mut sim, |_, _| true);
         sim
     });
     let ps = &sim.particles;
@@ -688,7 +681,6 @@ struct DamBreak {
 fn dam_break<const D: usize>(d: &Deck) -> DamBreak {
     let mut sim = Simulation::<D>::new(d).unwrap();
     let h = sim.grid.geo.h;
-    let cfl = d.simulation.cfl.expect("the dam-break decks give cfl");
     let mut out = DamBreak {
         t: Vec::new(),
         front: Vec::new(),
@@ -711,13 +703,11 @@ fn dam_break<const D: usize>(d: &Deck) -> DamBreak {
         out.height.push(height / (2.0 * A));
     };
     record(&sim, &mut out);
-    while sim.time < d.simulation.end_time - 1e-12 {
-        let dt = sim.stable_dt(cfl).min(d.simulation.end_time - sim.time);
-        let t0 = sim.time;
-        sim.step(dt).unwrap();
-        out.probe.push((t0, sim.probe_values[0]));
-        record(&sim, &mut out);
-    }
+    drive(d, &mut sim, |sim, step| {
+        out.probe.push((step.t0, sim.probes.values[0]));
+        record(sim, &mut out);
+        true
+    });
     out.steps = sim.steps;
     out
 }
@@ -957,11 +947,10 @@ fn multigrid_and_jacobi_give_the_same_dam_break() {
         in_pool(2, || {
             let mut sim = Simulation::<2>::new(&d).unwrap();
             let mut iterations = 0;
-            while sim.time < 0.15 - 1e-12 {
-                let dt = sim.stable_dt(0.5).min(0.15 - sim.time);
-                sim.step(dt).unwrap();
+            drive(&d, &mut sim, |sim, _| {
                 iterations += sim.pressure_iterations;
-            }
+                true
+            });
             let front = sim.particles.x.iter().map(|x| x[0]).fold(0.0, f64::max);
             (
                 front,
@@ -998,16 +987,13 @@ fn multigrid_and_jacobi_give_the_same_dam_break() {
 /// 23 % of the particles within 5 %, docs/method.md.)
 #[test]
 fn dam_break_2d_keeps_its_water_past_the_wall_impact() {
-    let d = dam_break_deck(2, "projection", A / 20.0, 0.4);
+    let mut d = dam_break_deck(2, "projection", A / 20.0, 0.4);
+    d.output.interval = Some(0.01);
     let (worst_volume, worst_share) = in_pool(2, || {
         let mut sim = Simulation::<2>::new(&d).unwrap();
-        let cfl = d.simulation.cfl.unwrap();
         let v0: f64 = sim.particles.volume0.iter().sum();
         let (mut worst_volume, mut worst_share) = (0.0f64, 1.0f64);
-        let mut next_frame = 0.0;
-        while sim.time < 0.4 - 1e-12 {
-            let dt = sim.stable_dt(cfl).min(0.4 - sim.time);
-            sim.step(dt).unwrap();
+        drive(&d, &mut sim, |sim, step| {
             let ps = &sim.particles;
             let v: f64 = ps
                 .volume0
@@ -1016,16 +1002,16 @@ fn dam_break_2d_keeps_its_water_past_the_wall_impact() {
                 .map(|(v, j)| v * j)
                 .sum();
             worst_volume = worst_volume.max((v / v0 - 1.0).abs());
-            if sim.time >= next_frame {
+            if step.frame {
                 let ok = ps
                     .jacobian
                     .iter()
                     .filter(|j| (*j - 1.0).abs() <= 0.05)
                     .count();
                 worst_share = worst_share.min(ok as f64 / ps.len() as f64);
-                next_frame += 0.01;
             }
-        }
+            true
+        });
         (worst_volume, worst_share)
     });
     println!(
@@ -1102,9 +1088,7 @@ velocity = ["0.2*signum(x - 0.5)", "0.0"]
         (x[0] - x[x.len() - 1]).norm()
     };
     let before = spread(&sim);
-    for _ in 0..200 {
-        sim.step(1.0e-3).unwrap();
-    }
+    drive(&d, &mut sim, |_, _| true);
     let after = spread(&sim);
     println!("strip spread {before:.4} -> {after:.4} m");
     assert!(

@@ -2,7 +2,7 @@
 //! written to.
 
 mod common;
-use common::{deck, in_pool, pmpm, scratch_dir};
+use common::{deck, drive, in_pool, pmpm, scratch_dir};
 use pmpm::scheme::Simulation;
 
 /// A water column 0.2 m deep resting on a rigid shelf that spans the tank: the shelf carries
@@ -53,23 +53,21 @@ fn shelf_force(scheme: &str) -> [f64; 2] {
     mean_force(&deck(&shelf(scheme)))
 }
 
-/// Runs `d` to its end time on two threads at `cfl`, calling `each` after every step.
-fn run_steps(d: &pmpm::Deck, cfl: f64, mut each: impl FnMut(&Simulation<2>) + Send) {
-    let end = d.simulation.end_time;
+/// Runs `d` to its end time on two threads through the driver, calling `each` after every step.
+fn run_steps(d: &pmpm::Deck, mut each: impl FnMut(&Simulation<2>) + Send) {
     in_pool(2, || {
         let mut sim = Simulation::<2>::new(d).unwrap();
-        while sim.time < end - 1e-12 {
-            let dt = sim.stable_dt(cfl).min(end - sim.time);
-            sim.step(dt).unwrap();
-            each(&sim);
-        }
+        drive(d, &mut sim, |sim, _| {
+            each(sim);
+            true
+        });
     })
 }
 
 /// Mean force on the first rigid body over the second half of the run of `d`.
 fn mean_force(d: &pmpm::Deck) -> [f64; 2] {
     let (mut sum, mut n) = ([0.0; 2], 0.0);
-    run_steps(d, 0.4, |sim| {
+    run_steps(d, |sim| {
         if sim.time > 0.25 {
             let f = sim.boundary.rigid.force(0);
             sum[0] += f[0];
@@ -292,7 +290,7 @@ fn a_plate_pushed_into_water_bears_its_hydrostatic_load() {
         let (w, h) = (0.105, 0.01);
         let load = |depth: f64| 1000.0 * 9.81 * depth * (1.0 + w / (0.4 - w)) * w;
         let (mut f, mut lo, mut hi, mut n) = (0.0, 0.0, 0.0, 0.0);
-        run_steps(&d, 0.4, |sim| {
+        run_steps(&d, |sim| {
             let depth = -sim.boundary.rigid.displacement(0, sim.time)[1];
             if (0.02..0.05).contains(&depth) {
                 f += sim.boundary.rigid.force(0)[1];
@@ -375,7 +373,7 @@ fn a_clay_layer_dragged_by_a_rough_plate_carries_its_strength() {
     for (scheme, speed, end_time) in [("projection", 0.05, 0.6), ("explicit", 0.0125, 1.2)] {
         let d = deck(&sheared_layer(scheme, speed, end_time));
         let (mut sum, mut n) = (0.0, 0.0);
-        run_steps(&d, 0.5, |sim| {
+        run_steps(&d, |sim| {
             // the second half of the run, well past yield (at 0.04 s at 0.05 m/s)
             if sim.time > end_time / 2.0 {
                 sum += sim.boundary.rigid.force(0)[0];
@@ -435,7 +433,7 @@ rigid_faces = "{faces}"
     };
     let run_up = |d: &pmpm::Deck, face: f64| {
         let mut top = 0.0;
-        run_steps(d, 0.5, |sim| {
+        run_steps(d, |sim| {
             if sim.time >= 0.24 - 1e-9 {
                 top = sim
                     .particles
@@ -499,7 +497,7 @@ shape = {{ type = "box", min = [{x0}, 0.0], max = [{}, {}] }}
             0.1 + offset * 0.02
         ));
         let (mut worst, mut inside) = (0.0f64, 0usize);
-        run_steps(&d, 0.5, |sim| {
+        run_steps(&d, |sim| {
             let p = &sim.particles;
             let v: f64 = p.jacobian.iter().zip(&p.volume0).map(|(j, v)| j * v).sum();
             worst = worst.max((v / p.volume0.iter().sum::<f64>() - 1.0).abs());

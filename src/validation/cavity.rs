@@ -64,7 +64,7 @@ fn simulate(re: u32, h: f64, end: f64) -> Result<Run, String> {
     let mut steady_at = None;
     let mut last_values = Vec::new();
     let sim = run_deck::<2>(&d, |sim, _| {
-        last_values.clone_from(&sim.probe_values);
+        last_values.clone_from(&sim.probes.values);
         if sim.time >= ke_marks.len() as f64 {
             ke_marks.push(sim.kinetic_energy());
             let n = ke_marks.len();

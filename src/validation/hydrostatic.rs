@@ -25,7 +25,7 @@ fn rest<const D: usize>(d: &Deck) -> Result<Rest, String> {
     let mut base = Vec::new();
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     let sim = run_deck::<D>(d, |sim, t0| {
-        let p = sim.probe_values[0];
+        let p = sim.probes.values[0];
         base.push((t0, p / scale));
         if t0 >= 0.05 - 1e-12 {
             lo = lo.min(p);
@@ -70,7 +70,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
             "2D: a 0.2 m x 0.4 m column of water (rho = 1000 kg/m3) at rest in a 0.2 m x 0.5 m grid, h = 0.01 m, 2x2 particles per cell, linear shape functions, slip walls, open top (`validation/decks/hydrostatic_2d_*.toml`). 3D: 0.2 x 0.2 x 0.4 m, h = 0.02 m, 2x2x2 per cell (`hydrostatic_3d_*.toml`). Projection: fixed dt = 5e-3 s, PIC, `rhs = \"flux\"`. Explicit baseline as `examples/hydrostatic_2d.toml`: c = 20 m/s (K = 4e5 Pa), cfl 0.4, PIC, damping 5 1/s. Both start at rest with zero pressure and run to t = {end} s{}.",
             if quick { " (quick mode; the full run goes to 2 s)" } else { "" }
         ),
-        metric: "Exact solution p = rho g (H - y) (METHOD.md), H = 0.4 m. RMS and max of p_p - p_exact(y_p) over all particles at the end, / rho g H; variation (max - min) of the base probe (grid pressure at the floor, centre) over t in [0.05 s, end], / rho g H; max particle speed at the end.".into(),
+        metric: "Exact solution p = rho g (H - y) (docs/method.md), H = 0.4 m. RMS and max of p_p - p_exact(y_p) over all particles at the end, / rho g H; variation (max - min) of the base probe (grid pressure at the floor, centre) over t in [0.05 s, end], / rho g H; max particle speed at the end.".into(),
         bound: "RMS <= 1%, max <= 3%, base-probe variation <= 1%, max speed <= 1e-3 m/s, from the issue (the projection issue's column-at-rest bounds). They apply to the projection; the explicit scheme's numbers are reported for comparison (it rings and is settled by damping).".into(),
         ..Default::default()
     };
@@ -122,7 +122,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
             s.notes.push(format!("{tag}: {} steps.", r.steps));
             if !proj && r.rms > 0.01 {
                 s.notes.push(format!(
-                    "{tag}: the particle pressures at the end are scattered about the exact line (RMS {}, see the profile figure: in the upper part the two particles of a cell carry very different pressures). The particle pressure p = K (1 - J) has an intra-cell mode the grid does not see: with linear shape functions dN/dy is constant in y across a cell, so the node forces read only the sum of its particles' pressures, not how it is split between the lower and upper particle. Measured on the 2D column at t = 2 s, x = 0.0975 m: pairs 949 / 3,266 Pa at y = 0.181 / 0.186 m (their mean 2,107 against the exact 2,147), -61 / 2,486 Pa at 0.271 / 0.275 m; below y = 0.18 m the pairs agree. This is the pressure oscillation of explicit MPM the projection method sets out to remove (METHOD.md), not a fault of the baseline; the base probe, a grid value, rings and settles. The bounds apply to the projection.",
+                    "{tag}: the particle pressures at the end are scattered about the exact line (RMS {}, see the profile figure: in the upper part the two particles of a cell carry very different pressures). The particle pressure p = K (1 - J) has an intra-cell mode the grid does not see: with linear shape functions dN/dy is constant in y across a cell, so the node forces read only the sum of its particles' pressures, not how it is split between the lower and upper particle. Measured on the 2D column at t = 2 s, x = 0.0975 m: pairs 949 / 3,266 Pa at y = 0.181 / 0.186 m (their mean 2,107 against the exact 2,147), -61 / 2,486 Pa at 0.271 / 0.275 m; below y = 0.18 m the pairs agree. This is the pressure oscillation of explicit MPM the projection method sets out to remove (docs/method.md), not a fault of the baseline; the base probe, a grid value, rings and settles. The bounds apply to the projection.",
                     pct(r.rms)
                 ));
             }

@@ -64,7 +64,7 @@ fn simulate(scheme: &str, h: f64) -> Result<Run, String> {
     };
     let sim = run_deck::<2>(&d, |sim, t0| {
         run.pressure
-            .push((t0 * ts, sim.probe_values[0] / (RHO * G * H)));
+            .push((t0 * ts, sim.probes.values[0] / (RHO * G * H)));
         // per gauge: the equivalent depth, the particles' initial volumes (areas in 2D)
         // within 2h of its x over the strip's width 4h (a narrower strip counts particles in
         // and out of it from step to step: noise of +-0.1 H at h)

@@ -18,6 +18,7 @@ mod periodic;
 pub mod plot;
 
 use pmpm::deck::Deck;
+use pmpm::driver::Driver;
 use pmpm::error::Error;
 use pmpm::scheme::Simulation;
 use std::cell::RefCell;
@@ -507,29 +508,18 @@ pub(crate) fn load_deck(name: &str, edit: impl FnOnce(&mut Deck)) -> Result<Deck
     Ok(d)
 }
 
-/// Runs a deck to its end time: fixed `dt` when the deck gives one, else `stable_dt(cfl)`.
-/// After every step `each(sim, t0)` sees the state (`t0`: the step's start time, when the
-/// probes sampled). `stop` may end the run early.
+/// Runs a deck to its end time through the driver `pmpm run` uses ([`Driver`]: the deck's
+/// fixed `dt` or its adaptive step, landing on frame times as the deck says). After every
+/// step `each(sim, t0)` sees the state (`t0`: the step's start time, when the probes
+/// sampled); it returns `false` to end the run early.
 pub(crate) fn run_deck<const D: usize>(
     d: &Deck,
     mut each: impl FnMut(&Simulation<D>, f64) -> bool,
 ) -> Result<Simulation<D>, String> {
     let mut sim = Simulation::<D>::new(d).map_err(|e: Error| e.to_string())?;
-    let end = d.simulation.end_time;
-    while sim.time < end - 1e-12 {
-        let dt = match d.simulation.dt {
-            Some(dt) => dt.min(end - sim.time),
-            None => sim
-                .stable_dt(d.simulation.cfl.unwrap_or(0.5))
-                .min(end - sim.time),
-        };
-        let t0 = sim.time;
-        sim.step(dt).map_err(|e| e.to_string())?;
-        sim.check_particles().map_err(|e| e.to_string())?;
-        if !each(&sim, t0) {
-            break;
-        }
-    }
+    Driver::new(pmpm::build::clock(d))
+        .run(&mut sim, |sim, step| each(sim, step.t0))
+        .map_err(|e| e.to_string())?;
     Ok(sim)
 }
 

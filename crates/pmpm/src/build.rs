@@ -5,6 +5,7 @@
 use crate::averaging::{NodalAveraging, VolumetricAveraging};
 use crate::boundary::{Boundary, BoundaryKind};
 use crate::deck::{Deck, DeckError, MaterialDeck};
+use crate::driver::{Clock, StepSize};
 use crate::error::Error;
 use crate::grid::{GridGeometry, Vector};
 use crate::material::MaterialParams;
@@ -110,7 +111,6 @@ impl<const D: usize> Simulation<D> {
             materials,
             settings,
             boundary,
-            scheme: deck.simulation.scheme,
             probes,
             projection,
             averaging,
@@ -130,6 +130,24 @@ pub fn step_policy(deck: &Deck) -> StepPolicy {
         volume_limits: s.volume_limits,
         max_dt: s.max_dt,
         dt: s.dt,
+        scheme: s.scheme,
+    }
+}
+
+/// The time-step policy of a validated deck: its end, frame interval and step size.
+pub fn clock(deck: &Deck) -> Clock {
+    let s = &deck.simulation;
+    let step = match (s.dt, s.cfl) {
+        (Some(dt), _) => StepSize::Fixed(dt),
+        (None, cfl) => StepSize::Adaptive {
+            cfl: cfl.unwrap_or(0.5),
+            land_on_frames: s.land_on_frames != Some(false),
+        },
+    };
+    Clock {
+        end: s.end_time,
+        interval: deck.output.interval.unwrap_or(s.end_time),
+        step,
     }
 }
 

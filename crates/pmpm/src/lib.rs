@@ -25,11 +25,12 @@
 //! `python3 scripts/module_cycles.py` lists the modules' imports and fails on a cycle.
 //!
 //! A dam break from Rust: a deck (the TOML of `docs/deck.md`, here inline), validated, a
-//! simulation built from it, and the step loop. [`run::run`] is the same loop with frames, checkpoints
-//! and time-step landing, as `pmpm run` uses it.
+//! simulation built from it, and the driver's time loop ([`driver::Driver`]: the deck's step
+//! size, landing on frame times). [`run::run`] drives the same loop and writes frames,
+//! checkpoints and time series, as `pmpm run` does.
 //!
 //! ```
-//! use pmpm::{scheme::Simulation, Deck};
+//! use pmpm::{build, driver::Driver, scheme::Simulation, Deck};
 //!
 //! let mut deck = Deck::parse(
 //!     r#"
@@ -55,9 +56,7 @@
 //! )?;
 //! deck.validate("dam_break.toml")?; // checks every key and fills in the defaults
 //! let mut sim = Simulation::<2>::new(&deck)?;
-//! while sim.time < 0.1 - 1e-12 {
-//!     sim.step(sim.stable_dt(0.5).min(0.1 - sim.time))?; // what the driver does, without frames
-//! }
+//! Driver::new(build::clock(&deck)).run(&mut sim, |_sim, _step| true)?; // to end_time
 //! let p = &sim.particles;
 //! let volume = |j: &[f64]| j.iter().zip(&p.volume0).map(|(j, v)| j * v).sum::<f64>();
 //! assert!((volume(&p.jacobian) / p.volume0.iter().sum::<f64>() - 1.0).abs() < 0.01);
@@ -73,6 +72,7 @@ pub mod boundary;
 pub mod build;
 pub mod checkpoint;
 pub mod deck;
+pub mod driver;
 pub mod error;
 pub mod field;
 pub mod grid;

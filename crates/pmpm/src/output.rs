@@ -1,4 +1,4 @@
-//! Output files of DECK.md: particle frames (CSV, VTK .vtu + .pvd), series.csv, probes.csv and
+//! Output files of docs/deck.md: particle frames (CSV, VTK .vtu + .pvd), series.csv, probes.csv and
 //! run.toml.
 //!
 //! The .vtu files are written by hand with raw appended binary data: the smallest and fastest
@@ -412,7 +412,7 @@ impl OutputWriter {
         if let Some(w) = &mut self.probes {
             let r = (|| {
                 write!(w, "{time:.9e}")?;
-                for v in &sim.probe_values {
+                for v in &sim.probes.values {
                     write!(w, ",{v:.9e}")?;
                 }
                 writeln!(w)

@@ -2,6 +2,7 @@
 
 use crate::checkpoint::{self, DriverState};
 use crate::deck::Deck;
+use crate::driver::{next_after, Driver};
 use crate::error::Error;
 use crate::output::OutputWriter;
 use crate::scheme::Simulation;
@@ -148,20 +149,17 @@ fn run_dim<const D: usize>(
 ) -> Result<RunSummary, Error> {
     let start = Instant::now();
     let mut sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
-    let end = deck.simulation.end_time;
-    let interval = deck.output.interval.expect("validated: interval filled in");
+    let clock = crate::build::clock(deck);
+    let (end, interval, eps) = (clock.end, clock.interval, clock.eps());
     // checkpoints at every frame unless the deck says otherwise: one file, overwritten, and
     // small next to the frames
     let checkpoint_interval = deck.output.checkpoint_interval.unwrap_or(interval);
-    // times are compared with a tolerance far below any step, so that frame k lands at k interval
-    let eps = 1e-9 * interval.min(end);
     let checkpoint_path = dir.join("checkpoint.bin");
     let (out, driver) = open_output(deck, &mut sim, file, dir, opts, checkpoint_interval, eps)?;
     let mut w = Writing {
         out,
         driver,
         checkpoint_path,
-        interval,
         checkpoint_interval,
         eps,
         end,
@@ -171,21 +169,24 @@ fn run_dim<const D: usize>(
         last_checkpoint: opts.resume.as_ref().map(|_| sim.time),
     };
     observer.started(&status(&sim, end, w.start_steps, 0.0, w.out.frames, 0.0));
-    if opts.resume.is_none() {
+    let mut driver = if opts.resume.is_some() {
+        Driver::resume(clock, w.driver.next_frame)
+    } else {
         w.out
             .frame(&sim, 0.0, 0.0)
             .map_err(|e| write_failure_hint(e, None, ""))?;
-        w.driver.next_frame = interval;
-    }
+        Driver::new(clock)
+    };
+    w.driver.next_frame = driver.next_frame;
     let mut last_dt = 0.0;
     sim.timers.lap(Phase::Other);
     let result = loop {
-        if sim.time >= end - eps || opts.max_steps.is_some_and(|n| sim.steps >= n) {
+        if driver.finished(&sim) || opts.max_steps.is_some_and(|n| sim.steps >= n) {
             break Ok(());
         }
-        let dt = next_dt(deck, &sim, w.driver.next_frame, eps);
         let t0 = sim.time;
-        let stepped = sim.step(dt);
+        let stepped = driver.step(&mut sim);
+        w.driver.next_frame = driver.next_frame;
         let (iters, max_iters) = &mut w.driver.iterations;
         *iters += sim.pressure_iterations as u64;
         *max_iters = (*max_iters).max(sim.pressure_iterations);
@@ -198,27 +199,38 @@ fn run_dim<const D: usize>(
                 break Err(e);
             }
         }
-        if let Err(e) = stepped {
-            let resume = resume_command(file, &w.checkpoint_path, dir, deck);
-            break Err(blow_up_hint(
-                e.with_file(file),
-                w.last_checkpoint,
-                &resume,
-                file,
-            ));
-        }
-        last_dt = dt;
+        let step = match stepped {
+            Ok(step) => step,
+            Err(e) => {
+                let resume = resume_command(file, &w.checkpoint_path, dir, deck);
+                break Err(blow_up_hint(
+                    e.with_file(file),
+                    w.last_checkpoint,
+                    &resume,
+                    file,
+                ));
+            }
+        };
+        last_dt = step.dt;
         let interrupted = opts
             .interrupt
             .as_ref()
             .is_some_and(|f| f.load(Ordering::SeqCst));
         let last = opts.max_steps.is_some_and(|n| sim.steps >= n);
-        if let Err(e) = w.after_step(deck, &mut sim, dt, last, interrupted, observer) {
+        let frame = step.frame || last || interrupted;
+        if let Err(e) = w.after_step(deck, &mut sim, step.dt, frame, last, interrupted, observer) {
             break Err(e);
         }
         sim.timers.lap(Phase::Output);
         let wall = start.elapsed().as_secs_f64();
-        observer.stepped(&status(&sim, end, w.start_steps, dt, w.out.frames, wall));
+        observer.stepped(&status(
+            &sim,
+            end,
+            w.start_steps,
+            step.dt,
+            w.out.frames,
+            wall,
+        ));
         if interrupted {
             break Err(Error::Interrupted(format!(
                 "interrupted at step {}, t = {:.6} s; the frame and a checkpoint are written. \
@@ -253,7 +265,6 @@ struct Writing {
     out: OutputWriter,
     driver: DriverState,
     checkpoint_path: std::path::PathBuf,
-    interval: f64,
     checkpoint_interval: f64,
     /// Tolerance of the time comparisons (far below any step).
     eps: f64,
@@ -266,25 +277,25 @@ struct Writing {
 }
 
 impl Writing {
-    /// After a step of `dt`: the frame, the final probe row and the checkpoint that are due.
-    /// At the end there are all three; at the `last` step asked for (a benchmark), a frame and
-    /// the probe row; when `interrupted`, a frame and a checkpoint.
+    /// After a step of `dt`: the `frame` the driver found due, the final probe row and the
+    /// checkpoint that are due. At the end there are all three; at the `last` step asked for
+    /// (a benchmark), a frame and the probe row; when `interrupted`, a frame and a checkpoint.
+    #[allow(clippy::too_many_arguments)]
     fn after_step<const D: usize>(
         &mut self,
         deck: &Deck,
         sim: &mut Simulation<D>,
         dt: f64,
+        frame: bool,
         last: bool,
         interrupted: bool,
         observer: &mut dyn Observer,
     ) -> Result<(), Error> {
         let eps = self.eps;
         let at_end = sim.time >= self.end - eps;
-        if sim.time >= self.driver.next_frame - eps || at_end || last || interrupted {
+        if frame {
             self.out
                 .frame(sim, dt, self.start.elapsed().as_secs_f64())?;
-            self.driver.next_frame =
-                next_after(self.driver.next_frame, sim.time + eps, self.interval);
             let wall = self.start.elapsed().as_secs_f64();
             let mut s = status(sim, self.end, self.start_steps, dt, self.out.frames, wall);
             s.max_speed = sim.max_speed();
@@ -362,41 +373,6 @@ fn open_output<const D: usize>(
     })
 }
 
-/// The time-step policy: the deck's fixed dt, or the stable step at its cfl, split so that
-/// adaptive steps land exactly on the next frame's time (`next_frame`), and never past the
-/// end time.
-fn next_dt<const D: usize>(deck: &Deck, sim: &Simulation<D>, next_frame: f64, eps: f64) -> f64 {
-    let end = deck.simulation.end_time;
-    let interval = deck.output.interval.unwrap_or(end);
-    let mut dt = match (deck.simulation.dt, deck.simulation.cfl) {
-        (Some(dt), _) => dt,
-        (None, Some(cfl)) => {
-            // adaptive steps land exactly on frame times, without a sliver of a step
-            // before each frame: the remaining time is split into equal steps (with the
-            // projection a tiny step turns the leftover divergence into a pressure spike).
-            // Without landing, the stable step is taken as is (up to one frame interval)
-            // and frames are written at the first step end at or past their time.
-            let dt = sim.stable_dt(cfl);
-            let left = next_frame.min(end) - sim.time;
-            if deck.simulation.land_on_frames == Some(false) {
-                // at most one frame interval, so that no frame is skipped
-                dt.min(interval)
-            } else if dt.is_finite() && dt > 0.0 && left > 0.0 {
-                left / (left / dt).ceil()
-            } else {
-                dt
-            }
-        }
-        (None, None) => unreachable!("validated: dt or cfl"),
-    };
-    dt = dt.min(end - sim.time);
-    if !(dt > 0.0 && dt.is_finite()) {
-        // at rest with nothing to bound the step: step to the next frame
-        dt = (next_frame.min(end) - sim.time).max(eps);
-    }
-    dt
-}
-
 /// The command that resumes this run from its checkpoint.
 fn resume_command(file: &str, checkpoint: &Path, dir: &Path, deck: &Deck) -> String {
     let output = if dir != Path::new(&deck.output.directory) {
@@ -451,40 +427,4 @@ pub fn peak_memory() -> Option<u64> {
 /// Loads a deck file, with defaults filled in.
 pub fn load(path: &Path) -> Result<Deck, Error> {
     Ok(Deck::load(path)?)
-}
-
-/// The first of `next`, `next + interval`, `next + 2 interval`, ... past `t`, found without a
-/// loop: an interval below the spacing of floating-point numbers near `t` would never get
-/// there by adding.
-fn next_after(next: f64, t: f64, interval: f64) -> f64 {
-    if next > t {
-        return next;
-    }
-    let k = ((t - next) / interval).floor() + 1.0;
-    let mut n = next + k * interval;
-    if n <= t {
-        // (t - next) / interval rounded down across a whole number
-        n += interval;
-    }
-    if n > t {
-        n
-    } else {
-        // interval below the floating-point spacing at t: the next number above t
-        f64::from_bits(t.to_bits() + 1).max(n)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::next_after;
-
-    #[test]
-    fn the_next_output_time_is_found_without_a_loop() {
-        assert_eq!(next_after(0.5, 0.2, 0.1), 0.5);
-        let n = next_after(0.1, 0.35, 0.1);
-        assert!((n - 0.4).abs() < 1e-15, "{n}");
-        // an interval far below the spacing of numbers near t: the next number above t, at once
-        let n = next_after(1e-300, 0.01, 1e-300);
-        assert!(n > 0.01 && n - 0.01 < 1e-17, "{n}");
-    }
 }

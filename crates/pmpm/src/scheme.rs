@@ -1,7 +1,7 @@
 //! The simulation state and its time step, read top to bottom in [`Simulation::step`].
 //!
 //! The two schemes share everything but the pressure: `explicit` takes it from the equation of
-//! state p = K (1 - J) inside the particle stress, `projection` (METHOD.md) from a Poisson solve
+//! state p = K (1 - J) inside the particle stress, `projection` (docs/method.md) from a Poisson solve
 //! between the predictor and the corrector.
 
 use crate::averaging::NodalAveraging;
@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum Scheme {
-    /// Implicit pressure by Chorin's projection (METHOD.md).
+    /// Implicit pressure by Chorin's projection (docs/method.md).
     #[default]
     Projection,
     /// Explicit, weakly compressible: p = K (1 - J).
@@ -61,6 +61,18 @@ pub struct StepPolicy {
     pub max_dt: Option<f64>,
     /// Fixed step (s).
     pub dt: Option<f64>,
+    /// Time-integration scheme.
+    pub scheme: Scheme,
+}
+
+/// Points where the grid's pressure and velocity are sampled at every step.
+#[derive(Debug, Clone)]
+pub struct Probes<const D: usize> {
+    /// Probe positions.
+    pub positions: Vec<Vector<D>>,
+    /// Samples of the last step's P2G (the state at the step's start): per probe, pressure
+    /// then D velocity components.
+    pub values: Vec<f64>,
 }
 
 /// The step's work buffers, reused from step to step.
@@ -88,8 +100,6 @@ pub struct Parts<const D: usize> {
     pub settings: TransferSettings<D>,
     /// Wall conditions and rigid bodies.
     pub boundary: Boundary<D>,
-    /// Time-integration scheme.
-    pub scheme: Scheme,
     /// Probe positions.
     pub probes: Vec<Vector<D>>,
     /// The pressure projection (scheme = "projection").
@@ -114,19 +124,14 @@ pub struct Simulation<const D: usize> {
     pub settings: TransferSettings<D>,
     /// Wall conditions.
     pub boundary: Boundary<D>,
-    /// Time-integration scheme.
-    pub scheme: Scheme,
     /// Simulated time (s).
     pub time: f64,
     /// Steps taken.
     pub steps: u64,
     /// Pressure iterations of the last step (0 for the explicit scheme).
     pub pressure_iterations: usize,
-    /// Probe positions.
-    pub probes: Vec<Vector<D>>,
-    /// Probe samples of the last step's P2G (state at the step's start): per probe, pressure
-    /// then D velocity components.
-    pub probe_values: Vec<f64>,
+    /// The probes and what they sampled.
+    pub probes: Probes<D>,
     /// A body force given by expressions in x, y, z, t, and its value at each particle now.
     body_force: Option<(crate::field::CompiledField, Vec<Vector<D>>)>,
     /// The pressure projection (scheme = "projection").
@@ -142,7 +147,6 @@ impl<const D: usize> Simulation<D> {
     /// A simulation at t = 0 from its parts (the `build` module makes them from a deck).
     pub fn from_parts(parts: Parts<D>) -> Self {
         let n = parts.particles.len();
-        let probes = parts.probes;
         let body_force = parts.body_force.map(|f| {
             let at = parts.particles.x.iter().map(|x| f.eval(x, 0.0)).collect();
             (f, at)
@@ -157,12 +161,13 @@ impl<const D: usize> Simulation<D> {
             materials: parts.materials,
             settings: parts.settings,
             boundary: parts.boundary,
-            scheme: parts.scheme,
             time: 0.0,
             steps: 0,
             pressure_iterations: 0,
-            probe_values: vec![0.0; probes.len() * (D + 1)],
-            probes,
+            probes: Probes {
+                values: vec![0.0; parts.probes.len() * (D + 1)],
+                positions: parts.probes,
+            },
             work: Work {
                 p2g: P2gScratch::new(rayon::current_num_threads()),
                 advect: vec![Vector::<D>::zeros(); n],
@@ -173,7 +178,7 @@ impl<const D: usize> Simulation<D> {
         }
     }
 
-    /// One time step of size `dt`, as METHOD.md sets it out.
+    /// One time step of size `dt`, as docs/method.md sets it out.
     pub fn step(&mut self, dt: f64) -> Result<(), Error> {
         self.timers.lap(Phase::Other);
         // 0. every sort_interval steps, particles in cell order (the transfers then walk the
@@ -190,7 +195,7 @@ impl<const D: usize> Simulation<D> {
         // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure)
         self.predict(dt);
         // 3. boundary conditions on v*; the projection's pressure
-        match self.scheme {
+        match self.policy.scheme {
             Scheme::Explicit => self.hold_walls(dt),
             Scheme::Projection => self.project(dt)?,
         }
@@ -212,7 +217,7 @@ impl<const D: usize> Simulation<D> {
     /// conditions: P2G extrapolates the particles' velocity onto wall nodes, and the flux form
     /// of the Poisson equation would read that as flow through the wall.
     fn predict(&mut self, dt: f64) {
-        if self.scheme == Scheme::Projection {
+        if self.policy.scheme == Scheme::Projection {
             self.boundary.apply(&mut self.grid.velocity);
         }
         self.grid.predict(
@@ -337,10 +342,10 @@ impl<const D: usize> Simulation<D> {
             &mut self.particles,
             &self.materials,
             dt,
-            self.scheme == Scheme::Explicit,
+            self.policy.scheme == Scheme::Explicit,
         );
         if let Some(averaging) = &mut self.averaging {
-            if self.scheme == Scheme::Explicit {
+            if self.policy.scheme == Scheme::Explicit {
                 averaging.average_pressure(&mut self.particles, geo, shape);
             }
         }
@@ -411,7 +416,7 @@ impl<const D: usize> Simulation<D> {
             "a volume ratio must be positive".to_string()
         };
         let verb = if j < 1.0 { "compressed" } else { "expanded" };
-        let cause = match self.scheme {
+        let cause = match self.policy.scheme {
             Scheme::Explicit => format!(
                 "the equation of state let it be {verb} that far: a bulk_modulus too low for \
                  the flow's speed, or a step above the stability limit"
@@ -483,7 +488,7 @@ impl<const D: usize> Simulation<D> {
     /// mass, normalised by their weight (so a probe on a wall or at the surface reads the fluid).
     fn sample_probes(&mut self) {
         let geo = &self.grid.geo;
-        for (k, x) in self.probes.iter().enumerate() {
+        for (k, x) in self.probes.positions.iter().enumerate() {
             let st = Stencil::<D>::new(self.settings.shape, &geo.to_cells(x), geo.h, 0.25);
             let (mut wsum, mut p, mut v) = (0.0, 0.0, Vector::<D>::zeros());
             st.for_each(|nw| {
@@ -494,7 +499,7 @@ impl<const D: usize> Simulation<D> {
                     v += self.grid.velocity[i] * nw.n;
                 }
             });
-            let out = &mut self.probe_values[k * (D + 1)..(k + 1) * (D + 1)];
+            let out = &mut self.probes.values[k * (D + 1)..(k + 1) * (D + 1)];
             if wsum > 0.0 {
                 out[0] = p / wsum;
                 for d in 0..D {
@@ -510,7 +515,7 @@ impl<const D: usize> Simulation<D> {
     /// solid's shear wave speed (projection, 0 for a fluid), bounded by cfl sqrt(h / |g|), the
     /// viscous limit and `max_dt`.
     pub fn stable_dt(&self, cfl: f64) -> f64 {
-        let explicit = self.scheme == Scheme::Explicit;
+        let explicit = self.policy.scheme == Scheme::Explicit;
         let mats = &self.materials;
         let ps = &self.particles;
         let speed =
@@ -582,7 +587,7 @@ impl<const D: usize> Simulation<D> {
              flow through, or a body pushed out by its initial velocity",
         );
         if let Some(dt) = self.policy.dt {
-            let limit = match self.scheme {
+            let limit = match self.policy.scheme {
                 Scheme::Explicit => "h / max(|v| + c)",
                 Scheme::Projection => "h / max |v|",
             };
