@@ -284,15 +284,7 @@ pub fn particles<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Particle
     let n = ps.len();
     ps.id = (0..n as u32).collect();
     // the lattice loop grew the arrays by doubling: give back the unused half
-    ps.x.shrink_to_fit();
-    ps.v.shrink_to_fit();
-    ps.mass.shrink_to_fit();
-    ps.volume0.shrink_to_fit();
-    ps.material.shrink_to_fit();
-    ps.half_width.shrink_to_fit();
-    ps.affine.shrink_to_fit();
-    ps.jacobian.shrink_to_fit();
-    ps.pressure.shrink_to_fit();
+    ps.shrink_to_fit();
     ps.deformation = vec![Matrix::<D>::identity(); n];
     ps.tau = vec![Matrix::<D>::zeros(); n];
     ps.velocity_gradient = vec![Matrix::<D>::zeros(); n];

@@ -10,7 +10,7 @@
 use crate::deck::Deck;
 use crate::error::Error;
 use crate::grid::Vector;
-use crate::particles::Matrix;
+use crate::particles::{FlatParticles, Particles};
 use crate::scheme::Simulation;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -50,7 +50,7 @@ pub struct DriverState {
 
 /// The payload.
 #[derive(Serialize, Deserialize)]
-struct State {
+struct State<const D: usize> {
     version: String,
     dimension: usize,
     /// The deck, as TOML, with the resumable keys removed.
@@ -59,19 +59,8 @@ struct State {
     steps: u64,
     pressure_iterations: usize,
     driver: DriverState,
-    id: Vec<u32>,
-    x: Vec<f64>,
-    v: Vec<f64>,
-    mass: Vec<f64>,
-    volume0: Vec<f64>,
-    jacobian: Vec<f64>,
-    deformation: Vec<f64>,
-    pressure: Vec<f64>,
-    tau: Vec<f64>,
-    velocity_gradient: Vec<f64>,
-    affine: Vec<f64>,
-    material: Vec<u16>,
-    half_width: Vec<f64>,
+    /// The particle arrays, field by field in their declaration order.
+    particles: FlatParticles<D>,
     /// The body force at the particles (empty when it is constant).
     body_force: Vec<f64>,
     /// The projection's node pressure p^n and per-particle V / rho (empty for the explicit
@@ -84,19 +73,9 @@ fn flat_vectors<const D: usize>(v: &[Vector<D>]) -> Vec<f64> {
     v.iter().flat_map(|a| a.iter().copied()).collect()
 }
 
-fn flat_matrices<const D: usize>(m: &[Matrix<D>]) -> Vec<f64> {
-    m.iter().flat_map(|a| a.iter().copied()).collect()
-}
-
 fn vectors<const D: usize>(f: &[f64]) -> Vec<Vector<D>> {
     f.chunks_exact(D)
         .map(Vector::<D>::from_column_slice)
-        .collect()
-}
-
-fn matrices<const D: usize>(f: &[f64]) -> Vec<Matrix<D>> {
-    f.chunks_exact(D * D)
-        .map(Matrix::<D>::from_column_slice)
         .collect()
 }
 
@@ -170,19 +149,7 @@ pub fn write<const D: usize>(
         steps: sim.steps,
         pressure_iterations: sim.pressure_iterations,
         driver: driver.clone(),
-        id: ps.id.clone(),
-        x: flat_vectors(&ps.x),
-        v: flat_vectors(&ps.v),
-        mass: ps.mass.clone(),
-        volume0: ps.volume0.clone(),
-        jacobian: ps.jacobian.clone(),
-        deformation: flat_matrices(&ps.deformation),
-        pressure: ps.pressure.clone(),
-        tau: flat_matrices(&ps.tau),
-        velocity_gradient: flat_matrices(&ps.velocity_gradient),
-        affine: flat_matrices(&ps.affine),
-        material: ps.material.clone(),
-        half_width: ps.half_width.clone(),
+        particles: ps.flatten(),
         body_force: sim.body_force_values().map_or(Vec::new(), flat_vectors),
         node_pressure: projection.map_or(Vec::new(), |p| p.previous.clone()),
         volume_over_density: projection.map_or(Vec::new(), |p| p.volume_over_density().to_vec()),
@@ -198,7 +165,7 @@ pub fn write<const D: usize>(
 }
 
 /// The file's bytes: magic, format, checksum and length of the payload, then the payload.
-fn encode(state: &State) -> Result<Vec<u8>, postcard::Error> {
+fn encode<const D: usize>(state: &State<D>) -> Result<Vec<u8>, postcard::Error> {
     let payload = postcard::to_stdvec(state)?;
     let mut bytes = Vec::with_capacity(payload.len() + 24);
     bytes.extend_from_slice(MAGIC);
@@ -210,7 +177,7 @@ fn encode(state: &State) -> Result<Vec<u8>, postcard::Error> {
 }
 
 /// The state in a checkpoint file's bytes, or why it cannot be had.
-fn decode(bytes: &[u8]) -> Result<State, String> {
+fn decode<const D: usize>(bytes: &[u8]) -> Result<State<D>, String> {
     if bytes.len() < 24 || &bytes[..8] != MAGIC {
         return Err("it is not a pmpm checkpoint".into());
     }
@@ -262,7 +229,7 @@ pub fn read<const D: usize>(
         std::io::ErrorKind::NotFound => refuse(path, "there is no such file"),
         _ => Error::io(path, e),
     })?;
-    let s = decode(&bytes).map_err(|why| refuse(path, why))?;
+    let s = decode::<D>(&bytes).map_err(|why| refuse(path, why))?;
     if s.dimension != D {
         return Err(refuse(
             path,
@@ -287,10 +254,13 @@ pub fn read<const D: usize>(
         ));
     }
     let n = sim.particles.len();
-    if s.id.len() != n {
+    if s.particles.id.len() != n {
         return Err(refuse(
             path,
-            format!("it holds {} particles, the deck makes {n}", s.id.len()),
+            format!(
+                "it holds {} particles, the deck makes {n}",
+                s.particles.id.len()
+            ),
         ));
     }
     let node_pressure_len = sim.projection.as_ref().map(|_| sim.grid.geo.node_count());
@@ -304,20 +274,7 @@ pub fn read<const D: usize>(
         variable_body_force,
     )
     .map_err(|why| refuse(path, why))?;
-    let ps = &mut sim.particles;
-    ps.id = s.id;
-    ps.x = vectors(&s.x);
-    ps.v = vectors(&s.v);
-    ps.mass = s.mass;
-    ps.volume0 = s.volume0;
-    ps.jacobian = s.jacobian;
-    ps.deformation = matrices(&s.deformation);
-    ps.pressure = s.pressure;
-    ps.tau = matrices(&s.tau);
-    ps.velocity_gradient = matrices(&s.velocity_gradient);
-    ps.affine = matrices(&s.affine);
-    ps.material = s.material;
-    ps.half_width = s.half_width;
+    sim.particles = Particles::unflatten(&s.particles);
     sim.time = s.time;
     sim.steps = s.steps;
     sim.pressure_iterations = s.pressure_iterations;
@@ -336,7 +293,7 @@ pub fn read<const D: usize>(
 /// and a material index, id or position out of range would otherwise stop the run with a
 /// panic after series.csv was already cut back. Returns what is wrong, for the message.
 fn consistent<const D: usize>(
-    s: &State,
+    s: &State<D>,
     n: usize,
     materials: usize,
     geo: &crate::grid::GridGeometry<D>,
@@ -364,7 +321,7 @@ fn consistent<const D: usize>(
 }
 
 /// The time and the driver's clocks and frame list of a decoded state ([`consistent`]).
-fn consistent_driver(s: &State) -> Result<(), String> {
+fn consistent_driver<const D: usize>(s: &State<D>) -> Result<(), String> {
     if !(s.time.is_finite() && s.time >= 0.0) {
         return Err(format!("its time is {}", s.time));
     }
@@ -395,51 +352,37 @@ fn consistent_driver(s: &State) -> Result<(), String> {
 /// The particle fields of a decoded state: their lengths, ids, material indices, finite and
 /// positive values, and positions inside the grid ([`consistent`]).
 fn consistent_particles<const D: usize>(
-    s: &State,
+    s: &State<D>,
     n: usize,
     materials: usize,
     geo: &crate::grid::GridGeometry<D>,
 ) -> Result<(), String> {
-    let lengths: [(&str, usize, usize); 12] = [
-        ("x", s.x.len(), n * D),
-        ("v", s.v.len(), n * D),
-        ("mass", s.mass.len(), n),
-        ("volume0", s.volume0.len(), n),
-        ("jacobian", s.jacobian.len(), n),
-        ("deformation", s.deformation.len(), n * D * D),
-        ("pressure", s.pressure.len(), n),
-        ("tau", s.tau.len(), n * D * D),
-        ("velocity_gradient", s.velocity_gradient.len(), n * D * D),
-        ("affine", s.affine.len(), n * D * D),
-        ("material", s.material.len(), n),
-        ("half_width", s.half_width.len(), n),
-    ];
+    let ps = &s.particles;
+    let lengths = ps.lengths(n);
     if let Some((name, got, want)) = lengths.iter().find(|(_, got, want)| got != want) {
         return Err(format!(
             "its particle field {name} holds {got} values, {want} expected"
         ));
     }
     let mut seen = vec![false; n];
-    for &id in &s.id {
+    for &id in &ps.id {
         match seen.get_mut(id as usize) {
             Some(b) if !*b => *b = true,
             _ => return Err(format!("its particle ids are not 0 to {} (id {id})", n - 1)),
         }
     }
-    if let Some(p) = s.material.iter().position(|&m| m as usize >= materials) {
+    if let Some(p) = ps.material.iter().position(|&m| m as usize >= materials) {
         return Err(format!(
             "particle {} has material index {}; the deck has {materials} materials",
-            s.id[p], s.material[p]
+            ps.id[p], ps.material[p]
         ));
     }
-    let fields: [(&str, &[f64]); 10] = [
-        ("x", &s.x),
-        ("v", &s.v),
-        ("deformation", &s.deformation),
-        ("pressure", &s.pressure),
-        ("tau", &s.tau),
-        ("velocity_gradient", &s.velocity_gradient),
-        ("affine", &s.affine),
+    if let Some(name) = ps.non_finite() {
+        return Err(format!(
+            "its field {name} holds a value that is not a finite number"
+        ));
+    }
+    let fields: [(&str, &[f64]); 3] = [
         ("body_force", &s.body_force),
         ("node_pressure", &s.node_pressure),
         ("volume_over_density", &s.volume_over_density),
@@ -452,30 +395,30 @@ fn consistent_particles<const D: usize>(
         }
     }
     let positive: [(&str, &[f64]); 3] = [
-        ("mass", &s.mass),
-        ("volume0", &s.volume0),
-        ("jacobian", &s.jacobian),
+        ("mass", &ps.mass),
+        ("volume0", &ps.volume0),
+        ("jacobian", &ps.jacobian),
     ];
     for (name, f) in positive {
         if let Some(p) = f.iter().position(|a| !(a.is_finite() && *a > 0.0)) {
-            return Err(format!("particle {} has {name} = {}", s.id[p], f[p]));
+            return Err(format!("particle {} has {name} = {}", ps.id[p], f[p]));
         }
     }
-    if let Some(p) = s
+    if let Some(p) = ps
         .half_width
         .iter()
         .position(|a| !(a.is_finite() && *a >= 0.0))
     {
         return Err(format!(
             "particle {} has half_width = {}",
-            s.id[p], s.half_width[p]
+            ps.id[p], ps.half_width[p]
         ));
     }
-    for (p, x) in s.x.chunks_exact(D).enumerate() {
+    for (p, x) in ps.x.chunks_exact(D).enumerate() {
         if !geo.contains(&Vector::<D>::from_column_slice(x)) {
             return Err(format!(
                 "particle {} lies outside the grid, at {x:?}",
-                s.id[p]
+                ps.id[p]
             ));
         }
     }
@@ -527,22 +470,24 @@ particles_per_cell = 2
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("checkpoint.bin");
         write(&path, &deck, &sim, &driver).unwrap();
-        let good = decode(&std::fs::read(&path).unwrap()).unwrap();
+        let good = decode::<2>(&std::fs::read(&path).unwrap()).unwrap();
         if let Err(e) = read(&path, &deck, &mut sim) {
             panic!("the good checkpoint: {e}");
         }
-        type Tamper = fn(&mut State);
+        type Tamper = fn(&mut State<2>);
         let cases: [(&str, Tamper); 8] = [
-            ("material index 7", |s| s.material[3] = 7),
-            ("ids are not 0 to", |s| s.id[1] = s.id[0]),
-            ("lies outside the grid", |s| s.x[4] = 1.5),
+            ("material index 7", |s| s.particles.material[3] = 7),
+            ("ids are not 0 to", |s| {
+                s.particles.id[1] = s.particles.id[0]
+            }),
+            ("lies outside the grid", |s| s.particles.x[4] = 1.5),
             ("its time is NaN", |s| s.time = f64::NAN),
             ("field v holds a value that is not", |s| {
-                s.v[0] = f64::INFINITY
+                s.particles.v[0] = f64::INFINITY
             }),
-            ("has jacobian = -1", |s| s.jacobian[2] = -1.0),
+            ("has jacobian = -1", |s| s.particles.jacobian[2] = -1.0),
             ("particle field tau holds", |s| {
-                s.tau.pop();
+                s.particles.tau.pop();
             }),
             ("its frame list names", |s| {
                 s.driver.pvd.push((0.0, "\"/><x".into()));
@@ -550,7 +495,7 @@ particles_per_cell = 2
             }),
         ];
         for (why, tamper) in cases {
-            let mut bad = decode(&std::fs::read(&path).unwrap()).unwrap();
+            let mut bad = decode::<2>(&std::fs::read(&path).unwrap()).unwrap();
             tamper(&mut bad);
             let bad_path = dir.join("bad.bin");
             std::fs::write(&bad_path, encode(&bad).unwrap()).unwrap();
@@ -563,7 +508,7 @@ particles_per_cell = 2
             assert_eq!(fresh.time, 0.0);
             assert_eq!(fresh.particles.material, vec![0; fresh.particles.len()]);
         }
-        assert_eq!(good.material.len(), sim.particles.len());
+        assert_eq!(good.particles.material.len(), sim.particles.len());
         let _ = std::fs::remove_dir_all(&dir);
     }
 

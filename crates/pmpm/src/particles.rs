@@ -15,37 +15,163 @@ pub enum InitialStress {
 /// D x D matrix of f64.
 pub type Matrix<const D: usize> = SMatrix<f64, D, D>;
 
-/// All particles, one array per field. The arrays are sorted by cell from time to time
-/// ([`Particles::permute`]) so that the transfers walk the grid in order; `id` keeps each
-/// particle's number from its creation, and the output lists particles by it.
-#[derive(Debug, Clone, Default)]
-pub struct Particles<const D: usize> {
+/// One per-particle value as a checkpoint stores it: flattened to plain numbers.
+pub trait FieldValue: Copy {
+    /// The plain number a value is stored as.
+    type Flat: Copy + std::fmt::Debug + Serialize + for<'de> Deserialize<'de>;
+    /// Numbers per value.
+    const WIDTH: usize;
+    /// The values as plain numbers, a matrix by columns.
+    fn flatten(values: &[Self]) -> Vec<Self::Flat>;
+    /// The values back from plain numbers (a length of a multiple of `WIDTH`).
+    fn unflatten(flat: &[Self::Flat]) -> Vec<Self>;
+    /// Whether every number is finite (integers always are).
+    fn all_finite(flat: &[Self::Flat]) -> bool;
+}
+
+impl FieldValue for f64 {
+    type Flat = f64;
+    const WIDTH: usize = 1;
+    fn flatten(values: &[Self]) -> Vec<f64> {
+        values.to_vec()
+    }
+    fn unflatten(flat: &[f64]) -> Vec<Self> {
+        flat.to_vec()
+    }
+    fn all_finite(flat: &[f64]) -> bool {
+        flat.iter().all(|a| a.is_finite())
+    }
+}
+
+/// Integer fields (ids, material indices) are stored as they are.
+macro_rules! integer_field {
+    ($($t:ty),*) => {$(
+        impl FieldValue for $t {
+            type Flat = $t;
+            const WIDTH: usize = 1;
+            fn flatten(values: &[Self]) -> Vec<$t> {
+                values.to_vec()
+            }
+            fn unflatten(flat: &[$t]) -> Vec<Self> {
+                flat.to_vec()
+            }
+            fn all_finite(_: &[$t]) -> bool {
+                true
+            }
+        }
+    )*};
+}
+integer_field!(u16, u32);
+
+/// Vectors (R x 1) and matrices, by columns.
+impl<const R: usize, const C: usize> FieldValue for SMatrix<f64, R, C> {
+    type Flat = f64;
+    const WIDTH: usize = R * C;
+    fn flatten(values: &[Self]) -> Vec<f64> {
+        values.iter().flat_map(|a| a.iter().copied()).collect()
+    }
+    fn unflatten(flat: &[f64]) -> Vec<Self> {
+        flat.chunks_exact(R * C)
+            .map(Self::from_column_slice)
+            .collect()
+    }
+    fn all_finite(flat: &[f64]) -> bool {
+        flat.iter().all(|a| a.is_finite())
+    }
+}
+
+/// Declares the particle fields once: the struct of arrays [`Particles`], its reordering and
+/// trimming, and [`FlatParticles`], the same arrays as plain numbers for the checkpoint, with
+/// their length and finiteness checks. A field added here is sorted, checkpointed and checked
+/// with the others.
+macro_rules! particle_fields {
+    ($($(#[doc = $doc:literal])+ $name:ident: $ty:ty,)+) => {
+        /// All particles, one array per field. The arrays are sorted by cell from time to time
+        /// ([`Particles::permute`]) so that the transfers walk the grid in order; `id` keeps
+        /// each particle's number from its creation, and the output lists particles by it.
+        #[derive(Debug, Clone, Default)]
+        pub struct Particles<const D: usize> {
+            $($(#[doc = $doc])+ pub $name: Vec<$ty>,)+
+        }
+
+        /// The particle arrays as plain numbers, in the order of [`Particles`]: what a
+        /// checkpoint stores.
+        #[derive(Debug, Clone, Default, Serialize, Deserialize)]
+        pub struct FlatParticles<const D: usize> {
+            $($(#[doc = $doc])+ pub $name: Vec<<$ty as FieldValue>::Flat>,)+
+        }
+
+        impl<const D: usize> Particles<D> {
+            /// Reorders every array so that the particle at place `order[k]` moves to place k.
+            pub fn permute(&mut self, order: &[u32], scratch: &mut PermuteScratch<D>) {
+                $(permute(&mut self.$name, order, scratch);)+
+            }
+
+            /// Gives back the arrays' unused capacity.
+            pub fn shrink_to_fit(&mut self) {
+                $(self.$name.shrink_to_fit();)+
+            }
+
+            /// The arrays as plain numbers.
+            pub fn flatten(&self) -> FlatParticles<D> {
+                FlatParticles {
+                    $($name: <$ty as FieldValue>::flatten(&self.$name),)+
+                }
+            }
+
+            /// The arrays back from plain numbers whose lengths
+            /// ([`FlatParticles::lengths`]) are right.
+            pub fn unflatten(flat: &FlatParticles<D>) -> Self {
+                Self {
+                    $($name: <$ty as FieldValue>::unflatten(&flat.$name),)+
+                }
+            }
+        }
+
+        impl<const D: usize> FlatParticles<D> {
+            /// Each field's name, the numbers it holds and the numbers `n` particles need.
+            pub fn lengths(&self, n: usize) -> Vec<(&'static str, usize, usize)> {
+                vec![$((stringify!($name), self.$name.len(), n * <$ty as FieldValue>::WIDTH),)+]
+            }
+
+            /// The first field holding a number that is not finite.
+            pub fn non_finite(&self) -> Option<&'static str> {
+                $(if !<$ty as FieldValue>::all_finite(&self.$name) {
+                    return Some(stringify!($name));
+                })+
+                None
+            }
+        }
+    };
+}
+
+particle_fields! {
     /// Number of the particle at this place, in creation order (0 to n - 1).
-    pub id: Vec<u32>,
+    id: u32,
     /// Position x_p.
-    pub x: Vec<Vector<D>>,
+    x: Vector<D>,
     /// Velocity v_p.
-    pub v: Vec<Vector<D>>,
+    v: Vector<D>,
     /// Mass m_p.
-    pub mass: Vec<f64>,
+    mass: f64,
     /// Initial volume V_p^0.
-    pub volume0: Vec<f64>,
+    volume0: f64,
     /// Volume ratio J = V_p / V_p^0.
-    pub jacobian: Vec<f64>,
+    jacobian: f64,
     /// Deformation gradient F_p.
-    pub deformation: Vec<Matrix<D>>,
+    deformation: Matrix<D>,
     /// Pressure p_p (positive in compression).
-    pub pressure: Vec<f64>,
+    pressure: f64,
     /// Deviatoric Cauchy stress tau_p.
-    pub tau: Vec<Matrix<D>>,
+    tau: Matrix<D>,
     /// Velocity gradient L_p of the last grid-to-particle transfer.
-    pub velocity_gradient: Vec<Matrix<D>>,
+    velocity_gradient: Matrix<D>,
     /// APIC affine matrix C_p.
-    pub affine: Vec<Matrix<D>>,
+    affine: Matrix<D>,
     /// Index into the deck's materials.
-    pub material: Vec<u16>,
+    material: u16,
     /// GIMP half-width of the particle domain, in cells.
-    pub half_width: Vec<f64>,
+    half_width: f64,
 }
 
 impl<const D: usize> Particles<D> {
@@ -77,23 +203,6 @@ impl<const D: usize> Particles<D> {
     /// A copy of a per-particle field in id order.
     pub fn by_id<T: Copy>(&self, field: &[T]) -> Vec<T> {
         self.places().iter().map(|&p| field[p]).collect()
-    }
-
-    /// Reorders every array so that the particle at place `order[k]` moves to place k.
-    pub fn permute(&mut self, order: &[u32], scratch: &mut PermuteScratch<D>) {
-        permute(&mut self.id, order, scratch);
-        permute(&mut self.x, order, scratch);
-        permute(&mut self.v, order, scratch);
-        permute(&mut self.mass, order, scratch);
-        permute(&mut self.volume0, order, scratch);
-        permute(&mut self.jacobian, order, scratch);
-        permute(&mut self.deformation, order, scratch);
-        permute(&mut self.pressure, order, scratch);
-        permute(&mut self.tau, order, scratch);
-        permute(&mut self.velocity_gradient, order, scratch);
-        permute(&mut self.affine, order, scratch);
-        permute(&mut self.material, order, scratch);
-        permute(&mut self.half_width, order, scratch);
     }
 }
 
