@@ -76,7 +76,6 @@ pub mod driver;
 pub mod error;
 pub mod field;
 pub mod grid;
-pub mod limits;
 pub mod linalg;
 pub mod material;
 pub mod output;
@@ -89,7 +88,7 @@ pub mod shape;
 pub mod timing;
 pub mod transfer;
 
-pub use deck::Deck;
+pub use deck::{limits, Deck};
 pub use error::Error;
 
 /// A deterministic pseudo-random source for unit tests: uniform in [0, 1), from a 64-bit

@@ -3,7 +3,7 @@
 //! `--allow-large`: a deck that needs more memory than the machine has used to allocate for
 //! seconds and abort, and one that needs 1e150 steps used to start without a word.
 
-use crate::deck::{Deck, ShapeKind};
+use super::{Deck, ShapeKind};
 use crate::error::Error;
 
 /// The most steps a deck may need without `--allow-large`.

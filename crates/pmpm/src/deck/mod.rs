@@ -4,7 +4,10 @@
 //! unknown keys, wrong types and unknown enum values reported against the key path and the line
 //! and column TOML gives. [`Deck::validate`] then checks what types cannot say (signs, lengths,
 //! bodies inside the grid, materials that exist, a stable fixed time step) and fills every
-//! default in, so that the deck written to `run.toml` is the one that was run.
+//! default in, so that the deck written to `run.toml` is the one that was run. [`limits`]
+//! estimates what a checked deck will cost before anything is allocated.
+
+pub mod limits;
 
 use crate::field::{Component, VectorField};
 use serde::{Deserialize, Serialize};
