@@ -389,7 +389,10 @@ rhs = "flux"
     let (r, sim) = in_pool(2, || {
         run_at_rest::<2>(&d, RHO * G * 0.4, |y| RHO * G * (0.4 - y), true)
     });
-    assert!(sim.projection.as_ref().unwrap().singular, "no free surface");
+    assert!(
+        sim.projection.as_ref().unwrap().last.singular,
+        "no free surface"
+    );
     check_exact("closed box", &r);
 }
 
@@ -449,7 +452,7 @@ shape = {{ type = "box", min = [0.07, 0.13], max = [0.13, 0.2] }}
                 .iter()
                 .filter(|k| **k == NodeKind::FreeSurface)
                 .count();
-            (surface, pr.singular)
+            (surface, pr.last.singular)
         })
     };
     let (detected, singular) = count("volume_fraction");
@@ -524,7 +527,7 @@ fn solvers_agree_and_the_matrix_is_symmetric_positive_definite() {
     assert!(diff <= 1e-6 * pmax);
     let particle = run("pcg", "particle");
     for (name, sim) in [("cell", &a), ("particle", &particle)] {
-        symmetric_positive_definite(name, &sim.projection.as_ref().unwrap().matrix);
+        symmetric_positive_definite(name, &sim.projection.as_ref().unwrap().system.matrix);
     }
 }
 
@@ -624,7 +627,7 @@ fn further_pressure_passes_shrink_the_divergence_left() {
         let mut sim = Simulation::<2>::new(&d).unwrap();
         let (mut second, mut third) = (Vec::new(), Vec::new());
         drive(&d, &mut sim, |sim, _| {
-            let n = &sim.projection.as_ref().unwrap().pass_norms;
+            let n = &sim.projection.as_ref().unwrap().last.pass_norms;
             assert!(n.len() >= 2, "step {}: {n:?}", sim.steps);
             second.push(n[1] / n[0]);
             if n.len() == 3 {
@@ -948,7 +951,7 @@ fn multigrid_and_jacobi_give_the_same_dam_break() {
             let mut sim = Simulation::<2>::new(&d).unwrap();
             let mut iterations = 0;
             drive(&d, &mut sim, |sim, _| {
-                iterations += sim.pressure_iterations;
+                iterations += sim.pressure_iterations();
                 true
             });
             let front = sim.particles.x.iter().map(|x| x[0]).fold(0.0, f64::max);

@@ -147,7 +147,7 @@ pub fn write<const D: usize>(
         deck: fingerprint(deck).to_string(),
         time: sim.time,
         steps: sim.steps,
-        pressure_iterations: sim.pressure_iterations,
+        pressure_iterations: sim.pressure_iterations(),
         driver: driver.clone(),
         particles: ps.flatten(),
         body_force: sim.body_force_values().map_or(Vec::new(), flat_vectors),
@@ -277,11 +277,11 @@ pub fn read<const D: usize>(
     sim.particles = Particles::unflatten(&s.particles);
     sim.time = s.time;
     sim.steps = s.steps;
-    sim.pressure_iterations = s.pressure_iterations;
     if let Some(f) = sim.body_force_values_mut() {
         *f = vectors(&s.body_force);
     }
     if let Some(p) = sim.projection.as_mut() {
+        p.last.stats.iterations = s.pressure_iterations;
         p.previous = s.node_pressure;
         p.restore_volume_over_density(s.volume_over_density);
     }

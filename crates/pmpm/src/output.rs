@@ -450,7 +450,7 @@ impl OutputWriter {
             sim.steps,
             sim.kinetic_energy(),
             sim.max_speed(),
-            sim.pressure_iterations
+            sim.pressure_iterations()
         )
         .and_then(|_| self.series.flush())
         .map_err(|e| Error::io(&series_path, e))?;

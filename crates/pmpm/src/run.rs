@@ -135,7 +135,7 @@ fn status<const D: usize>(
         nodes: sim.grid.geo.node_count(),
         frames,
         max_speed: 0.0,
-        pressure_iterations: sim.pressure_iterations,
+        pressure_iterations: sim.pressure_iterations(),
         wall_seconds,
     }
 }
@@ -188,8 +188,8 @@ fn run_dim<const D: usize>(
         let stepped = driver.step(&mut sim);
         w.driver.next_frame = driver.next_frame;
         let (iters, max_iters) = &mut w.driver.iterations;
-        *iters += sim.pressure_iterations as u64;
-        *max_iters = (*max_iters).max(sim.pressure_iterations);
+        *iters += sim.pressure_iterations() as u64;
+        *max_iters = (*max_iters).max(sim.pressure_iterations());
         sim.timers.lap(Phase::Other);
         if let Err(e) = w.out.probe_row(t0, &sim) {
             break Err(e);

@@ -128,8 +128,6 @@ pub struct Simulation<const D: usize> {
     pub time: f64,
     /// Steps taken.
     pub steps: u64,
-    /// Pressure iterations of the last step (0 for the explicit scheme).
-    pub pressure_iterations: usize,
     /// The probes and what they sampled.
     pub probes: Probes<D>,
     /// A body force given by expressions in x, y, z, t, and its value at each particle now.
@@ -163,7 +161,6 @@ impl<const D: usize> Simulation<D> {
             boundary: parts.boundary,
             time: 0.0,
             steps: 0,
-            pressure_iterations: 0,
             probes: Probes {
                 values: vec![0.0; parts.probes.len() * (D + 1)],
                 positions: parts.probes,
@@ -235,7 +232,6 @@ impl<const D: usize> Simulation<D> {
             .rigid
             .end_step(&self.grid, dt, crate::rigid::PressureForce::None);
         self.boundary.apply(&mut self.grid.velocity_new);
-        self.pressure_iterations = 0;
         self.timers.lap(Phase::Predictor);
     }
 
@@ -247,7 +243,7 @@ impl<const D: usize> Simulation<D> {
     fn project(&mut self, dt: f64) -> Result<(), Error> {
         self.timers.lap(Phase::Predictor);
         let projection = self.projection.as_mut().expect("set up for this scheme");
-        let stats = projection
+        projection
             .project(
                 &mut self.particles,
                 &mut self.grid,
@@ -274,7 +270,6 @@ impl<const D: usize> Simulation<D> {
                     self.time
                 ))
             })?;
-        self.pressure_iterations = stats.iterations;
         let projection = self.projection.as_ref().expect("set up for this scheme");
         let pressure = match projection.cell_pressure_force() {
             Some(f) => crate::rigid::PressureForce::Nodal(f),
@@ -545,6 +540,14 @@ impl<const D: usize> Simulation<D> {
             dt = dt.min(max);
         }
         dt
+    }
+
+    /// Pressure iterations of the last step, summed over its passes (0 for the explicit
+    /// scheme).
+    pub fn pressure_iterations(&self) -> usize {
+        self.projection
+            .as_ref()
+            .map_or(0, |p| p.last.stats.iterations)
     }
 
     /// Stops the run if a particle left the grid or has a non-finite position or velocity.

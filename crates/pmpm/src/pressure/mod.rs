@@ -131,6 +131,30 @@ struct Work<const D: usize> {
     surface_pressure: Vec<f64>,
 }
 
+/// The linear system of the last pass: the numbering of its unknowns, its matrix and its
+/// right-hand side.
+#[derive(Debug, Default)]
+pub struct Assembled {
+    /// The numbering of the unknowns.
+    unknowns: Unknowns,
+    /// The assembled matrix L (interior rows and columns).
+    pub matrix: EllMatrix,
+    /// The right-hand side.
+    pub rhs: Vec<f64>,
+}
+
+/// What the last step's solves did.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// Statistics of the last solve (iterations summed over the passes).
+    pub stats: SolveStats,
+    /// The right-hand-side norm per pass, solved or not: what divergence each pass started
+    /// from.
+    pub pass_norms: Vec<f64>,
+    /// Whether the system had no free-surface node (pressure fixed up to a constant).
+    pub singular: bool,
+}
+
 /// State and work buffers of the projection, reused from step to step.
 pub struct Projection<const D: usize> {
     settings: Settings,
@@ -138,12 +162,8 @@ pub struct Projection<const D: usize> {
     bins: CellBins,
     /// The free surface of the last solve: volume fractions, level set, each node's role.
     pub surface: free_surface::Surface,
-    /// The numbering of the unknowns.
-    unknowns: Unknowns,
-    /// The last assembled matrix L (interior rows and columns).
-    pub matrix: EllMatrix,
-    /// The last right-hand side.
-    pub rhs: Vec<f64>,
+    /// The last pass's linear system.
+    pub system: Assembled,
     /// The last pass's solved pressure increment per node: p^{n+1} - beta p^n after the first
     /// (the Dirichlet values on the free surface, 0 on empty nodes), the increment of a further
     /// one (0 on the free surface).
@@ -152,13 +172,8 @@ pub struct Projection<const D: usize> {
     /// on empty ones).
     pub previous: Vec<f64>,
     work: Work<D>,
-    /// Statistics of the last solve.
-    pub stats: SolveStats,
-    /// The last step's right-hand-side norm per pass, solved or not: what divergence each pass
-    /// started from.
-    pub pass_norms: Vec<f64>,
-    /// Whether the last system had no free-surface node (pressure fixed up to a constant).
-    pub singular: bool,
+    /// What the last step's solves did.
+    pub last: Outcome,
     /// With `pressure.unknowns = "cells"`, the cell projection (then `previous` holds the
     /// cell pressures, numbered like their cells' lower-corner nodes).
     cells: Option<cell::CellProjection<D>>,
@@ -201,9 +216,7 @@ impl<const D: usize> Projection<D> {
             solver,
             bins: CellBins::default(),
             surface: free_surface::Surface::new(pd, boundary),
-            unknowns: Unknowns::default(),
-            matrix: EllMatrix::default(),
-            rhs: Vec::new(),
+            system: Assembled::default(),
             node_pressure: Vec::new(),
             previous: Vec::new(),
             work: Work {
@@ -215,12 +228,14 @@ impl<const D: usize> Projection<D> {
                 pressure_gradient: vec![Vector::<D>::zeros(); ps.len()],
                 ..Default::default()
             },
-            stats: SolveStats {
-                iterations: 0,
-                relative_residual: 0.0,
+            last: Outcome {
+                stats: SolveStats {
+                    iterations: 0,
+                    relative_residual: 0.0,
+                },
+                pass_norms: Vec::with_capacity(pd.passes),
+                singular: false,
             },
-            pass_norms: Vec::with_capacity(pd.passes),
-            singular: false,
             cells: (pd.unknowns == PressureUnknowns::Cells)
                 .then(|| cell::CellProjection::new(shape)),
             density: (pd.unknowns == PressureUnknowns::Nodes
@@ -338,7 +353,7 @@ impl<const D: usize> Projection<D> {
         self.bins.sort(&grid.geo, &ps.x);
         if let Some(cells) = &mut self.cells {
             timers.lap(Phase::FreeSurface);
-            self.stats = cells.project(
+            self.last.stats = cells.project(
                 ps,
                 grid,
                 boundary,
@@ -351,9 +366,9 @@ impl<const D: usize> Projection<D> {
                 shape,
                 &mut self.previous,
             )?;
-            self.singular = false;
+            self.last.singular = false;
             timers.lap(Phase::Solve);
-            return Ok(self.stats);
+            return Ok(self.last.stats);
         }
         if beta > 0.0 {
             // incremental form: v* -= beta (dt / m_i) sum_p V_p N_ip (grad p^n)_p
@@ -371,7 +386,7 @@ impl<const D: usize> Projection<D> {
             mass_epsilon,
             &boundary.rigid,
         );
-        let free = self.unknowns.number(geo, &self.surface.kinds);
+        let free = self.system.unknowns.number(geo, &self.surface.kinds);
         // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is
         self.work.surface_pressure.resize(n_nodes, 0.0);
         if self.settings.traction_free {
@@ -410,9 +425,9 @@ impl<const D: usize> Projection<D> {
         // 4. and 5. in passes: the first projects v*; each further one projects the
         //    divergence the corrector and the wall conditions left, until it is below the
         //    solver's tolerance relative to the first, stops shrinking, or `passes` are done
-        self.singular = free == 0 && !self.unknowns.node_of_row.is_empty();
+        self.last.singular = free == 0 && !self.system.unknowns.node_of_row.is_empty();
         let (mut first_norm, mut last_norm) = (0.0, f64::INFINITY);
-        self.pass_norms.clear();
+        self.last.pass_norms.clear();
         let mut iterations = 0;
         for pass in 0..self.settings.passes {
             let first = pass == 0;
@@ -421,7 +436,7 @@ impl<const D: usize> Projection<D> {
                 Some((norm, stats)) => {
                     if first {
                         first_norm = norm;
-                        self.stats = stats;
+                        self.last.stats = stats;
                     }
                     last_norm = norm;
                     iterations += stats.iterations;
@@ -429,8 +444,8 @@ impl<const D: usize> Projection<D> {
                 None => break,
             }
         }
-        self.stats.iterations = iterations;
-        Ok(self.stats)
+        self.last.stats.iterations = iterations;
+        Ok(self.last.stats)
     }
 
     /// One pass of steps 4 and 5 on the node velocities in `grid.velocity_new`: the
@@ -464,8 +479,8 @@ impl<const D: usize> Projection<D> {
         self.assemble_pass(ps, grid, boundary, dt, first);
         timers.lap(Phase::Assembly);
         // a sequential sum: the same bits on any number of threads
-        let norm = self.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
-        self.pass_norms.push(norm);
+        let norm = self.system.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
+        self.last.pass_norms.push(norm);
         let skip_below = skip.0;
         if !first && (norm <= skip_below || norm >= skip.1) {
             return Ok(None);
@@ -609,12 +624,12 @@ impl<const D: usize> Projection<D> {
                 &quadrature,
                 &self.surface.kinds,
                 self.surface.level_set(),
-                &self.unknowns.row_of,
-                &self.unknowns.node_of_row,
+                &self.system.unknowns.row_of,
+                &self.system.unknowns.node_of_row,
                 &self.node_pressure,
                 dt,
-                &mut self.matrix,
-                &mut self.rhs,
+                &mut self.system.matrix,
+                &mut self.system.rhs,
             );
         } else {
             assemble::right_hand_side(
@@ -622,9 +637,9 @@ impl<const D: usize> Projection<D> {
                 shape,
                 bins,
                 &quadrature,
-                &self.unknowns.node_of_row,
+                &self.system.unknowns.node_of_row,
                 dt,
-                &mut self.rhs,
+                &mut self.system.rhs,
             );
         }
         if boundary.rigid.cuts_cells() {
@@ -635,9 +650,9 @@ impl<const D: usize> Projection<D> {
                 shape,
                 &grid.velocity_new,
                 self.surface.level_set(),
-                &self.unknowns.row_of,
+                &self.system.unknowns.row_of,
                 dt,
-                &mut self.rhs,
+                &mut self.system.rhs,
             );
         }
     }
@@ -655,14 +670,14 @@ impl<const D: usize> Projection<D> {
         // further pass from zero
         self.work
             .solution
-            .resize(self.unknowns.node_of_row.len(), 0.0);
+            .resize(self.system.unknowns.node_of_row.len(), 0.0);
         {
             let prev = &self.previous;
             let warm = first && self.settings.beta == 0.0;
             self.work
                 .solution
                 .par_iter_mut()
-                .zip(self.unknowns.node_of_row.par_iter())
+                .zip(self.system.unknowns.node_of_row.par_iter())
                 .for_each(|(x, &i)| *x = if warm { prev[i as usize] } else { 0.0 });
         }
         if !first {
@@ -670,13 +685,13 @@ impl<const D: usize> Projection<D> {
             self.node_pressure.fill(0.0);
         }
         if first {
-            let u = &mut self.unknowns;
+            let u = &mut self.system.unknowns;
             describe_layout(&mut u.layout, geo, self.settings.shape, &u.node_of_row);
         }
         let system = System {
-            matrix: &self.matrix,
-            layout: &self.unknowns.layout,
-            singular: self.singular,
+            matrix: &self.system.matrix,
+            layout: &self.system.unknowns.layout,
+            singular: self.last.singular,
         };
         let mut params = SolveParams {
             tolerance: self.settings.tolerance,
@@ -684,12 +699,12 @@ impl<const D: usize> Projection<D> {
         };
         let stats = if first {
             self.solver
-                .solve(&system, &self.rhs, &mut self.work.solution, params)?
+                .solve(&system, &self.system.rhs, &mut self.work.solution, params)?
         } else {
             // to the first solve's accuracy: its tolerance relative to the first right-hand side
             params.tolerance = further_tolerance;
             self.solver
-                .solve_again(&system, &self.rhs, &mut self.work.solution, params)?
+                .solve_again(&system, &self.system.rhs, &mut self.work.solution, params)?
         };
         Ok(stats)
     }
@@ -698,7 +713,7 @@ impl<const D: usize> Projection<D> {
     /// solids' extension), and p^{n+1} kept for the next step.
     fn store_pressure(&mut self, geo: &crate::grid::GridGeometry<D>, first: bool, level_set: bool) {
         {
-            let (sol, node_of_row) = (&self.work.solution, &self.unknowns.node_of_row);
+            let (sol, node_of_row) = (&self.work.solution, &self.system.unknowns.node_of_row);
             let dp = &mut self.node_pressure;
             for (r, &i) in node_of_row.iter().enumerate() {
                 dp[i as usize] = sol[r];
