@@ -16,6 +16,7 @@ mod hydrostatic;
 mod lobovsky;
 mod periodic;
 pub mod plot;
+mod prose;
 
 use pmpm::deck::Deck;
 use pmpm::driver::Driver;
@@ -149,6 +150,31 @@ pub struct Section {
     pub figures: Vec<String>,
     /// Wall time of the case (s).
     pub wall_s: f64,
+}
+
+#[cfg(test)]
+impl Section {
+    /// Title, set-up, metric and bound (the prose files' test).
+    fn texts(self) -> Vec<String> {
+        vec![self.title, self.setup, self.metric, self.bound]
+    }
+}
+
+/// Every text the cases fill from their prose files (`validation/prose/`), in `quick` or full
+/// mode: the prose files' test runs them all.
+#[cfg(test)]
+fn prose_texts(quick: bool) -> Vec<String> {
+    [
+        hydrostatic::prose_texts(quick),
+        dam_break::prose_texts(quick),
+        lobovsky::prose_texts(quick),
+        cavity::prose_texts(quick),
+        periodic::prose_texts(quick),
+        bingham::prose_texts(quick),
+        footing::prose_texts(quick),
+        elastic::prose_texts(quick),
+    ]
+    .concat()
 }
 
 /// Shared state of one `validate` run.
