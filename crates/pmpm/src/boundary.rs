@@ -65,7 +65,7 @@ impl<const D: usize> Boundary<D> {
     /// face mirrors the node as far inside it ([`Boundary::apply`]); the explicit scheme and
     /// the cell projection hold it at the wall's value instead (the cell pressure's constraint
     /// is solved with those values, and a mirror that followed the corrected velocity would
-    /// undo it: an elastic block then lost 3 % of its volume).
+    /// undo it, and an elastic block lose volume).
     pub fn new(
         faces: Vec<(BoundaryKind, Vector<D>)>,
         fields: Vec<Option<crate::field::CompiledField>>,

@@ -97,8 +97,8 @@ impl<const D: usize> Simulation<D> {
         // the projection with nodal pressures reads J with the nodally averaged dilatation (the
         // F-bar idea): its velocity is divergence free node by node, in the weak sense, not at
         // each particle, and the density correction restores volumes node by node
-        // (docs/method.md). A particle's own divergence let single particles in the
-        // lid-driven cavity grow to 4 cells (J = 16 at t = 5.9 s, h = 1/32)
+        // (docs/method.md). A particle's own divergence lets single particles of a stretching
+        // flow (the lid-driven cavity) swell to several cells
         let averaged = deck.simulation.scheme == Scheme::Projection
             && deck.pressure.unknowns == PressureUnknowns::Nodes;
         let averaging = (deck.simulation.volumetric_averaging == VolumetricAveraging::Nodal
@@ -297,9 +297,8 @@ pub fn particles<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Particle
 /// APIC's affine matrix C_p at t = 0: the gradient of the body's initial velocity field at `x`
 /// (central differences over `eps`; exact for the linear field of a rigid rotation or a shear,
 /// zero for a uniform velocity), less its trace under the projection as after every transfer.
-/// Left at zero, the first transfer drops the velocity's variation around each particle: a
-/// block spinning at one turn per second lost 2 to 3 % of its angular momentum in its first
-/// step.
+/// Left at zero, the first transfer drops the velocity's variation around each particle, and
+/// a spinning block loses angular momentum in its first step.
 fn initial_affine<const D: usize>(
     velocity: &crate::field::CompiledField,
     x: &Vector<D>,

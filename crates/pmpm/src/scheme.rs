@@ -645,7 +645,7 @@ impl<const D: usize> Grid<D> {
     /// The damping acts on the velocity the node has (implicitly, so it is stable for any
     /// coefficient), not on the step's force: damping the force too, (v^n + dt f / m) /
     /// (1 + dt damping), made a column at rest under the projection carry only
-    /// 1 / (1 + dt damping) of its weight (8% low at dt = 0.018 s, damping = 5 1/s), since the
+    /// 1 / (1 + dt damping) of its weight, since the
     /// projection balances v*, not a force.
     ///
     /// A node lighter than `mass_floor` takes its internal force over `mass_floor`:

@@ -74,7 +74,7 @@ fn cubic_bspline(r: f64) -> (f64, f64) {
 /// [`ShapeFunction::from_code`]). A transfer written generic over `const S: u8` and dispatched
 /// this way once per call, rather than once per particle and axis, gets its kernel's `match`
 /// folded away and its stencil loops unrolled for the width: the per-particle kernels are the
-/// hot path of every transfer (28% of an explicit run's profile when dispatched at run time).
+/// hot path of every transfer.
 #[macro_export]
 macro_rules! with_shape {
     ($shape:expr, $S:ident => $body:expr) => {

@@ -468,7 +468,7 @@ fn g2p<const D: usize, const S: u8>(
     };
     // With B-splines the remap that follows carries the particle's new affine matrix, from
     // v^{n+1}: with the last step's, the strain rate lags a step behind and an elastic solid's
-    // waves grow (a footing pushed into clay threw particles out of its heave at t = 1.7 s).
+    // waves grow (a footing pushed into clay throws particles out of its heave).
     // B-spline APIC weights vanish with N_ip, so a barely reached node's huge v^{n+1} does not
     // enter; linear and GIMP weights do not vanish (the gradient), and there the new matrix
     // threw a dam break's splash out of the grid, so they keep the last step's (see

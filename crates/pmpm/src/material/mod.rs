@@ -312,7 +312,7 @@ pub fn update<const D: usize>(
             // would lose the volume change in round-off. Its rate is tr L alone, dJ/dt = J tr L,
             // integrated exactly over the step: det(I + dt L) = 1 + dt tr L + O(dt^2 |L|^2)
             // would let a spinning particle grow by (dt omega)^2 per step with no divergence at
-            // all (a droplet thrown off a dam break, spinning at 70 rad/s, grew from J = 1 to 16)
+            // all (a spinning droplet would swell without bound)
             *j *= (l.trace() * dt).exp();
             let stress = mat.law.stress(l, dt, f, *j, tau);
             *tau = stress;

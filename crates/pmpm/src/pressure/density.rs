@@ -396,8 +396,8 @@ impl<const D: usize> PositionCorrection<D> {
             .for_each(|(p, (x, f, j))| {
                 // spray keeps its volume here too, as in the step
                 // ([`super::Projection::hold_spray_volumes`]): no equation of the correction
-                // reaches it, and its nodes' shifts only carry it with its neighbours (a droplet
-                // of three particles above a dam break's obstacle grew to J = 16)
+                // reaches it, and its nodes' shifts only carry it with its neighbours (a small
+                // droplet's J would grow without bound)
                 let volumetric = if spray[p] { 0.0 } else { dilatation[p] };
                 let h = strain[p]
                     + Matrix::<D>::identity() * ((volumetric - strain[p].trace()) / D as f64);

@@ -250,8 +250,8 @@ impl<const D: usize> Projection<D> {
     ///
     /// Around such a particle the grid velocity is the particles' own, unprojected, and its
     /// divergence measures how the droplets fly apart or together, which the grid cannot
-    /// resolve below a cell, not a change of the fluid's volume: integrated into J it blew a
-    /// closed tank's splash up to particles of 4 cells (J = 16 at t = 0.70 s, FLIP). Droplets
+    /// resolve below a cell, not a change of the fluid's volume: integrated into J it blows a
+    /// splash up into particles of several cells. Droplets
     /// that come together fill their cells again, their nodes take equations, and J measures
     /// them as before.
     pub fn hold_spray_volumes(&self, ps: &mut Particles<D>, geo: &crate::grid::GridGeometry<D>) {
@@ -335,7 +335,7 @@ impl<const D: usize> Projection<D> {
     /// predictor's -beta grad p^n uses the corrector's own operator, so that an exact pressure
     /// is a fixed point: in a column at rest the increment vanishes. (Taking p^n from the
     /// particle stress instead, the weak-form force sum V_p p_p G_ip, mixes two discrete
-    /// gradients; that blew up a hydrostatic column within 11 steps at dt = 5e-3.)
+    /// gradients, and a column at rest blows up within a few steps.)
     pub fn project(
         &mut self,
         ps: &mut Particles<D>,
