@@ -31,7 +31,6 @@
 //!
 //! ```
 //! use pmpm::{build, driver::Driver, scheme::Simulation, Deck};
-//!
 //! let mut deck = Deck::parse(
 //!     r#"
 //!     [simulation]
@@ -39,7 +38,6 @@
 //!     scheme = "projection"
 //!     end_time = 0.1
 //!     cfl = 0.5
-//!     gravity = [0.0, -9.81]
 //!     [grid]
 //!     size = [0.4, 0.2]
 //!     cell_size = 0.01
