@@ -1,4 +1,4 @@
-//! Whole runs through the binary: every output file of DECK.md, 2D and 3D, repeatability,
+//! Whole runs through the binary: every output file of docs/deck.md, 2D and 3D, repeatability,
 //! the blow-up guard and the protection of an earlier run.
 
 mod common;

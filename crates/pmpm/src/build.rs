@@ -141,7 +141,7 @@ pub fn clock(deck: &Deck) -> Clock {
         (Some(dt), _) => StepSize::Fixed(dt),
         (None, cfl) => StepSize::Adaptive {
             cfl: cfl.unwrap_or(0.5),
-            land_on_frames: s.land_on_frames != Some(false),
+            land_on_frames: s.land_on_frames.unwrap_or(s.scheme == Scheme::Explicit),
         },
     };
     Clock {

@@ -130,7 +130,9 @@ impl Driver {
         sim.step(dt)?;
         let eps = self.clock.eps();
         let frame = sim.time >= self.next_frame - eps || self.finished(sim);
-        self.next_frame = next_after(self.next_frame, sim.time + eps, self.clock.interval);
+        if frame {
+            self.next_frame = next_after(self.next_frame, sim.time + eps, self.clock.interval);
+        }
         Ok(Step { t0, dt, frame })
     }
 
