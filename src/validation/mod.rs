@@ -611,6 +611,21 @@ pub(crate) fn sci(v: f64) -> String {
     }
 }
 
+/// The sorted names, without extension, of the files `DIR/*.EXT` of the repository (tests).
+#[cfg(test)]
+pub(crate) fn file_stems(dir: &str, ext: &str) -> Vec<String> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(dir);
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| {
+            let p = e.unwrap().path();
+            (p.extension()? == ext).then(|| p.file_stem().unwrap().to_string_lossy().into())
+        })
+        .collect();
+    names.sort();
+    names
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -618,15 +633,7 @@ mod tests {
     #[test]
     fn every_deck_parses_or_needs_a_missing_feature() {
         // every file under validation/decks/, so that a deck added there is registered too
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("validation/decks");
-        let mut names: Vec<String> = std::fs::read_dir(&dir)
-            .unwrap()
-            .filter_map(|e| {
-                let p = e.unwrap().path();
-                (p.extension()? == "toml").then(|| p.file_stem().unwrap().to_string_lossy().into())
-            })
-            .collect();
-        names.sort();
+        let names = file_stems("validation/decks", "toml");
         assert!(names.len() >= 13, "decks found: {names:?}");
         for name in &names {
             load_deck(name, |_| {}).unwrap_or_else(|e| panic!("{name}: {e}"));

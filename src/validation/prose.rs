@@ -362,16 +362,8 @@ pub(crate) mod tests {
     /// and note of every file is used by the code.
     #[test]
     fn every_prose_file_parses_and_the_code_fills_all_of_it() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("validation/prose");
-        let mut files: Vec<String> = std::fs::read_dir(&dir)
-            .unwrap()
-            .filter_map(|e| {
-                let p = e.unwrap().path();
-                (p.extension()? == "md" && p.file_stem()? != "README")
-                    .then(|| p.file_stem().unwrap().to_string_lossy().into())
-            })
-            .collect();
-        files.sort();
+        let mut files = super::super::file_stems("validation/prose", "md");
+        files.retain(|f| f != "README");
         let mut cases: Vec<String> = super::super::case_names()
             .into_iter()
             .map(String::from)

@@ -10,7 +10,7 @@
 use crate::deck::Deck;
 use crate::error::Error;
 use crate::grid::Vector;
-use crate::particles::{FlatParticles, Particles};
+use crate::particles::{FieldValue, FlatParticles, Particles};
 use crate::scheme::Simulation;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -67,16 +67,6 @@ struct State<const D: usize> {
     /// scheme).
     node_pressure: Vec<f64>,
     volume_over_density: Vec<f64>,
-}
-
-fn flat_vectors<const D: usize>(v: &[Vector<D>]) -> Vec<f64> {
-    v.iter().flat_map(|a| a.iter().copied()).collect()
-}
-
-fn vectors<const D: usize>(f: &[f64]) -> Vec<Vector<D>> {
-    f.chunks_exact(D)
-        .map(Vector::<D>::from_column_slice)
-        .collect()
 }
 
 /// The deck as a TOML tree without the keys a resume may change.
@@ -150,7 +140,9 @@ pub fn write<const D: usize>(
         pressure_iterations: sim.pressure_iterations(),
         driver: driver.clone(),
         particles: ps.flatten(),
-        body_force: sim.body_force_values().map_or(Vec::new(), flat_vectors),
+        body_force: sim
+            .body_force_values()
+            .map_or(Vec::new(), <Vector<D> as FieldValue>::flatten),
         node_pressure: projection.map_or(Vec::new(), |p| p.previous.clone()),
         volume_over_density: projection.map_or(Vec::new(), |p| p.volume_over_density().to_vec()),
     };
@@ -278,7 +270,7 @@ pub fn read<const D: usize>(
     sim.time = s.time;
     sim.steps = s.steps;
     if let Some(f) = sim.body_force_values_mut() {
-        *f = vectors(&s.body_force);
+        *f = <Vector<D> as FieldValue>::unflatten(&s.body_force);
     }
     if let Some(p) = sim.projection.as_mut() {
         p.last.stats.iterations = s.pressure_iterations;
