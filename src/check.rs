@@ -433,6 +433,7 @@ fn step_limits(deck: &Deck, out: &mut String) {
 
 /// The pressure solve's settings, under the projection.
 fn pressure(deck: &Deck, out: &mut String) {
+    let cells = deck.grid.cells().iter().product();
     let s = &deck.simulation;
     if s.scheme == Scheme::Projection {
         let p = &deck.pressure;
@@ -441,7 +442,7 @@ fn pressure(deck: &Deck, out: &mut String) {
             *out += &format!(
                 "  pressure         one per cell (unknowns = \"cells\"): {} ({}), tolerance {:e}, at most {} iterations; each cell's weak divergence held at zero, no free-surface detection\n",
                 lower(format!("{:?}", p.solver)),
-                lower(format!("{:?}", p.preconditioner)),
+                lower(format!("{:?}", p.preconditioner(cells))),
                 p.tolerance,
                 p.max_iterations,
             );
@@ -465,7 +466,7 @@ fn pressure(deck: &Deck, out: &mut String) {
             *out += &format!(
                 "  pressure         {} ({}), tolerance {:e}, at most {} iterations; rhs {}, beta = {}; {surface}; {density}\n",
                 lower(format!("{:?}", p.solver)),
-                lower(format!("{:?}", p.preconditioner)),
+                lower(format!("{:?}", p.preconditioner(cells))),
                 p.tolerance,
                 p.max_iterations,
                 lower(format!("{:?}", p.rhs)),

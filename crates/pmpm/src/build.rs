@@ -20,7 +20,8 @@ impl<const D: usize> Simulation<D> {
     pub fn new(deck: &Deck) -> Result<Self, Error> {
         let g = &deck.grid;
         let h = g.cell_size;
-        let cells: [usize; D] = std::array::from_fn(|d| (g.size[d] / h).round() as usize);
+        let counts = g.cells();
+        let cells: [usize; D] = std::array::from_fn(|d| counts[d]);
         let faces = g.boundary.faces();
         let periodic: [bool; D] = std::array::from_fn(|d| {
             faces[2 * d].as_ref().map(|f| f.kind()) == Some(BoundaryKind::Periodic)
@@ -92,6 +93,7 @@ impl<const D: usize> Simulation<D> {
                 deck.materials.iter().any(MaterialDeck::is_solid),
                 &particles,
                 &boundary,
+                geo.cells.iter().product(),
             )
         });
         // the projection with nodal pressures reads J with the nodally averaged dilatation (the

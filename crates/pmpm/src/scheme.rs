@@ -375,7 +375,7 @@ impl<const D: usize> Simulation<D> {
                 })?;
             self.boundary
                 .confine(&self.grid.geo, dt, &mut self.particles);
-            self.timers.lap(Phase::Corrector);
+            self.timers.lap(Phase::Density);
         }
         Ok(())
     }

@@ -24,6 +24,9 @@ pub enum Phase {
     Solve,
     /// Velocity correction and pressure to particles (projection).
     Corrector,
+    /// The particles moved back towards their rest volumes, a second Poisson solve
+    /// (projection, `pressure.density_correction`).
+    Density,
     /// Grid to particles, the MUSL remap and the move.
     G2p,
     /// Strain rate, stress, F and J.
@@ -36,7 +39,7 @@ pub enum Phase {
 
 impl Phase {
     /// Every phase, in step order.
-    pub const ALL: [Phase; 11] = [
+    pub const ALL: [Phase; 12] = [
         Phase::Sort,
         Phase::P2g,
         Phase::Predictor,
@@ -44,6 +47,7 @@ impl Phase {
         Phase::Assembly,
         Phase::Solve,
         Phase::Corrector,
+        Phase::Density,
         Phase::G2p,
         Phase::Constitutive,
         Phase::Output,
@@ -60,6 +64,7 @@ impl Phase {
             Phase::Assembly => "assembly",
             Phase::Solve => "pressure",
             Phase::Corrector => "corrector",
+            Phase::Density => "density",
             Phase::G2p => "g2p",
             Phase::Constitutive => "constitutive",
             Phase::Output => "output",
@@ -77,6 +82,7 @@ impl Phase {
             Phase::Assembly => "assembly",
             Phase::Solve => "pressure solve",
             Phase::Corrector => "corrector",
+            Phase::Density => "density correction",
             Phase::G2p => "G2P and move",
             Phase::Constitutive => "constitutive update",
             Phase::Output => "output",

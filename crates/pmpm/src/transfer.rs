@@ -218,6 +218,52 @@ pub(crate) fn scatter_bands<const D: usize, T, F>(
     });
 }
 
+/// sum_p N_ip value(p) at every node i, into `out`: each thread scatters its contiguous range
+/// of particles into its own band ([`scatter_bands`], one band per rayon thread) and the bands
+/// are added in thread order, so the sums are the same bits for a given thread count. With
+/// periodic axes the images are folded onto their nodes.
+///
+/// A scatter costs one stencil per particle. The gather it replaces (per node, every particle
+/// of the cells around it, asked for its weight at that node) visited each particle 4^D to
+/// 5^D times.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn scatter_to_nodes<const D: usize, T>(
+    bands: &mut Vec<Band<T>>,
+    shape: ShapeFunction,
+    geo: &GridGeometry<D>,
+    x: &[Vector<D>],
+    half_width: &[f64],
+    zero: T,
+    value: impl Fn(usize) -> T + Sync,
+    out: &mut Vec<T>,
+) where
+    T: Copy + Send + Sync + std::ops::AddAssign + std::ops::Mul<f64, Output = T>,
+{
+    bands.resize_with(rayon::current_num_threads().max(1), Band::default);
+    crate::with_shape!(shape, S => {
+        let shape = ShapeFunction::from_code(S);
+        scatter_bands(bands, zero, geo, x, |band, range| {
+            let (start, acc) = (band.start, &mut band.sums);
+            for p in range {
+                let v = value(p);
+                let st = Stencil::<D>::new(shape, &geo.to_cells(&x[p]), geo.h, half_width[p]);
+                st.for_each(|nw| acc[geo.flat(&nw.node) - start] += v * nw.n);
+            }
+        })
+    });
+    out.resize(geo.node_count(), zero);
+    let bands = &*bands;
+    out.par_iter_mut().enumerate().for_each(|(i, o)| {
+        *o = zero;
+        for b in bands.iter().filter_map(|b| b.at(i)) {
+            *o += *b;
+        }
+    });
+    if geo.has_periodic() {
+        geo.fold(out);
+    }
+}
+
 /// Reusable P2G buffers, one band per rayon thread.
 #[derive(Debug, Clone)]
 pub struct P2gScratch<const D: usize> {

@@ -206,6 +206,16 @@ pub struct GridDeck {
     pub boundary: BoundaryDeck,
 }
 
+impl GridDeck {
+    /// Cells per axis: the size over the cell size, rounded (validation holds it whole).
+    pub fn cells(&self) -> Vec<usize> {
+        self.size
+            .iter()
+            .map(|s| (s / self.cell_size).round() as usize)
+            .collect()
+    }
+}
+
 /// `[grid.boundary]`: one entry per face.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
@@ -1028,6 +1038,12 @@ impl Deck {
         self.check_simulation(&c)?;
         self.fill_pressure_defaults(&c)?;
         self.check_grid(&c)?;
+        // the preconditioner's default follows the grid's size: written into the run's deck
+        // (run.toml), and compared as such on a resume
+        if self.pressure.preconditioner.is_none() {
+            let cells = self.grid.cells().iter().product();
+            self.pressure.preconditioner = Some(self.pressure.preconditioner(cells));
+        }
         self.check_pressure(&c)?;
         self.check_materials(&c)?;
         self.check_bodies(&c)?;
@@ -1161,7 +1177,7 @@ impl Deck {
                     format!("must be \"usl\" {why}: the cells hold the volume of v^(n+1), and the musl remap smooths that velocity before the strain rate is taken, so the volume drifts again (an elastic column lost 1e-4 of its volume in 0.4 s with linear shapes and 2e-3 with bspline2, sinking all the while)"),
                 ));
             }
-            if p.solver == Solver::Pcg && p.preconditioner == Preconditioner::Multigrid {
+            if p.solver == Solver::Pcg && p.preconditioner == Some(Preconditioner::Multigrid) {
                 return Err(c.err(
                     "pressure.preconditioner",
                     format!("must be \"jacobi\" or \"ic0\" {why} (the multigrid is built for the nodal Laplacian), or use solver = \"direct\""),

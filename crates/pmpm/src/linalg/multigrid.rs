@@ -26,8 +26,10 @@ use rayon::prelude::*;
 const OMEGA: f64 = 0.6;
 /// Smoothing sweeps before and after the coarse correction.
 const SWEEPS: usize = 2;
-/// Coarsen until a level has at most this many unknowns, then factorise it.
-const COARSEST: usize = 400;
+/// Coarsen until a level has at most this many unknowns, then factorise it: few enough that
+/// the dense factorisation (n^3 / 3 operations, at every set-up) costs little beside the
+/// Galerkin products; the coarse levels in between cost the V-cycle no iterations.
+const COARSEST: usize = 64;
 /// Largest level solved by the dense factorisation when coarsening stops early (a periodic
 /// axis with an odd number of cells); above it, the coarsest level is only smoothed.
 const DENSE_LIMIT: usize = 600;

@@ -83,11 +83,100 @@ pub struct ParticleQuadrature<'a, const D: usize> {
     pub velocity: &'a [Vector<D>],
     /// Add the wall flux (1/dt) sum_p V_p G_ip . w_p to the right-hand side.
     pub flux: bool,
-    /// Points at fixed places in their cells (the cell quadrature's Gauss points): the stencil
-    /// of each place in the first cell, and each point's cell (padded multi-index, less PAD).
-    /// Point p is place p mod the number of places. Saves evaluating the kernels once per node
-    /// a point touches (the assembly's largest cost in a profile).
-    pub templates: Option<(&'a [Stencil<D>], &'a [[u32; D]])>,
+    /// Points at fixed places in their cells (the cell quadrature's Gauss points): the
+    /// places' tables, and each point's cell (padded multi-index, less PAD). Point p is place
+    /// p mod the number of places.
+    pub templates: Option<(&'a ReferenceCell<D>, &'a [[u32; D]])>,
+}
+
+/// The cell quadrature's places in a cell, tabulated once: for each place its stencil in the
+/// domain's first cell, N_a and G_a of its K^D nodes, and the products G_a . G_b.
+///
+/// Every Gauss point sits at one of 2^D places of its cell, and a translation moves a
+/// B-spline or linear stencil without changing its weights, so a row of L is a sum over the
+/// points around its node of c_p (G_a . G_b)(place): table lookups, where evaluating each
+/// point's stencil once per node it touches was the assembly's largest cost. The products
+/// are computed as the stencil computes them, so L is the same to the bit.
+#[derive(Debug, Clone, Default)]
+pub struct ReferenceCell<const D: usize> {
+    /// The stencil of each place in the first cell.
+    pub stencils: Vec<Stencil<D>>,
+    /// K^D.
+    nodes: usize,
+    /// Per place and node a (the stencil's order, axis 0 fastest): N_a and G_a.
+    n: Vec<f64>,
+    grad: Vec<Vector<D>>,
+    /// Per place, node a and node b: G_a . G_b.
+    products: Vec<f64>,
+    /// Per node b: sum_d b_d (2K - 1)^d, its place in a row's slots up to a shift.
+    slot: Vec<usize>,
+}
+
+impl<const D: usize> ReferenceCell<D> {
+    /// The tables of the places whose stencils (in the first cell) are `stencils`.
+    pub fn new(stencils: Vec<Stencil<D>>) -> Self {
+        let Some(first) = stencils.first() else {
+            return Self::default();
+        };
+        let w = first.width;
+        let nodes = w.pow(D as u32);
+        let span = 2 * w - 1;
+        let (mut n, mut grad) = (Vec::new(), Vec::new());
+        for st in &stencils {
+            st.for_each(|nw| {
+                n.push(nw.n);
+                grad.push(nw.grad);
+            });
+        }
+        let mut products = Vec::with_capacity(stencils.len() * nodes * nodes);
+        for g in grad.chunks(nodes) {
+            for ga in g {
+                products.extend(g.iter().map(|gb| ga.dot(gb)));
+            }
+        }
+        let slot = (0..nodes)
+            .map(|b| {
+                let (mut rem, mut s, mut scale) = (b, 0, 1);
+                for _ in 0..D {
+                    s += (rem % w) * scale;
+                    rem /= w;
+                    scale *= span;
+                }
+                s
+            })
+            .collect();
+        Self {
+            stencils,
+            nodes,
+            n,
+            grad,
+            products,
+            slot,
+        }
+    }
+
+    /// Whether no places are tabulated yet.
+    pub fn is_empty(&self) -> bool {
+        self.stencils.is_empty()
+    }
+
+    /// Node `node`'s index a in the stencil of point `p` at place `p mod places` of `cell`
+    /// (padded multi-index less PAD), if the stencil holds it, and the place.
+    #[inline]
+    fn local(&self, p: usize, cell: &[u32; D], node: &[usize; D]) -> Option<(usize, usize)> {
+        let place = p % self.stencils.len();
+        let st = &self.stencils[place];
+        let (mut a, mut stride) = (0, 1);
+        for d in 0..D {
+            let r = node[d].wrapping_sub(st.k[d].base + cell[d] as usize);
+            if r >= st.width {
+                return None;
+            }
+            a += r * stride;
+            stride *= st.width;
+        }
+        Some((place, a))
+    }
 }
 
 impl<const D: usize> ParticleQuadrature<'_, D> {
@@ -109,9 +198,81 @@ impl<const D: usize> ParticleQuadrature<'_, D> {
         match self.templates {
             Some((t, cells)) => {
                 let c = cells[p];
-                t[p % t.len()].shifted(&std::array::from_fn(|d| c[d] as usize))
+                t.stencils[p % t.stencils.len()].shifted(&std::array::from_fn(|d| c[d] as usize))
             }
             None => Stencil::<D>::new(shape, &geo.to_cells(&self.x[p]), geo.h, self.half_width[p]),
+        }
+    }
+
+    /// Adds point p's share of row `node` (padded multi-index): c_p G_i . G_j to the slot of
+    /// each node j of its stencil in `acc`, and its share of the source to `source`.
+    #[inline]
+    fn add_to_row(
+        &self,
+        geo: &GridGeometry<D>,
+        shape: ShapeFunction,
+        p: usize,
+        node: &[usize; D],
+        acc: &mut [f64],
+        source: &mut f64,
+    ) {
+        let c = self.volume_over_density[p];
+        if let Some((t, cells)) = self.templates {
+            let Some((place, a)) = t.local(p, &cells[p], node) else {
+                return;
+            };
+            let k = place * t.nodes + a;
+            *source += self.source(p, t.n[k], &t.grad[k]);
+            // slot of node b relative to the row's node: (b - a + K - 1) per direction
+            let w = t.stencils[place].width;
+            let span = 2 * w - 1;
+            let centre = (0..D).fold(0, |s, _| s * span + (w - 1));
+            let shift = centre - t.slot[a];
+            let products = &t.products[k * t.nodes..(k + 1) * t.nodes];
+            for (g, s) in products.iter().zip(&t.slot) {
+                acc[s + shift] += c * g;
+            }
+            return;
+        }
+        let st = self.stencil(geo, shape, p);
+        let Some(o) = st.offset_of(node) else {
+            return;
+        };
+        let (n_i, g_i) = st.at(&o);
+        *source += self.source(p, n_i, &g_i);
+        let w = st.width;
+        let span = 2 * w - 1;
+        st.for_each(|nw| {
+            // slot of node j relative to node i: (j - i + w - 1) per direction
+            let mut s = 0;
+            for d in (0..D).rev() {
+                s = s * span + (nw.node[d] + w - 1 - node[d]);
+            }
+            acc[s] += c * g_i.dot(&nw.grad);
+        });
+    }
+
+    /// Point p's share of row `node`'s source alone.
+    #[inline]
+    fn add_to_source(
+        &self,
+        geo: &GridGeometry<D>,
+        shape: ShapeFunction,
+        p: usize,
+        node: &[usize; D],
+        source: &mut f64,
+    ) {
+        if let Some((t, cells)) = self.templates {
+            if let Some((place, a)) = t.local(p, &cells[p], node) {
+                let k = place * t.nodes + a;
+                *source += self.source(p, t.n[k], &t.grad[k]);
+            }
+            return;
+        }
+        let st = self.stencil(geo, shape, p);
+        if let Some(o) = st.offset_of(node) {
+            let (n_i, g_i) = st.at(&o);
+            *source += self.source(p, n_i, &g_i);
         }
     }
 }
@@ -160,21 +321,7 @@ pub fn assemble<const D: usize>(
             // across a periodic direction the node's images gather too
             geo.for_each_image(&node, |image| {
                 for_particles_near(geo, bins, shape, &image, |p| {
-                    let st = q.stencil(geo, shape, p);
-                    let Some(o) = st.offset_of(&image) else {
-                        return;
-                    };
-                    let (n_i, g_i) = st.at(&o);
-                    source += q.source(p, n_i, &g_i);
-                    let c = q.volume_over_density[p];
-                    st.for_each(|nw| {
-                        // slot of node j relative to node i: (j - i + w - 1) per direction
-                        let mut s = 0;
-                        for d in (0..D).rev() {
-                            s = s * span + (nw.node[d] + w - 1 - image[d]);
-                        }
-                        acc[s] += c * g_i.dot(&nw.grad);
-                    });
+                    q.add_to_row(geo, shape, p, &image, &mut acc, &mut source);
                 });
             });
             let mut known = 0.0;
@@ -251,11 +398,7 @@ pub fn right_hand_side<const D: usize>(
             let mut source = 0.0;
             geo.for_each_image(&node, |image| {
                 for_particles_near(geo, bins, shape, &image, |p| {
-                    let st = q.stencil(geo, shape, p);
-                    if let Some(o) = st.offset_of(&image) {
-                        let (n_i, g_i) = st.at(&o);
-                        source += q.source(p, n_i, &g_i);
-                    }
+                    q.add_to_source(geo, shape, p, &image, &mut source);
                 });
             });
             *b = -source / dt;

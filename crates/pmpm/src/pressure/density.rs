@@ -35,6 +35,7 @@ use crate::grid::{CellBins, GridGeometry, Vector};
 use crate::linalg::{EllMatrix, LinearSolver, SolveError, SolveParams, SolveStats, System};
 use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
+use crate::transfer::{scatter_to_nodes, Band};
 use rayon::prelude::*;
 
 /// Largest displacement of a node in one correction, in cells: a particle whose volume is far
@@ -63,6 +64,11 @@ pub struct PositionCorrection<const D: usize> {
     weight: Vec<f64>,
     /// sum_p V0_p (1 - J_p) N_ip per node.
     excess: Vec<f64>,
+    /// The per-thread sums of the two above, and their totals per node.
+    bands: Vec<Band<nalgebra::Vector2<f64>>>,
+    sums: Vec<nalgebra::Vector2<f64>>,
+    /// The per-thread sums of sum_p V_p N_ip (grad q)_p.
+    displacement_bands: Vec<Band<Vector<D>>>,
     matrix: EllMatrix,
     rhs: Vec<f64>,
     solution: Vec<f64>,
@@ -103,19 +109,28 @@ impl<const D: usize> PositionCorrection<D> {
         (PACE * dt * max_speed / h).max(fall).min(1.0)
     }
 
-    /// The correction with the pressure's solver settings and free surface.
-    pub fn new(pd: &PressureSettings, shape: ShapeFunction, boundary: &Boundary<D>) -> Self {
+    /// The correction with the pressure's solver settings and free surface, on a grid of
+    /// `cells` cells.
+    pub fn new(
+        pd: &PressureSettings,
+        shape: ShapeFunction,
+        boundary: &Boundary<D>,
+        cells: usize,
+    ) -> Self {
         Self {
             shape,
             tolerance: pd.tolerance,
             max_iterations: pd.max_iterations,
             surface: Surface::new(pd, boundary),
             unknowns: Unknowns::default(),
-            solver: super::linear_solver(pd),
+            solver: super::linear_solver(pd, cells),
             bins: CellBins::default(),
             gauss: GaussPoints::default(),
             weight: Vec::new(),
             excess: Vec::new(),
+            bands: Vec::new(),
+            sums: Vec::new(),
+            displacement_bands: Vec::new(),
             matrix: EllMatrix::default(),
             rhs: Vec::new(),
             solution: Vec::new(),
@@ -247,46 +262,50 @@ impl<const D: usize> PositionCorrection<D> {
         Ok(self.stats)
     }
 
-    /// sum_p V_p N_ip and rate sum_p V0_p (1 - J_p) N_ip per node, gathered from the
-    /// particles around each node.
+    /// sum_p V_p N_ip and rate sum_p V0_p (1 - J_p) N_ip per node, scattered from the
+    /// particles ([`scatter_to_nodes`]).
     fn gather_volumes(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>, rate: f64) {
         let shape = self.shape;
+        let (v0, jac) = (&ps.volume0, &ps.jacobian);
+        scatter_to_nodes(
+            &mut self.bands,
+            shape,
+            geo,
+            &ps.x,
+            &ps.half_width,
+            nalgebra::Vector2::zeros(),
+            |p| {
+                // at most MAX_RATE of a particle's volume per correction
+                let excess = v0[p] * (1.0 - jac[p]).clamp(-MAX_RATE, MAX_RATE) * rate;
+                nalgebra::Vector2::new(v0[p] * jac[p], excess)
+            },
+            &mut self.sums,
+        );
         let n = geo.node_count();
         self.weight.resize(n, 0.0);
         self.excess.resize(n, 0.0);
-        let bins = &self.bins;
-        let (xs, hw, v0, jac) = (&ps.x, &ps.half_width, &ps.volume0, &ps.jacobian);
-        self.weight
-            .par_iter_mut()
-            .zip(self.excess.par_iter_mut())
+        let sums = &self.sums;
+        (self.weight.par_iter_mut(), self.excess.par_iter_mut())
+            .into_par_iter()
             .enumerate()
             .for_each(|(i, (w, e))| {
-                let node = geo.multi(i);
                 // with GIMP a node behind a wall is no unknown: the tails of the particles'
                 // shape functions weigh it, but no quadrature point reaches it (the points lie
                 // inside the walls and, of no width, reach a cell as the linear hat does), so
                 // its row would be empty (a GIMP dam break's solve broke down at its first
                 // step). The B-splines' points reach it.
                 let pad = crate::shape::PAD;
-                if shape == ShapeFunction::Gimp
-                    && (0..D).any(|d| {
+                let behind_wall = shape == ShapeFunction::Gimp && {
+                    let node = geo.multi(i);
+                    (0..D).any(|d| {
                         !geo.periodic[d] && (node[d] < pad || node[d] > pad + geo.cells[d])
                     })
-                {
-                    (*w, *e) = (0.0, 0.0);
-                    return;
-                }
-                let (mut sw, mut se) = (0.0, 0.0);
-                geo.for_each_image(&node, |image| {
-                    super::assemble::for_particles_near(geo, bins, shape, &image, |p| {
-                        let n = node_weight(geo, shape, &xs[p], hw[p], &image);
-                        sw += v0[p] * jac[p] * n;
-                        // at most MAX_RATE of a particle's volume per correction
-                        se += v0[p] * (1.0 - jac[p]).clamp(-MAX_RATE, MAX_RATE) * n * rate;
-                    });
-                });
-                *w = sw;
-                *e = se;
+                };
+                (*w, *e) = if behind_wall {
+                    (0.0, 0.0)
+                } else {
+                    (sums[i][0], sums[i][1])
+                };
             });
     }
 
@@ -308,35 +327,28 @@ impl<const D: usize> PositionCorrection<D> {
                 st.for_each(|nw| s += nw.grad * q[geo.flat(&nw.node)]);
                 *g = s;
             });
-        let bins = &self.bins;
-        let (xs, hw, v0, jac, grad) = (
+        let (v0, jac, grad) = (&ps.volume0, &ps.jacobian, &self.gradient);
+        scatter_to_nodes(
+            &mut self.displacement_bands,
+            shape,
+            geo,
             &ps.x,
             &ps.half_width,
-            &ps.volume0,
-            &ps.jacobian,
-            &self.gradient,
+            Vector::<D>::zeros(),
+            |p| grad[p] * (v0[p] * jac[p]),
+            &mut self.displacement,
         );
         let weight = &self.weight;
         let limit = MAX_SHIFT * geo.h;
         self.displacement
-            .resize(geo.node_count(), Vector::<D>::zeros());
-        self.displacement
             .par_iter_mut()
-            .enumerate()
-            .for_each(|(i, u)| {
-                *u = Vector::<D>::zeros();
-                if weight[i] <= 0.0 {
+            .zip(weight.par_iter())
+            .for_each(|(u, &w)| {
+                if w <= 0.0 {
+                    *u = Vector::<D>::zeros();
                     return;
                 }
-                let node = geo.multi(i);
-                let mut s = Vector::<D>::zeros();
-                geo.for_each_image(&node, |image| {
-                    super::assemble::for_particles_near(geo, bins, shape, &image, |p| {
-                        let n = node_weight(geo, shape, &xs[p], hw[p], &image);
-                        s += grad[p] * (v0[p] * jac[p] * n);
-                    });
-                });
-                *u = -s / weight[i];
+                *u = -*u / w;
                 let norm = u.norm();
                 if norm > limit {
                     *u *= limit / norm;
@@ -421,23 +433,6 @@ impl<const D: usize> PositionCorrection<D> {
     }
 }
 
-/// N_i(x_p) of one node, the product of the 1D weights.
-#[inline]
-fn node_weight<const D: usize>(
-    geo: &GridGeometry<D>,
-    shape: ShapeFunction,
-    x: &Vector<D>,
-    half_width: f64,
-    node: &[usize; D],
-) -> f64 {
-    let xc = geo.to_cells(x);
-    let mut n = 1.0;
-    for d in 0..D {
-        n *= shape.weight_1d(xc[d], half_width, node[d]);
-    }
-    n
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -462,8 +457,13 @@ mod tests {
             let x = ps.x[p];
             ps.jacobian[p] = 1.0 + 0.03 * (std::f64::consts::PI * x[0]).cos() * (3.0 * x[1]).sin();
         }
-        let mut c =
-            PositionCorrection::<2>::new(&deck.pressure, ShapeFunction::Linear, &sim.boundary);
+        let cells = sim.grid.geo.cells.iter().product();
+        let mut c = PositionCorrection::<2>::new(
+            &deck.pressure,
+            ShapeFunction::Linear,
+            &sim.boundary,
+            cells,
+        );
         let (max0, mean0) = errors(&ps);
         let mut last = max0;
         for pass in 0..5 {
@@ -533,7 +533,8 @@ particles_per_cell = 2
         ] {
             let (deck, sim) = pool(name);
             let mut ps = sim.particles.clone();
-            let mut c = PositionCorrection::<2>::new(&deck.pressure, shape, &sim.boundary);
+            let cells = sim.grid.geo.cells.iter().product();
+            let mut c = PositionCorrection::<2>::new(&deck.pressure, shape, &sim.boundary, cells);
             for _ in 0..3 {
                 c.correct(&mut ps, &sim.grid.geo, &sim.boundary, 1.0)
                     .unwrap();

@@ -16,7 +16,7 @@ pub mod density;
 pub mod free_surface;
 mod settings;
 
-pub use settings::{DensityCorrection, Preconditioner, PressureSettings, Solver};
+pub use settings::{DensityCorrection, Preconditioner, PressureSettings, Solver, MULTIGRID_CELLS};
 
 use crate::boundary::Boundary;
 use crate::grid::{CellBins, Grid, Vector};
@@ -27,6 +27,7 @@ use crate::linalg::{
 use crate::particles::Particles;
 use crate::shape::{ShapeFunction, Stencil};
 use crate::timing::{Phase, PhaseTimers};
+use crate::transfer::{scatter_to_nodes, Band};
 use assemble::ParticleQuadrature;
 use free_surface::NodeKind;
 use rayon::prelude::*;
@@ -127,6 +128,9 @@ struct Work<const D: usize> {
     extended: Vec<Vector<D>>,
     gauss: GaussPoints<D>,
     pressure_gradient: Vec<Vector<D>>,
+    /// The corrector's per-thread sums sum_p V_p N_ip (grad p)_p, and their total per node.
+    force_bands: Vec<Band<Vector<D>>>,
+    force: Vec<Vector<D>>,
     /// p^{n+1} on the free-surface nodes when `traction_free` (0 elsewhere).
     surface_pressure: Vec<f64>,
 }
@@ -185,15 +189,16 @@ pub struct Projection<const D: usize> {
 impl<const D: usize> Projection<D> {
     /// The projection with validated settings, for the given particles and shape functions;
     /// `traction_free` where a material is a solid (its free surface bears no pressure of its
-    /// own).
+    /// own), on a grid of `cells` cells (the default preconditioner depends on it).
     pub fn new(
         pd: &PressureSettings,
         shape: ShapeFunction,
         traction_free: bool,
         ps: &Particles<D>,
         boundary: &Boundary<D>,
+        cells: usize,
     ) -> Self {
-        let solver = linear_solver(pd);
+        let solver = linear_solver(pd, cells);
         let particle_quadrature = usize::from(pd.quadrature == Quadrature::Particle);
         let volume_over_density = ps
             .volume0
@@ -240,7 +245,7 @@ impl<const D: usize> Projection<D> {
                 .then(|| cell::CellProjection::new(shape)),
             density: (pd.unknowns == PressureUnknowns::Nodes
                 && pd.density_correction == Some(DensityCorrection::Positions))
-            .then(|| density::PositionCorrection::new(pd, shape, boundary)),
+            .then(|| density::PositionCorrection::new(pd, shape, boundary, cells)),
         }
     }
 
@@ -822,39 +827,30 @@ impl<const D: usize> Projection<D> {
             });
     }
 
-    /// v_i -= (scale / m_i) sum_p V_p N_ip (grad p)_p on every node with mass, gathered per
-    /// node from the particles around it.
-    fn correct(&self, ps: &Particles<D>, grid: &mut Grid<D>, mass_epsilon: f64, scale: f64) {
-        let geo = &grid.geo;
-        let shape = self.settings.shape;
-        let bins = &self.bins;
+    /// v_i -= (scale / m_i) sum_p V_p N_ip (grad p)_p on every node with mass.
+    ///
+    /// A scatter from the particles, like P2G ([`scatter_to_nodes`]).
+    fn correct(&mut self, ps: &Particles<D>, grid: &mut Grid<D>, mass_epsilon: f64, scale: f64) {
         let (vol, gp) = (&ps.volume0, &self.work.pressure_gradient);
-        let (xs, hw) = (&ps.x, &ps.half_width);
+        let force = &mut self.work.force;
+        scatter_to_nodes(
+            &mut self.work.force_bands,
+            self.settings.shape,
+            &grid.geo,
+            &ps.x,
+            &ps.half_width,
+            Vector::<D>::zeros(),
+            |p| gp[p] * vol[p],
+            force,
+        );
         grid.velocity_new
             .par_iter_mut()
             .zip(grid.mass.par_iter())
-            .enumerate()
-            .for_each(|(i, (v, &m))| {
-                if m <= mass_epsilon {
-                    return;
+            .zip(force.par_iter())
+            .for_each(|((v, &m), f)| {
+                if m > mass_epsilon {
+                    *v -= f * (scale / m);
                 }
-                let node = geo.multi(i);
-                let mut f = Vector::<D>::zeros();
-                // across a periodic direction the node's images gather too
-                geo.for_each_image(&node, |image| {
-                    assemble::for_particles_near(geo, bins, shape, &image, |p| {
-                        // only node i's weight: the particle's whole stencil is not needed
-                        let xc = geo.to_cells(&xs[p]);
-                        let mut n = 1.0;
-                        for d in 0..D {
-                            n *= shape.weight_1d(xc[d], hw[p], image[d]);
-                        }
-                        if n != 0.0 {
-                            f += gp[p] * (vol[p] * n);
-                        }
-                    });
-                });
-                *v -= f * (scale / m);
             });
     }
 }
@@ -897,8 +893,8 @@ fn aim_at_volume<const D: usize>(
 }
 
 /// The linear solver `[pressure]` asks for.
-fn linear_solver(pd: &PressureSettings) -> LinearSolver {
-    match (pd.solver, pd.preconditioner) {
+fn linear_solver(pd: &PressureSettings, cells: usize) -> LinearSolver {
+    match (pd.solver, pd.preconditioner(cells)) {
         (Solver::Direct, _) => LinearSolver::Direct(Direct::default()),
         (Solver::Pcg, Preconditioner::Multigrid) => {
             LinearSolver::Pcg(Pcg::new(Box::<Multigrid>::default()))
@@ -1054,8 +1050,8 @@ struct GaussPoints<const D: usize> {
     velocity: Vec<Vector<D>>,
     /// The cell of each point (padded multi-index less PAD).
     cell: Vec<[u32; D]>,
-    /// The stencils of the 2^D places in the domain's first cell.
-    templates: Vec<Stencil<D>>,
+    /// The 2^D places in a cell, tabulated.
+    templates: assemble::ReferenceCell<D>,
     /// Whether some points are not at the places of the templates (cut cells).
     sub_cells: bool,
     bins: CellBins,
@@ -1072,7 +1068,7 @@ impl<const D: usize> GaussPoints<D> {
             divergence: &self.divergence,
             velocity: &self.velocity,
             flux,
-            templates: (!self.sub_cells).then_some((&self.templates[..], &self.cell[..])),
+            templates: (!self.sub_cells).then_some((&self.templates, &self.cell[..])),
         }
     }
 
@@ -1165,7 +1161,7 @@ impl<const D: usize> GaussPoints<D> {
             }
         }
         if self.templates.is_empty() {
-            self.templates = (0..corners)
+            let stencils = (0..corners)
                 .map(|k| {
                     let x = Vector::<D>::from_fn(
                         |d, _| {
@@ -1179,6 +1175,7 @@ impl<const D: usize> GaussPoints<D> {
                     Stencil::<D>::new(shape, &x, geo.h, 0.0)
                 })
                 .collect();
+            self.templates = assemble::ReferenceCell::new(stencils);
         }
         let n = self.x.len();
         self.half_width.clear();

@@ -16,12 +16,15 @@ pub enum Solver {
     Direct,
 }
 
+/// Grid cells from which the multigrid is the default preconditioner (docs/deck.md has the
+/// timings this threshold comes from).
+pub const MULTIGRID_CELLS: usize = 10_000;
+
 /// Preconditioner of the conjugate gradient.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Preconditioner {
     /// Diagonal scaling.
-    #[default]
     Jacobi,
     /// Incomplete Cholesky, no fill.
     Ic0,
@@ -49,8 +52,9 @@ pub enum DensityCorrection {
 pub struct PressureSettings {
     #[serde(default)]
     pub solver: Solver,
+    /// The deck's choice; [`PressureSettings::preconditioner`] gives the one used.
     #[serde(default)]
-    pub preconditioner: Preconditioner,
+    pub preconditioner: Option<Preconditioner>,
     #[serde(default = "default_tolerance")]
     pub tolerance: f64,
     #[serde(default = "default_max_iterations")]
@@ -119,6 +123,21 @@ fn default_vf_tolerance() -> f64 {
 }
 
 impl PressureSettings {
+    /// The conjugate gradient's preconditioner on a grid of `cells` cells: the deck's, or by
+    /// default the multigrid for nodal unknowns on grids of at least [`MULTIGRID_CELLS`] cells
+    /// (its iterations stay about flat as the grid grows, Jacobi's grow with its width) and
+    /// Jacobi otherwise (on small grids a Jacobi iteration is cheap enough that its extra
+    /// iterations cost less than the V-cycles; the multigrid is not built for cell unknowns).
+    pub fn preconditioner(&self, cells: usize) -> Preconditioner {
+        self.preconditioner.unwrap_or(
+            if self.unknowns == PressureUnknowns::Nodes && cells >= MULTIGRID_CELLS {
+                Preconditioner::Multigrid
+            } else {
+                Preconditioner::Jacobi
+            },
+        )
+    }
+
     /// Whether cut-cell rigid faces can apply with these settings: linear or GIMP shape
     /// functions (with the B-splines a plate pushed into water let it through its face), the
     /// level-set free surface and nodal unknowns.
@@ -143,7 +162,7 @@ impl Default for PressureSettings {
     fn default() -> Self {
         Self {
             solver: Solver::default(),
-            preconditioner: Preconditioner::default(),
+            preconditioner: None,
             tolerance: default_tolerance(),
             max_iterations: default_max_iterations(),
             passes: default_passes(),
