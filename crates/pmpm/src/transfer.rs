@@ -578,6 +578,9 @@ fn gradient<const D: usize, const S: u8>(
     let geo: &GridGeometry<D> = &grid.geo;
     let v_node = &grid.velocity_new;
     let apic = s.transfer == Transfer::Apic;
+    // linear shape functions: APIC's weights a_ip are G_ip to the bit (`kernel_1d`), so
+    // B_p = sum_i v_i (x) a_ip is L_p, and one outer product per node does
+    let linear = shape == ShapeFunction::Linear;
     (
         ps.x.par_iter_mut(),
         ps.half_width.par_iter(),
@@ -593,10 +596,13 @@ fn gradient<const D: usize, const S: u8>(
             st.for_each(|nw| {
                 let vi = v_node[geo.flat(&nw.node)];
                 l += vi * nw.grad.transpose();
-                if apic {
+                if apic && !linear {
                     b += vi * nw.apic.transpose();
                 }
             });
+            if apic && linear {
+                b = l;
+            }
             *grad_v = l;
             *c = affine(b, s.isochoric_affine);
             *x += adv * dt;
@@ -632,6 +638,8 @@ fn g2p_usl<const D: usize, const S: u8>(
         _ => 0.0,
     };
     let apic = s.transfer == Transfer::Apic;
+    // as in `gradient`: with linear shape functions B_p is L_p
+    let linear = shape == ShapeFunction::Linear;
     (
         ps.x.par_iter_mut(),
         ps.half_width.par_iter(),
@@ -654,10 +662,13 @@ fn g2p_usl<const D: usize, const S: u8>(
                     dv += (vi - v_old[i]) * nw.n;
                 }
                 l += vi * nw.grad.transpose();
-                if apic {
+                if apic && !linear {
                     b += vi * nw.apic.transpose();
                 }
             });
+            if apic && linear {
+                b = l;
+            }
             *v = blend(flip, v, &dv, &v_pic);
             *grad_v = l;
             *c = affine(b, s.isochoric_affine);
