@@ -283,17 +283,6 @@ impl<const D: usize> Stencil<D> {
         }
     }
 
-    /// The same stencil moved by `cells` whole cells per direction (the weights of a
-    /// translation-invariant kernel do not change).
-    #[inline]
-    pub fn shifted(&self, cells: &[usize; D]) -> Self {
-        let mut s = *self;
-        for d in 0..D {
-            s.k[d].base += cells[d];
-        }
-        s
-    }
-
     /// N_ip and G_ip of the node at offset `o` (per direction, 0..K) from the stencil's base.
     #[inline]
     pub fn at(&self, o: &[usize; D]) -> (f64, SVector<f64, D>) {

@@ -192,16 +192,10 @@ impl<const D: usize> ParticleQuadrature<'_, D> {
         }
     }
 
-    /// The stencil of point `p`.
+    /// The stencil of point `p`, evaluated where it lies (points without tabulated places).
     #[inline]
-    pub fn stencil(&self, geo: &GridGeometry<D>, shape: ShapeFunction, p: usize) -> Stencil<D> {
-        match self.templates {
-            Some((t, cells)) => {
-                let c = cells[p];
-                t.stencils[p % t.stencils.len()].shifted(&std::array::from_fn(|d| c[d] as usize))
-            }
-            None => Stencil::<D>::new(shape, &geo.to_cells(&self.x[p]), geo.h, self.half_width[p]),
-        }
+    fn stencil(&self, geo: &GridGeometry<D>, shape: ShapeFunction, p: usize) -> Stencil<D> {
+        Stencil::<D>::new(shape, &geo.to_cells(&self.x[p]), geo.h, self.half_width[p])
     }
 
     /// Adds point p's share of row `node` (padded multi-index): c_p G_i . G_j to the slot of
@@ -262,16 +256,17 @@ impl<const D: usize> ParticleQuadrature<'_, D> {
         node: &[usize; D],
         source: &mut f64,
     ) {
-        if let Some((t, cells)) = self.templates {
-            if let Some((place, a)) = t.local(p, &cells[p], node) {
+        let weight = match self.templates {
+            Some((t, cells)) => t.local(p, &cells[p], node).map(|(place, a)| {
                 let k = place * t.nodes + a;
-                *source += self.source(p, t.n[k], &t.grad[k]);
+                (t.n[k], t.grad[k])
+            }),
+            None => {
+                let st = self.stencil(geo, shape, p);
+                st.offset_of(node).map(|o| st.at(&o))
             }
-            return;
-        }
-        let st = self.stencil(geo, shape, p);
-        if let Some(o) = st.offset_of(node) {
-            let (n_i, g_i) = st.at(&o);
+        };
+        if let Some((n_i, g_i)) = weight {
             *source += self.source(p, n_i, &g_i);
         }
     }
