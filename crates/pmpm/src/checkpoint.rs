@@ -10,9 +10,10 @@
 use crate::deck::Deck;
 use crate::error::Error;
 use crate::grid::Vector;
-use crate::particles::{FieldValue, FlatParticles, Particles};
+use crate::particles::{FieldValue, FlatParticles, FlatSlice, Particles};
 use crate::scheme::Simulation;
 use serde::{Deserialize, Serialize};
+use std::io::{Seek, SeekFrom, Write};
 use std::path::Path;
 
 const MAGIC: &[u8; 8] = b"PMPMCKPT";
@@ -121,51 +122,95 @@ fn first_difference(
     }
 }
 
+/// [`State`] as it is written: the same fields in the same order, serialised to the same
+/// bytes, but borrowing the particle arrays and node fields instead of copying them.
+#[derive(Serialize)]
+struct StateView<'a, const D: usize> {
+    version: &'a str,
+    dimension: usize,
+    deck: String,
+    time: f64,
+    steps: u64,
+    pressure_iterations: usize,
+    driver: &'a DriverState,
+    particles: crate::particles::FlatView<'a, D>,
+    body_force: FlatSlice<'a, Vector<D>>,
+    node_pressure: &'a [f64],
+    volume_over_density: &'a [f64],
+}
+
+/// Passes bytes on to `inner` while counting them and taking their CRC-32. The serialiser
+/// reports a failed write as its own error; the write's error (a full disk) is kept here to
+/// be reported instead.
+struct Checksummed<W> {
+    inner: W,
+    hasher: crc32fast::Hasher,
+    len: u64,
+    failed: Option<std::io::Error>,
+}
+
+impl<W: Write> Write for Checksummed<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf).inspect_err(|e| {
+            self.failed = Some(std::io::Error::new(e.kind(), e.to_string()));
+        })?;
+        self.hasher.update(&buf[..n]);
+        self.len += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
 /// Writes the state of `sim`, built from `deck`, and of the driver to `path` (through a
 /// temporary file).
+///
+/// The payload is streamed to the file from the simulation's own arrays, and the header's
+/// checksum and length are filled in after it: a checkpoint costs no copy of the state in
+/// memory (a copy would double the peak memory of a large run).
 pub fn write<const D: usize>(
     path: &Path,
     deck: &Deck,
     sim: &Simulation<D>,
     driver: &DriverState,
 ) -> Result<(), Error> {
-    let ps = &sim.particles;
     let projection = sim.projection.as_ref();
-    let state = State {
-        version: env!("CARGO_PKG_VERSION").to_string(),
+    let state = StateView {
+        version: env!("CARGO_PKG_VERSION"),
         dimension: D,
         deck: fingerprint(deck).to_string(),
         time: sim.time,
         steps: sim.steps,
         pressure_iterations: sim.pressure_iterations(),
-        driver: driver.clone(),
-        particles: ps.flatten(),
-        body_force: sim
-            .body_force_values()
-            .map_or(Vec::new(), <Vector<D> as FieldValue>::flatten),
-        node_pressure: projection.map_or(Vec::new(), |p| p.previous.clone()),
-        volume_over_density: projection.map_or(Vec::new(), |p| p.volume_over_density().to_vec()),
+        driver,
+        particles: sim.particles.flat_view(),
+        body_force: FlatSlice(sim.body_force_values().unwrap_or(&[])),
+        node_pressure: projection.map_or(&[], |p| &p.previous[..]),
+        volume_over_density: projection.map_or(&[], |p| p.volume_over_density()),
     };
-    let bytes = encode(&state).map_err(|e| {
-        Error::io(
-            path,
-            std::io::Error::other(format!("cannot encode the checkpoint: {e}")),
-        )
-    })?;
-    crate::atomic::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
-        .map_err(|e| Error::io(path, e))
-}
-
-/// The file's bytes: magic, format, checksum and length of the payload, then the payload.
-fn encode<const D: usize>(state: &State<D>) -> Result<Vec<u8>, postcard::Error> {
-    let payload = postcard::to_stdvec(state)?;
-    let mut bytes = Vec::with_capacity(payload.len() + 24);
-    bytes.extend_from_slice(MAGIC);
-    bytes.extend_from_slice(&FORMAT.to_le_bytes());
-    bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
-    bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-    bytes.extend_from_slice(&payload);
-    Ok(bytes)
+    crate::atomic::write_atomic(path, |w| {
+        w.write_all(MAGIC)?;
+        w.write_all(&FORMAT.to_le_bytes())?;
+        w.write_all(&[0; 12])?; // checksum and length, filled in below
+        let mut payload = Checksummed {
+            inner: &mut *w,
+            hasher: crc32fast::Hasher::new(),
+            len: 0,
+            failed: None,
+        };
+        if let Err(e) = postcard::to_io(&state, &mut payload) {
+            return Err(payload.failed.take().unwrap_or_else(|| {
+                std::io::Error::other(format!("cannot encode the checkpoint: {e}"))
+            }));
+        }
+        let (crc, len) = (payload.hasher.finalize(), payload.len);
+        w.seek(SeekFrom::Start(12))?;
+        w.write_all(&crc.to_le_bytes())?;
+        w.write_all(&len.to_le_bytes())?;
+        w.seek(SeekFrom::End(0)).map(|_| ())
+    })
+    .map_err(|e| Error::io(path, e))
 }
 
 /// The state in a checkpoint file's bytes, or why it cannot be had.
@@ -490,7 +535,7 @@ particles_per_cell = 2
             let mut bad = decode::<2>(&std::fs::read(&path).unwrap()).unwrap();
             tamper(&mut bad);
             let bad_path = dir.join("bad.bin");
-            std::fs::write(&bad_path, encode(&bad).unwrap()).unwrap();
+            std::fs::write(&bad_path, encode(&bad)).unwrap();
             let (mut fresh, _, _) = small();
             match read(&bad_path, &deck, &mut fresh) {
                 Err(Error::Usage(m)) => assert!(m.contains(why), "{why}: {m}"),
@@ -501,6 +546,42 @@ particles_per_cell = 2
             assert_eq!(fresh.particles.material, vec![0; fresh.particles.len()]);
         }
         assert_eq!(good.particles.material.len(), sim.particles.len());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The file's bytes for an owned state, as `write` streams them.
+    fn encode<const D: usize>(state: &State<D>) -> Vec<u8> {
+        let payload = postcard::to_stdvec(state).unwrap();
+        let mut bytes = Vec::with_capacity(payload.len() + 24);
+        bytes.extend_from_slice(MAGIC);
+        bytes.extend_from_slice(&FORMAT.to_le_bytes());
+        bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
+        bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(&payload);
+        bytes
+    }
+
+    /// The streamed file holds exactly the bytes of the state it decodes to, serialised
+    /// whole: the borrowed view writes the format the reader expects, field for field.
+    #[test]
+    fn a_streamed_checkpoint_is_the_encoding_of_its_state() {
+        let (sim, deck, driver) = small();
+        let dir = std::env::temp_dir().join(format!("pmpm-ck-stream-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("checkpoint.bin");
+        write(&path, &deck, &sim, &driver).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let state = decode::<2>(&bytes).unwrap();
+        assert_eq!(encode(&state), bytes);
+        assert_eq!(state.particles.x, FieldValue::flatten(&sim.particles.x));
+        assert_eq!(
+            state.particles.deformation,
+            FieldValue::flatten(&sim.particles.deformation)
+        );
+        assert_eq!(
+            state.node_pressure,
+            sim.projection.as_ref().unwrap().previous
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 

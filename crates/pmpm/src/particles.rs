@@ -27,6 +27,26 @@ pub trait FieldValue: Copy {
     fn unflatten(flat: &[Self::Flat]) -> Vec<Self>;
     /// Whether every number is finite (integers always are).
     fn all_finite(flat: &[Self::Flat]) -> bool;
+    /// Number `k` (below `WIDTH`) of one value, in the order of `flatten`.
+    fn component(&self, k: usize) -> Self::Flat;
+}
+
+/// A per-particle field serialised as the `Vec` of plain numbers that `flatten` would give,
+/// without making that copy: a checkpoint of a large run then costs no second copy of the
+/// particle state in memory.
+pub struct FlatSlice<'a, T>(pub &'a [T]);
+
+impl<T: FieldValue> Serialize for FlatSlice<'_, T> {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeSeq;
+        let mut seq = serializer.serialize_seq(Some(self.0.len() * T::WIDTH))?;
+        for value in self.0 {
+            for k in 0..T::WIDTH {
+                seq.serialize_element(&value.component(k))?;
+            }
+        }
+        seq.end()
+    }
 }
 
 impl FieldValue for f64 {
@@ -40,6 +60,9 @@ impl FieldValue for f64 {
     }
     fn all_finite(flat: &[f64]) -> bool {
         flat.iter().all(|a| a.is_finite())
+    }
+    fn component(&self, _: usize) -> f64 {
+        *self
     }
 }
 
@@ -57,6 +80,9 @@ macro_rules! integer_field {
             }
             fn all_finite(_: &[$t]) -> bool {
                 true
+            }
+            fn component(&self, _: usize) -> $t {
+                *self
             }
         }
     )*};
@@ -77,6 +103,9 @@ impl<const R: usize, const C: usize> FieldValue for SMatrix<f64, R, C> {
     }
     fn all_finite(flat: &[f64]) -> bool {
         flat.iter().all(|a| a.is_finite())
+    }
+    fn component(&self, k: usize) -> f64 {
+        self.as_slice()[k]
     }
 }
 
@@ -119,12 +148,31 @@ macro_rules! particle_fields {
                 }
             }
 
+            /// The arrays as [`flatten`](Self::flatten) gives them, for serialisation, without
+            /// copying them.
+            pub fn flat_view(&self) -> FlatView<'_, D> {
+                FlatView(self)
+            }
+
             /// The arrays back from plain numbers whose lengths
             /// ([`FlatParticles::lengths`]) are right.
             pub fn unflatten(flat: &FlatParticles<D>) -> Self {
                 Self {
                     $($name: <$ty as FieldValue>::unflatten(&flat.$name),)+
                 }
+            }
+        }
+
+        /// The particle arrays, serialised exactly as their [`FlatParticles`] would be.
+        pub struct FlatView<'a, const D: usize>(&'a Particles<D>);
+
+        impl<const D: usize> Serialize for FlatView<'_, D> {
+            fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+                use serde::ser::SerializeStruct;
+                let fields = [$(stringify!($name)),+].len();
+                let mut s = serializer.serialize_struct("FlatParticles", fields)?;
+                $(s.serialize_field(stringify!($name), &FlatSlice(&self.0.$name))?;)+
+                s.end()
             }
         }
 
