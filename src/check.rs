@@ -429,6 +429,19 @@ fn step_limits(deck: &Deck, out: &mut String) {
             s.end_time
         );
     }
+    // the limit the implicit viscous solve lifts, where it would have bound
+    let lifted = deck.lifted_viscous_limit();
+    if lifted.0 < wave && s.end_time / lifted.0 > flow {
+        *out += &format!(
+            "  viscous limit    h^2 rho / (2 D mu) = {:.3e} s (material \"{}\"), lifted: \
+             simulation.viscosity = \"implicit\" solves the viscous stress with the pressure's \
+             step (about {:.0} steps to t = {} with it explicit)\n",
+            lifted.0,
+            deck.materials[lifted.1].name,
+            (s.end_time / lifted.0).ceil(),
+            s.end_time
+        );
+    }
 }
 
 /// The pressure solve's settings, under the projection.

@@ -40,7 +40,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown key",
             edit(&[("end_time = 0.05", "endtime = 0.05")]),
-            "bad.toml:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames, volume_limits)",
+            "bad.toml:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames, volume_limits, viscosity, viscosity_tolerance, viscosity_max_iterations)",
         ),
         (
             "unknown key, another name for a key",
@@ -295,11 +295,11 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "bad.toml: simulation.dt: 0.001 s is above the explicit stability limit h / c = 2.000e-4 s (h = 0.02, fastest shear wave speed sqrt(G / rho) c = 100.0000 m/s); lower dt or use cfl",
         ),
         (
-            "fixed dt above a Bingham fluid's viscous limit",
+            "fixed dt above a Bingham fluid's explicit viscous limit",
             edit(&[
                 ("density = 1000.0", "model = \"bingham\"\ndensity = 1000.0\nyield_stress = 100.0\npapanastasiou_exponent = 1000.0"),
                 ("viscosity = 1.0e-3", "viscosity = 1.0"),
-                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("scheme = \"explicit\"", "scheme = \"projection\"\nviscosity = \"explicit\""),
                 ("cfl = 0.4", "dt = 1.0e-3"),
             ]),
             "bad.toml: simulation.dt: 0.001 s is above the viscous stability limit h^2 rho / (2 D mu) = 1.000e-6 s of material \"water\" (largest viscosity mu = 1.0000e5 Pa s); lower dt or use cfl",
@@ -542,6 +542,16 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             )]),
             "bad.toml: bodies[0].velocity: bad expression: bodies[0].velocity[0] = \"1 2\": an operator or a function lacks a value, or two values have no operator between them",
         ),
+        (
+            "implicit viscosity with the explicit scheme",
+            edit(&[("scheme = \"explicit\"", "scheme = \"explicit\"\nviscosity = \"implicit\"")]),
+            "bad.toml: simulation.viscosity: \"implicit\" is for scheme = \"projection\": the explicit scheme's step is held far below the viscous limit by the speed of sound; remove the key or set it to \"explicit\"",
+        ),
+        (
+            "viscous solve tolerance out of range",
+            edit(&[("cfl = 0.4", "cfl = 0.4\nviscosity_tolerance = 1.5")]),
+            "bad.toml: simulation.viscosity_tolerance: must be in (0, 1) (a relative residual), got 1.5",
+        ),
         // TOML syntax
         (
             "TOML syntax error",
@@ -622,7 +632,7 @@ fn the_deck_is_named_as_the_user_named_it() {
     assert_eq!(
         stderr.lines().next().unwrap_or(""),
         format!(
-            "error: {}:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames, volume_limits)",
+            "error: {}:5:1: simulation.endtime: unknown key; did you mean `end_time`? (valid keys: dimension, scheme, end_time, dt, cfl, max_dt, gravity, transfer, flip_ratio, shape_function, stress_update, volumetric_averaging, sort_interval, damping, land_on_frames, volume_limits, viscosity, viscosity_tolerance, viscosity_max_iterations)",
             deck.display()
         )
     );

@@ -293,10 +293,35 @@ fn a_checkpoint_written_by_an_earlier_build_still_resumes() {
         "the edit finds its line"
     );
     let dir = scratch_dir("resume-fixture");
+    // the fixture's build solved viscosity explicitly, and the projection's default is now
+    // implicit: the deck as it stands is refused by that key, and resumes once it says so
+    let refused = write_deck(
+        &dir,
+        "refused.toml",
+        &text.replace("end_time = 0.02\n", "end_time = 0.03\n"),
+    );
+    let out = pmpm(&[
+        "run",
+        &refused,
+        "-o",
+        dir.join("refused").to_str().unwrap(),
+        "-q",
+        "--resume",
+        fixture.join("checkpoint.bin").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("simulation.viscosity was \"explicit\", the deck has \"implicit\""),
+        "{err}"
+    );
     let deck = write_deck(
         &dir,
         "deck.toml",
-        &text.replace("end_time = 0.02\n", "end_time = 0.03\n"),
+        &text.replace(
+            "end_time = 0.02\n",
+            "end_time = 0.03\nviscosity = \"explicit\"\n",
+        ),
     );
     let (resumed, fresh) = (dir.join("resumed"), dir.join("fresh"));
     let checkpoint = fixture.join("checkpoint.bin");

@@ -205,7 +205,11 @@ fn hydrostatic<const D: usize>(d: &Deck, h_col: f64, h: f64) {
 /// on it to 2.3e-7 U with both schemes (the transient's size), held to 1e-5 U (the moving wall
 /// had no other test; a lid whose velocity is lost gives an error of order U). With the
 /// quadratic and cubic B-splines the walls act about 0.2 h beyond where they lie: 1.1e-2 U
-/// (projection; 3.9e-3 U explicit with the cubic), held to h / (4 H).
+/// (projection; 3.9e-3 U explicit with the cubic), held to h / (4 H). The projection's runs
+/// with linear and GIMP shapes solve the viscosity implicitly (the default) at the lid's step,
+/// 32 times the explicit viscous limit, and hold the line as exactly. Its B-spline runs keep
+/// the explicit viscous update and its step: with the implicit solve at the larger step the
+/// walls act further out (1.8e-2 U with bspline2, docs/method.md "Implicit viscosity").
 #[test]
 fn a_moving_lid_drives_the_linear_couette_profile() {
     for (scheme, shape) in [
@@ -216,6 +220,11 @@ fn a_moving_lid_drives_the_linear_couette_profile() {
         ("projection", "bspline3"),
         ("explicit", "bspline3"),
     ] {
+        let viscosity = match (scheme, shape.starts_with("bspline")) {
+            ("projection", true) => "explicit",
+            ("projection", false) => "implicit",
+            _ => "explicit",
+        };
         let d = deck(&format!(
             r#"
 [simulation]
@@ -223,6 +232,7 @@ dimension = 2
 scheme = "{scheme}"
 end_time = 1.5
 cfl = 0.5
+viscosity = "{viscosity}"
 gravity = [0.0, 0.0]
 transfer = "apic"
 shape_function = "{shape}"

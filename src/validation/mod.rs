@@ -14,7 +14,7 @@ mod elastic;
 mod footing;
 mod hydrostatic;
 mod lobovsky;
-mod periodic;
+pub mod periodic;
 pub mod plot;
 mod prose;
 

@@ -153,6 +153,18 @@ impl<const D: usize> Boundary<D> {
 
     /// The wall velocity of pair k (node, face).
     #[inline]
+    /// The fastest wall or rigid body: a lid or a body that drives a flow from rest sets the
+    /// flow's speed before any particle has it.
+    pub fn max_wall_speed(&self) -> f64 {
+        let faces = self
+            .faces
+            .iter()
+            .filter(|(kind, _)| matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip))
+            .map(|(_, v)| v.norm());
+        let nodes = self.node_wall.iter().map(|v| v.norm());
+        faces.chain(nodes).fold(self.rigid.max_speed(), f64::max)
+    }
+
     fn wall(&self, k: usize, f: usize) -> Vector<D> {
         if self.node_wall.is_empty() {
             self.faces[f].1

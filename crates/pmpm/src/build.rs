@@ -57,6 +57,8 @@ impl<const D: usize> Simulation<D> {
         let materials: Vec<MaterialParams> =
             deck.materials.iter().map(MaterialDeck::params).collect();
         let min_mass = particles.mass.iter().copied().fold(f64::INFINITY, f64::min);
+        let implicit_viscosity =
+            deck.simulation.viscosity == Some(crate::viscosity::ViscosityTreatment::Implicit);
         let settings = TransferSettings {
             shape: deck.simulation.shape_function,
             transfer: deck.simulation.transfer.unwrap_or_default(),
@@ -78,6 +80,11 @@ impl<const D: usize> Simulation<D> {
                 _ => 0.0,
             },
             isochoric_affine: deck.simulation.scheme == Scheme::Projection,
+            implicit_stress: if implicit_viscosity {
+                crate::viscosity::implicit_mask(&materials)
+            } else {
+                0
+            },
         };
         let boundary = boundary(deck, &geo);
         let probes: Vec<Vector<D>> = deck
@@ -117,6 +124,12 @@ impl<const D: usize> Simulation<D> {
             projection,
             averaging,
             body_force: (!gravity.is_constant()).then_some(gravity),
+            viscosity: implicit_viscosity.then(|| {
+                crate::viscosity::ImplicitViscosity::new(
+                    deck.simulation.viscosity_tolerance,
+                    deck.simulation.viscosity_max_iterations,
+                )
+            }),
         };
         Ok(Self::from_parts(parts))
     }

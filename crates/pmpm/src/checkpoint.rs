@@ -84,6 +84,22 @@ fn fingerprint(deck: &Deck) -> toml::Table {
     t
 }
 
+/// Fills in the keys a checkpoint's deck lacks because the build that wrote it had no such
+/// key, with the values that build ran with: a resume then goes on as the run began, and a
+/// deck whose new defaults differ from them is refused by name (for example
+/// `simulation.viscosity was "explicit", the deck has "implicit"`: add the key to the deck).
+fn as_run_then(deck: &mut toml::Table) {
+    let Some(toml::Value::Table(s)) = deck.get_mut("simulation") else {
+        return;
+    };
+    // before implicit viscosity (pmpm 0.1 up to 2026-11-28) every viscous stress was explicit
+    if !s.contains_key("viscosity") {
+        s.insert("viscosity".into(), "explicit".into());
+        s.insert("viscosity_tolerance".into(), 1e-8.into());
+        s.insert("viscosity_max_iterations".into(), 2000.into());
+    }
+}
+
 /// The first key (dotted path) whose value differs between two TOML trees, with both values.
 fn first_difference(
     path: &str,
@@ -273,10 +289,11 @@ pub fn read<const D: usize>(
             format!("it holds a {}D run, the deck is {D}D", s.dimension),
         ));
     }
-    let theirs: toml::Table = s
+    let mut theirs: toml::Table = s
         .deck
         .parse()
         .map_err(|e| refuse(path, format!("its deck cannot be read ({e})")))?;
+    as_run_then(&mut theirs);
     let ours = fingerprint(deck);
     if let Some((key, was, now)) =
         first_difference("", &toml::Value::Table(theirs), &toml::Value::Table(ours))

@@ -85,6 +85,7 @@ pub mod scheme;
 pub mod shape;
 pub mod timing;
 pub mod transfer;
+pub mod viscosity;
 
 pub use deck::{limits, Deck};
 pub use error::Error;

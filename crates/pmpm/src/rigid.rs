@@ -140,6 +140,11 @@ struct FacePoint<const D: usize> {
 }
 
 impl<const D: usize> RigidBodies<D> {
+    /// The fastest body's speed (0 without bodies).
+    pub fn max_speed(&self) -> f64 {
+        self.velocity.iter().map(|v| v.norm()).fold(0.0, f64::max)
+    }
+
     /// The bodies, seen by the projection where their faces lie when `cut` (cut cells) or
     /// through the nodes they hold.
     pub fn new(bodies: &[RigidBox<D>], cut: bool) -> Self {

@@ -16,6 +16,7 @@ use crate::pressure::Projection;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
 use crate::transfer::{self, P2gScratch, StressUpdate, TransferSettings};
+use crate::viscosity::{ImplicitViscosity, ViscousError};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -108,6 +109,8 @@ pub struct Parts<const D: usize> {
     pub averaging: Option<NodalAveraging<D>>,
     /// A body force given by expressions that vary in space or time.
     pub body_force: Option<crate::field::CompiledField>,
+    /// The implicit viscous solve (`simulation.viscosity = "implicit"`).
+    pub viscosity: Option<ImplicitViscosity<D>>,
 }
 
 /// The whole state of a run: particles, grid, settings, time.
@@ -136,6 +139,8 @@ pub struct Simulation<const D: usize> {
     pub projection: Option<Projection<D>>,
     /// The nodal averaging of the volumetric strain rate (`volumetric_averaging = "nodal"`).
     averaging: Option<NodalAveraging<D>>,
+    /// The implicit viscous solve (`simulation.viscosity = "implicit"`).
+    pub viscosity: Option<ImplicitViscosity<D>>,
     work: Work<D>,
     /// Wall-clock seconds per phase of the step.
     pub timers: PhaseTimers,
@@ -153,6 +158,7 @@ impl<const D: usize> Simulation<D> {
             body_force,
             projection: parts.projection,
             averaging: parts.averaging,
+            viscosity: parts.viscosity,
             policy: parts.policy,
             particles: parts.particles,
             grid: Grid::new(parts.geo),
@@ -196,6 +202,8 @@ impl<const D: usize> Simulation<D> {
             Scheme::Explicit => self.hold_walls(dt),
             Scheme::Projection => self.project(dt)?,
         }
+        // 3b. the fluids' viscous stress at the new velocity (implicit viscosity)
+        self.solve_viscosity(dt)?;
         // 4. grid -> particles (PIC / FLIP / APIC) and move
         self.grid_to_particles(dt)?;
         self.timers.lap(Phase::G2p);
@@ -223,6 +231,48 @@ impl<const D: usize> Simulation<D> {
             self.settings.mass_epsilon,
             self.settings.mass_floor,
         );
+    }
+
+    /// Step 3b: the projected velocity v <- u, the solution of (M + dt K) u = M v, K the
+    /// fluids' viscous operator (docs/method.md, "Implicit viscosity"). After the pressure, not
+    /// before: before it, the solve would diffuse the predictor's gravity increment, which the
+    /// pressure is about to cancel, into the walls' boundary layers (water at rest in a tank
+    /// moved at 3 mm/s). A solve that fails stops the run with its residual and the keys to
+    /// change.
+    fn solve_viscosity(&mut self, dt: f64) -> Result<(), Error> {
+        let Some(viscosity) = self.viscosity.as_mut() else {
+            return Ok(());
+        };
+        self.timers.lap(Phase::Other);
+        viscosity
+            .solve(
+                &self.particles,
+                &mut self.grid,
+                &self.boundary,
+                &self.materials,
+                self.settings.shape,
+                self.settings.mass_epsilon,
+                dt,
+            )
+            .map_err(|e| {
+                let hint = match e {
+                    ViscousError::NotConverged { .. } => {
+                        "raise simulation.viscosity_max_iterations, or lower simulation.cfl \
+                         (a smaller step makes the viscous system better conditioned)"
+                    }
+                    ViscousError::Breakdown(_) => {
+                        "the flow had blown up before the solve; lower simulation.cfl or \
+                         simulation.dt"
+                    }
+                };
+                Error::BlowUp(format!(
+                    "run stopped at step {}, t = {:.6} s: {e}. {hint}",
+                    self.steps + 1,
+                    self.time
+                ))
+            })?;
+        self.timers.lap(Phase::Viscosity);
+        Ok(())
     }
 
     /// Step 3 of the explicit scheme: the boundary conditions on v* (the pressure came from
@@ -518,6 +568,8 @@ impl<const D: usize> Simulation<D> {
                 .zip(ps.material.par_iter())
                 .map(|(v, &m)| v.norm() + mats[m as usize].wave_speed(explicit))
                 .reduce(|| 0.0, f64::max);
+        // a moving wall or body sets the speed of the flow it drives from the first step
+        let speed = speed.max(self.boundary.max_wall_speed());
         let h = self.grid.geo.h;
         let mut dt = if speed > 0.0 {
             cfl * h / speed
@@ -533,13 +585,55 @@ impl<const D: usize> Simulation<D> {
         if g > 0.0 {
             dt = dt.min(cfl * (h / g).sqrt());
         }
+        let implicit = self.viscosity.is_some();
         for m in mats {
-            dt = dt.min(m.viscous_dt_limit(h, D));
+            if !(implicit && crate::viscosity::is_implicit(&m.law)) {
+                dt = dt.min(m.viscous_dt_limit(h, D));
+            }
+        }
+        if implicit {
+            dt = dt.min(self.strain_limit(cfl, dt));
         }
         if let Some(max) = self.policy.max_dt {
             dt = dt.min(max);
         }
         dt
+    }
+
+    /// The step limit that replaces the viscous one where the implicit solve lifted it: a
+    /// particle is sheared by at most `cfl` in a step, cfl / max gamma_p with gamma =
+    /// sqrt(2 dev D : dev D), over the particles of the materials whose explicit viscous limit
+    /// is below `dt`. The viscosity is lagged from the last step's strain rate, so a step that
+    /// strains a particle by more than that lets a yield-stress fluid yield or stop a step late,
+    /// and the particles' volume ratios drift with the square of the strain per step (a Bingham
+    /// slump lost 2 % of its volume at a strain of 0.3 a step). Water's viscous limit is
+    /// seconds long and never reaches this.
+    fn strain_limit(&self, cfl: f64, dt: f64) -> f64 {
+        let h = self.grid.geo.h;
+        let stiff: Vec<bool> = self
+            .materials
+            .iter()
+            .map(|m| crate::viscosity::is_implicit(&m.law) && m.viscous_dt_limit(h, D) < dt)
+            .collect();
+        if !stiff.contains(&true) {
+            return f64::INFINITY;
+        }
+        let ps = &self.particles;
+        let gamma = ps
+            .velocity_gradient
+            .par_iter()
+            .zip(ps.material.par_iter())
+            .filter(|(_, &m)| stiff[m as usize])
+            .map(|(l, _)| {
+                let dev = material::deviatoric_strain_rate(l);
+                (2.0 * dev.norm_squared()).sqrt()
+            })
+            .reduce(|| 0.0, f64::max);
+        if gamma > 0.0 {
+            cfl / gamma
+        } else {
+            f64::INFINITY
+        }
     }
 
     /// Pressure iterations of the last step, summed over its passes (0 for the explicit

@@ -16,6 +16,8 @@ pub enum Phase {
     P2g,
     /// Grid update: predictor v* and the wall conditions.
     Predictor,
+    /// The implicit viscous solve (projection, `simulation.viscosity = "implicit"`).
+    Viscosity,
     /// Volume fractions, bubble closing and node classification (projection).
     FreeSurface,
     /// Poisson matrix and right-hand side (projection).
@@ -39,10 +41,11 @@ pub enum Phase {
 
 impl Phase {
     /// Every phase, in step order.
-    pub const ALL: [Phase; 12] = [
+    pub const ALL: [Phase; 13] = [
         Phase::Sort,
         Phase::P2g,
         Phase::Predictor,
+        Phase::Viscosity,
         Phase::FreeSurface,
         Phase::Assembly,
         Phase::Solve,
@@ -60,6 +63,7 @@ impl Phase {
             Phase::Sort => "sort",
             Phase::P2g => "p2g",
             Phase::Predictor => "grid",
+            Phase::Viscosity => "viscosity",
             Phase::FreeSurface => "free-surface",
             Phase::Assembly => "assembly",
             Phase::Solve => "pressure",
@@ -78,6 +82,7 @@ impl Phase {
             Phase::Sort => "particle sort by cell",
             Phase::P2g => "P2G",
             Phase::Predictor => "grid update / predictor",
+            Phase::Viscosity => "viscous solve",
             Phase::FreeSurface => "free-surface detection",
             Phase::Assembly => "assembly",
             Phase::Solve => "pressure solve",

@@ -7,7 +7,7 @@
 
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::{Matrix, Particles};
-use crate::shape::{ShapeFunction, Stencil};
+use crate::shape::{NodeWeight, ShapeFunction, Stencil};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -94,6 +94,9 @@ pub struct TransferSettings<const D: usize> {
     /// APIC's affine matrix C_p kept trace free (its trace removed after the transfer):
     /// true under the projection.
     pub isochoric_affine: bool,
+    /// Bit m set when material m's stress is viscous and taken by the implicit viscous solve
+    /// ([`crate::viscosity`]): P2G leaves it out of the internal force.
+    pub implicit_stress: u64,
 }
 
 /// APIC's affine matrix C_p from its gathered value `b`, less its trace when `isochoric`.
@@ -239,6 +242,37 @@ pub(crate) fn scatter_to_nodes<const D: usize, T>(
 ) where
     T: Copy + Send + Sync + std::ops::AddAssign + std::ops::Mul<f64, Output = T>,
 {
+    scatter_weighted(
+        bands,
+        shape,
+        geo,
+        x,
+        half_width,
+        zero,
+        value,
+        |v, nw| *v * nw.n,
+        out,
+    )
+}
+
+/// sum_p contribution(value(p), w_ip) at every node i, into `out`, where w_ip is the node's
+/// weight seen from particle p (N_ip, its gradient G_ip, APIC's a_ip): [`scatter_to_nodes`]
+/// for any per-node contribution, with the same band order and so the same bits for a given
+/// thread count.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn scatter_weighted<const D: usize, T, V>(
+    bands: &mut Vec<Band<T>>,
+    shape: ShapeFunction,
+    geo: &GridGeometry<D>,
+    x: &[Vector<D>],
+    half_width: &[f64],
+    zero: T,
+    value: impl Fn(usize) -> V + Sync,
+    contribution: impl Fn(&V, &NodeWeight<D>) -> T + Sync,
+    out: &mut Vec<T>,
+) where
+    T: Copy + Send + Sync + std::ops::AddAssign,
+{
     bands.resize_with(rayon::current_num_threads().max(1), Band::default);
     crate::with_shape!(shape, S => {
         let shape = ShapeFunction::from_code(S);
@@ -247,7 +281,7 @@ pub(crate) fn scatter_to_nodes<const D: usize, T>(
             for p in range {
                 let v = value(p);
                 let st = Stencil::<D>::new(shape, &geo.to_cells(&x[p]), geo.h, half_width[p]);
-                st.for_each(|nw| acc[geo.flat(&nw.node) - start] += v * nw.n);
+                st.for_each(|nw| acc[geo.flat(&nw.node) - start] += contribution(&v, &nw));
             }
         })
     });
@@ -333,7 +367,15 @@ fn scatter_p2g<const D: usize, const S: u8>(
         for p in range {
             let m = ps.mass[p];
             let vol = ps.volume(p);
-            let mut stress = ps.tau[p];
+            let implicit = s
+                .implicit_stress
+                .checked_shr(u32::from(ps.material[p]))
+                .is_some_and(|bits| bits & 1 == 1);
+            let mut stress = if implicit {
+                Matrix::<D>::zeros()
+            } else {
+                ps.tau[p]
+            };
             if s.pressure_weight != 0.0 {
                 for d in 0..D {
                     stress[(d, d)] -= s.pressure_weight * ps.pressure[p];
@@ -691,6 +733,7 @@ mod tests {
             mass_epsilon: 1e-300,
             mass_floor: 0.0,
             isochoric_affine: false,
+            implicit_stress: 0,
         }
     }
 

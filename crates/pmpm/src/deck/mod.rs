@@ -174,9 +174,30 @@ pub struct SimulationDeck {
     /// [`MAX_PARTICLE_CELLS`] cells.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub volume_limits: Option<[f64; 2]>,
+    /// The fluids' viscous stress: `implicit` (in the predictor at the new velocity, no
+    /// viscous step limit; projection only) or `explicit` (from the last step's strain rate,
+    /// dt <= rho h^2 / (2 d mu)). `validate` fills it in: implicit for the projection,
+    /// explicit for the explicit scheme.
+    #[serde(default)]
+    pub viscosity: Option<ViscosityTreatment>,
+    /// Relative residual of the implicit viscous solve (default 1e-8).
+    #[serde(default = "default_viscosity_tolerance")]
+    pub viscosity_tolerance: f64,
+    /// Iteration limit of the implicit viscous solve (default 2000): past it the run stops.
+    #[serde(default = "default_viscosity_max_iterations")]
+    pub viscosity_max_iterations: usize,
+}
+
+fn default_viscosity_tolerance() -> f64 {
+    1e-8
+}
+
+fn default_viscosity_max_iterations() -> usize {
+    2000
 }
 
 pub use crate::scheme::MAX_PARTICLE_CELLS;
+pub use crate::viscosity::ViscosityTreatment;
 
 /// The most frames, or checkpoints, a deck may ask for over its run: a million frames of even a
 /// small run fill a disk.
@@ -720,6 +741,7 @@ fn allowed_values(key: &str) -> Option<Vec<String>> {
         "transfer" => variants::<Transfer>(),
         "shape_function" => variants::<ShapeFunction>(),
         "stress_update" => variants::<StressUpdate>(),
+        "viscosity" if key.starts_with("simulation") => variants::<ViscosityTreatment>(),
         "volumetric_averaging" => variants::<VolumetricAveraging>(),
         "solver" => variants::<Solver>(),
         "preconditioner" => variants::<Preconditioner>(),
@@ -1115,6 +1137,34 @@ impl Deck {
                 format!("must be [min, max] with 0 < min < 1 < max (bounds on a particle's volume ratio J = V / V0), got [{lo}, {hi}]"),
             ));
             }
+        }
+        let implicit = *s.viscosity.get_or_insert(match s.scheme {
+            Scheme::Projection => ViscosityTreatment::Implicit,
+            Scheme::Explicit => ViscosityTreatment::Explicit,
+        }) == ViscosityTreatment::Implicit;
+        if implicit && s.scheme == Scheme::Explicit {
+            return Err(c.err(
+                "simulation.viscosity",
+                "\"implicit\" is for scheme = \"projection\": the explicit scheme's step is held far below the viscous limit by the speed of sound; remove the key or set it to \"explicit\"",
+            ));
+        }
+        if !(s.viscosity_tolerance > 0.0 && s.viscosity_tolerance < 1.0) {
+            return Err(c.err(
+                "simulation.viscosity_tolerance",
+                format!(
+                    "must be in (0, 1) (a relative residual), got {}",
+                    s.viscosity_tolerance
+                ),
+            ));
+        }
+        if s.viscosity_max_iterations == 0 {
+            return Err(c.err("simulation.viscosity_max_iterations", "must be at least 1"));
+        }
+        if implicit && self.materials.len() > 64 {
+            return Err(c.err(
+                "simulation.viscosity",
+                format!("\"implicit\" takes at most 64 materials, the deck has {}; merge materials or set it to \"explicit\"", self.materials.len()),
+            ));
         }
         if s.volumetric_averaging != VolumetricAveraging::None && s.scheme != Scheme::Explicit {
             return Err(c.err(
@@ -1626,12 +1676,32 @@ impl Deck {
             .materials
             .iter()
             .enumerate()
+            .filter(|(_, m)| !self.implicit_viscosity(m))
             .map(|(i, m)| {
                 let p = m.params();
                 (p.viscous_dt_limit(h, self.simulation.dimension), i)
             })
             .fold((f64::INFINITY, 0), |a, b| if b.0 < a.0 { b } else { a });
         (wave, viscous)
+    }
+
+    /// Whether the implicit viscous solve takes material `m`'s stress, so that its viscous
+    /// limit does not bound the step.
+    pub fn implicit_viscosity(&self, m: &MaterialDeck) -> bool {
+        self.simulation.viscosity == Some(ViscosityTreatment::Implicit)
+            && crate::viscosity::is_implicit(&m.params().law)
+    }
+
+    /// The explicit viscous limit h^2 rho / (2 D mu) that the implicit solve lifts: the
+    /// smallest over the materials it takes, and which (infinite without any).
+    pub fn lifted_viscous_limit(&self) -> (f64, usize) {
+        let h = self.grid.cell_size;
+        self.materials
+            .iter()
+            .enumerate()
+            .filter(|(_, m)| self.implicit_viscosity(m))
+            .map(|(i, m)| (m.params().viscous_dt_limit(h, self.simulation.dimension), i))
+            .fold((f64::INFINITY, 0), |a, b| if b.0 < a.0 { b } else { a })
     }
 
     /// The smaller of [`Deck::dt_limits`].

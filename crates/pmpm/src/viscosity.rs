@@ -1,0 +1,592 @@
+//! Implicit viscosity: the predictor's viscous term taken at the new velocity, so that the time
+//! step of a viscous or yield-stress flow is set by the flow speed and not by the explicit
+//! limit dt <= rho h^2 / (2 d mu).
+//!
+//! After the predictor v* (gravity and any explicit stress) the node velocities u solve
+//!
+//!   (M + dt K) u = M v*,      (K u)_i = sum_p V_p tau_p(u) G_ip,
+//!   tau_p(u) = 2 mu_p dev sym L_p(u),      L_p(u) = sum_j u_j (x) G_jp,
+//!
+//! backward Euler on m_i du_i/dt = -sum_p V_p tau_p G_ip, the viscous force of the weak form
+//! integrated at the particles. u^T K u = sum_p 2 V_p mu_p |dev sym L_p|^2 >= 0, so M + dt K is
+//! symmetric positive definite on the nodes that carry mass, for any mu_p >= 0 and any dt: the
+//! solve is unconditionally stable. The free surface needs no condition: it is where the
+//! particles (the quadrature points of the weak form) end, and the weak form's natural
+//! condition there is zero viscous traction (Batty & Bridson, SCA 2008, "Accurate viscous free
+//! surfaces", reach the same condition with a variational form on a staggered grid). Walls and
+//! rigid bodies hold the components they prescribe (their values from the wall conditions);
+//! the other components are the unknowns.
+//!
+//! mu_p is the material's apparent viscosity at the particle's strain rate of the last step
+//! (lagged): a Newtonian fluid's constant, a regularised Bingham or Herschel-Bulkley fluid's
+//! mu_eff(gamma). The solve is matrix-free conjugate gradients with a Jacobi preconditioner:
+//! one gather of L_p and one scatter of tau_p G_ip per iteration, through the same stencils as
+//! the transfers, so that K is the operator the explicit viscous force applies. It is written
+//! by hand, as the transfers are, because its operator exists only as particle sums.
+
+use crate::boundary::Boundary;
+use crate::grid::{Grid, GridGeometry, Vector};
+use crate::material::{deviatoric_strain_rate, Law, MaterialParams};
+use crate::particles::{Matrix, Particles};
+use crate::shape::{ShapeFunction, Stencil};
+use crate::transfer::{scatter_weighted, Band};
+use rayon::prelude::*;
+
+/// Node vectors summed in fixed chunks, in order: the same bits for any thread count.
+const CHUNK: usize = 4096;
+
+/// How the viscous part of the stress is integrated in time (`simulation.viscosity`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViscosityTreatment {
+    /// In the predictor at the new velocity (the projection's default): no viscous step limit.
+    Implicit,
+    /// From the last step's strain rate, in the internal force: dt <= rho h^2 / (2 d mu_max).
+    Explicit,
+}
+
+/// Whether a material's whole deviatoric stress is viscous, tau = 2 mu(gamma) dev D, and so is
+/// taken by the implicit solve: the fluids. A solid's elastic or plastic stress (and a
+/// neo-Hookean solid's Kelvin-Voigt part) stays explicit.
+pub fn is_implicit(law: &Law) -> bool {
+    matches!(law, Law::Newtonian(_) | Law::Viscoplastic(_))
+}
+
+/// Bit `m` set for each material `m` whose stress the implicit solve takes: the mask with which
+/// P2G leaves their stress out of the internal force. Materials from the 64th on are never
+/// implicit (the deck's limit on materials under implicit viscosity).
+pub fn implicit_mask(materials: &[MaterialParams]) -> u64 {
+    materials
+        .iter()
+        .take(64)
+        .enumerate()
+        .filter(|(_, m)| is_implicit(&m.law))
+        .fold(0, |mask, (k, _)| mask | 1 << k)
+}
+
+/// Apparent viscosity of a particle of material `law` whose velocity gradient is `l`.
+fn apparent_viscosity<const D: usize>(law: &Law, l: &Matrix<D>) -> f64 {
+    match law {
+        Law::Newtonian(m) => m.viscosity,
+        Law::Viscoplastic(m) => {
+            let dev = deviatoric_strain_rate(l);
+            m.apparent_viscosity((2.0 * dev.norm_squared()).sqrt())
+        }
+        _ => 0.0,
+    }
+}
+
+/// Outcome of a viscous solve.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ViscousStats {
+    /// Conjugate-gradient iterations.
+    pub iterations: usize,
+    /// Final |M v* - (M + dt K) u| / |M v*| over the free components.
+    pub relative_residual: f64,
+}
+
+/// Why the viscous solve failed.
+#[derive(Debug, Clone, thiserror::Error, PartialEq)]
+pub enum ViscousError {
+    /// The iteration limit was reached.
+    #[error(
+        "the viscous solve did not converge: relative residual {residual:.3e} after \
+         {iterations} iterations (simulation.viscosity_tolerance = {tolerance:.1e}, \
+         simulation.viscosity_max_iterations = {iterations})"
+    )]
+    NotConverged {
+        /// Iterations done.
+        iterations: usize,
+        /// Relative residual reached.
+        residual: f64,
+        /// Relative residual asked for.
+        tolerance: f64,
+    },
+    /// A value that is not finite, or a direction of non-positive curvature (which the
+    /// operator cannot have with finite positive masses and viscosities).
+    #[error("the viscous solve broke down: {0}")]
+    Breakdown(String),
+}
+
+/// The implicit viscous solve and its work buffers, kept between steps.
+#[derive(Debug, Default)]
+pub struct ImplicitViscosity<const D: usize> {
+    tolerance: f64,
+    max_iterations: usize,
+    /// Per particle: dt V_p mu_p (0 for a particle whose stress is explicit).
+    coefficient: Vec<f64>,
+    /// Per particle: 2 dt V_p mu_p dev sym L_p of the vector the operator is applied to.
+    stress: Vec<Matrix<D>>,
+    /// Per node: 1 on the free components, 0 on those the walls and bodies hold or where the
+    /// node carries no mass.
+    mask: Vec<Vector<D>>,
+    /// Inverse of the diagonal of M + dt K on the free components.
+    inverse_diagonal: Vec<Vector<D>>,
+    r: Vec<Vector<D>>,
+    z: Vec<Vector<D>>,
+    p: Vec<Vector<D>>,
+    q: Vec<Vector<D>>,
+    bands: Vec<Band<Vector<D>>>,
+    partials: Vec<f64>,
+    /// The last solve's outcome.
+    pub last: ViscousStats,
+}
+
+impl<const D: usize> ImplicitViscosity<D> {
+    /// A solve to relative residual `tolerance` in at most `max_iterations` iterations.
+    pub fn new(tolerance: f64, max_iterations: usize) -> Self {
+        Self {
+            tolerance,
+            max_iterations,
+            ..Self::default()
+        }
+    }
+
+    /// Replaces the node velocities v* in `grid.velocity_new` (the wall conditions applied) by
+    /// the solution u of (M + dt K) u = M v*.
+    #[allow(clippy::too_many_arguments)]
+    pub fn solve(
+        &mut self,
+        ps: &Particles<D>,
+        grid: &mut Grid<D>,
+        boundary: &Boundary<D>,
+        materials: &[MaterialParams],
+        shape: ShapeFunction,
+        mass_epsilon: f64,
+        dt: f64,
+    ) -> Result<ViscousStats, ViscousError> {
+        boundary.apply(&mut grid.velocity_new);
+        self.prepare(ps, grid, boundary, materials, shape, mass_epsilon, dt);
+        let Grid {
+            geo,
+            mass,
+            velocity_new: u,
+            ..
+        } = grid;
+        let n = geo.node_count();
+        // |b| = |M v*| and r = b - (M + dt K) v* = -dt K v*, on the free components
+        let mask = &self.mask;
+        u.par_chunks(CHUNK)
+            .zip(mass.par_chunks(CHUNK).zip(mask.par_chunks(CHUNK)))
+            .map(|(u, (m, k))| {
+                (0..u.len())
+                    .map(|i| (u[i] * m[i]).component_mul(&k[i]).norm_squared())
+                    .sum::<f64>()
+            })
+            .collect_into_vec(&mut self.partials);
+        let b_norm = self.partials.iter().sum::<f64>().sqrt();
+        self.apply_viscous(ps, geo, shape, u);
+        {
+            let (r, q, mask) = (&mut self.r, &self.q, &self.mask);
+            r.resize(n, Vector::<D>::zeros());
+            r.par_iter_mut().enumerate().for_each(|(i, r)| {
+                *r = -q[i].component_mul(&mask[i]);
+            });
+        }
+        let stats = self.iterate(ps, geo, shape, mass, u, b_norm)?;
+        self.last = stats;
+        Ok(stats)
+    }
+
+    /// The particles' weights dt V_p mu_p (mu_p at the last step's strain rate), the free
+    /// components (not held by a wall or body, on a node with mass) and the preconditioner.
+    #[allow(clippy::too_many_arguments)]
+    fn prepare(
+        &mut self,
+        ps: &Particles<D>,
+        grid: &Grid<D>,
+        boundary: &Boundary<D>,
+        materials: &[MaterialParams],
+        shape: ShapeFunction,
+        mass_epsilon: f64,
+        dt: f64,
+    ) {
+        self.coefficient.resize(ps.len(), 0.0);
+        self.coefficient
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(p, c)| {
+                let law = &materials[ps.material[p] as usize].law;
+                *c = if is_implicit(law) {
+                    dt * ps.volume(p) * apparent_viscosity(law, &ps.velocity_gradient[p])
+                } else {
+                    0.0
+                };
+            });
+        self.mask.clear();
+        self.mask
+            .resize(grid.geo.node_count(), Vector::<D>::repeat(1.0));
+        boundary.mask_held(&mut self.mask);
+        for (m, &mass) in self.mask.iter_mut().zip(grid.mass.iter()) {
+            if mass <= mass_epsilon {
+                *m = Vector::<D>::zeros();
+            }
+        }
+        self.diagonal(ps, &grid.geo, shape, &grid.mass);
+    }
+
+    /// q = (M + dt K) x on the free components, 0 on the others.
+    fn apply(
+        &mut self,
+        ps: &Particles<D>,
+        geo: &GridGeometry<D>,
+        shape: ShapeFunction,
+        mass: &[f64],
+        x: &[Vector<D>],
+    ) {
+        self.apply_viscous(ps, geo, shape, x);
+        let (q, mask) = (&mut self.q, &self.mask);
+        q.par_iter_mut().enumerate().for_each(|(i, q)| {
+            *q = (*q + x[i] * mass[i]).component_mul(&mask[i]);
+        });
+    }
+
+    /// Conjugate gradients on the correction: u += alpha p until |r| <= tolerance |M v*|.
+    #[allow(clippy::too_many_arguments)]
+    fn iterate(
+        &mut self,
+        ps: &Particles<D>,
+        geo: &GridGeometry<D>,
+        shape: ShapeFunction,
+        mass: &[f64],
+        u: &mut [Vector<D>],
+        b_norm: f64,
+    ) -> Result<ViscousStats, ViscousError> {
+        let n = u.len();
+        let target = self.tolerance * b_norm;
+        let mut r_norm = norm(&self.r, &mut self.partials);
+        if !r_norm.is_finite() {
+            return Err(ViscousError::Breakdown(
+                "the right-hand side is not finite".into(),
+            ));
+        }
+        if r_norm <= target || b_norm == 0.0 {
+            return Ok(ViscousStats {
+                iterations: 0,
+                relative_residual: if b_norm > 0.0 { r_norm / b_norm } else { 0.0 },
+            });
+        }
+        self.z.resize(n, Vector::<D>::zeros());
+        self.p.resize(n, Vector::<D>::zeros());
+        precondition(&self.inverse_diagonal, &self.r, &mut self.z);
+        self.p.copy_from_slice(&self.z);
+        let mut rz = dot(&self.r, &self.z, &mut self.partials);
+        for it in 1..=self.max_iterations {
+            // q = (M + dt K) p on the free components
+            let p = std::mem::take(&mut self.p);
+            self.apply(ps, geo, shape, mass, &p);
+            let pq = dot(&p, &self.q, &mut self.partials);
+            if pq.is_nan() || pq <= 0.0 {
+                self.p = p;
+                return Err(ViscousError::Breakdown(format!(
+                    "curvature {pq:.3e} at iteration {it}"
+                )));
+            }
+            let alpha = rz / pq;
+            u.par_iter_mut()
+                .zip(p.par_iter())
+                .for_each(|(u, p)| *u += p * alpha);
+            self.r
+                .par_iter_mut()
+                .zip(self.q.par_iter())
+                .for_each(|(r, q)| *r -= q * alpha);
+            r_norm = norm(&self.r, &mut self.partials);
+            if !r_norm.is_finite() {
+                self.p = p;
+                return Err(ViscousError::Breakdown(format!(
+                    "the residual is not finite at iteration {it}"
+                )));
+            }
+            if r_norm <= target {
+                self.p = p;
+                return Ok(ViscousStats {
+                    iterations: it,
+                    relative_residual: r_norm / b_norm,
+                });
+            }
+            precondition(&self.inverse_diagonal, &self.r, &mut self.z);
+            let rz_new = dot(&self.r, &self.z, &mut self.partials);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            self.p = p;
+            self.p
+                .par_iter_mut()
+                .zip(self.z.par_iter())
+                .for_each(|(p, z)| *p = z + *p * beta);
+        }
+        Err(ViscousError::NotConverged {
+            iterations: self.max_iterations,
+            residual: r_norm / b_norm,
+            tolerance: self.tolerance,
+        })
+    }
+
+    /// q = dt K v: the gather of each particle's L_p(v), its viscous stress 2 dt V_p mu_p dev
+    /// sym L_p, and the scatter of tau_p G_ip (into `self.q`, unmasked).
+    fn apply_viscous(
+        &mut self,
+        ps: &Particles<D>,
+        geo: &GridGeometry<D>,
+        shape: ShapeFunction,
+        v: &[Vector<D>],
+    ) {
+        self.stress.resize(ps.len(), Matrix::<D>::zeros());
+        crate::with_shape!(shape, S => {
+            let shape = ShapeFunction::from_code(S);
+            let coefficient = &self.coefficient;
+            self.stress
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(p, s)| {
+                    let c = coefficient[p];
+                    if c == 0.0 {
+                        *s = Matrix::<D>::zeros();
+                        return;
+                    }
+                    let st =
+                        Stencil::<D>::new(shape, &geo.to_cells(&ps.x[p]), geo.h, ps.half_width[p]);
+                    let mut l = Matrix::<D>::zeros();
+                    st.for_each(|nw| l += v[geo.flat(&nw.node)] * nw.grad.transpose());
+                    *s = deviatoric_strain_rate(&l) * (2.0 * c);
+                });
+        });
+        let stress = &self.stress;
+        scatter_weighted(
+            &mut self.bands,
+            shape,
+            geo,
+            &ps.x,
+            &ps.half_width,
+            Vector::<D>::zeros(),
+            |p| stress[p],
+            |s, nw| s * nw.grad,
+            &mut self.q,
+        );
+    }
+
+    /// The inverse diagonal of M + dt K on the free components (0 elsewhere): component d of
+    /// node i has m_i + sum_p dt V_p mu_p (|G_ip|^2 + G_ip,d^2 (1 - 2 / D)), the stress of
+    /// a unit velocity of that component alone (|dev sym (e_d (x) G)|^2 = (|G|^2 + G_d^2) / 2
+    /// - G_d^2 / D).
+    fn diagonal(
+        &mut self,
+        ps: &Particles<D>,
+        geo: &GridGeometry<D>,
+        shape: ShapeFunction,
+        mass: &[f64],
+    ) {
+        let coefficient = &self.coefficient;
+        let shear = 1.0 - 2.0 / D as f64;
+        scatter_weighted(
+            &mut self.bands,
+            shape,
+            geo,
+            &ps.x,
+            &ps.half_width,
+            Vector::<D>::zeros(),
+            |p| coefficient[p],
+            |c, nw| {
+                let g2 = nw.grad.norm_squared();
+                nw.grad.map(|g| *c * (g2 + g * g * shear))
+            },
+            &mut self.inverse_diagonal,
+        );
+        let mask = &self.mask;
+        self.inverse_diagonal
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(i, d)| {
+                *d = Vector::<D>::from_fn(|k, _| {
+                    let a = mass[i] + d[k];
+                    if mask[i][k] > 0.0 && a > 0.0 {
+                        1.0 / a
+                    } else {
+                        0.0
+                    }
+                });
+            });
+    }
+}
+
+/// z = D^-1 r.
+fn precondition<const D: usize>(
+    inverse_diagonal: &[Vector<D>],
+    r: &[Vector<D>],
+    z: &mut [Vector<D>],
+) {
+    z.par_iter_mut()
+        .zip(inverse_diagonal.par_iter().zip(r.par_iter()))
+        .for_each(|(z, (d, r))| *z = d.component_mul(r));
+}
+
+/// sum_i a_i . b_i in fixed chunks summed in order.
+fn dot<const D: usize>(a: &[Vector<D>], b: &[Vector<D>], partials: &mut Vec<f64>) -> f64 {
+    a.par_chunks(CHUNK)
+        .zip(b.par_chunks(CHUNK))
+        .map(|(a, b)| a.iter().zip(b).map(|(x, y)| x.dot(y)).sum::<f64>())
+        .collect_into_vec(partials);
+    partials.iter().sum()
+}
+
+/// |a|.
+fn norm<const D: usize>(a: &[Vector<D>], partials: &mut Vec<f64>) -> f64 {
+    dot(a, a, partials).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::deck::Deck;
+    use crate::scheme::Simulation;
+
+    /// A viscous block (mu = 50 Pa s, h = 0.05) in a box whose faces are `faces`, after P2G,
+    /// with particle velocities v = (sin 3y, x^2) so that the strain rates (and a
+    /// Bingham fluid's lagged viscosity) vary.
+    fn block(model: &str, faces: &str) -> Simulation<2> {
+        let src = format!(
+            r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 1.0
+cfl = 0.5
+[grid]
+size = [1.0, 1.0]
+cell_size = 0.05
+[grid.boundary]
+{faces}
+[[materials]]
+name = "mud"
+{model}
+density = 1000.0
+viscosity = 50.0
+[[bodies]]
+material = "mud"
+shape = {{ type = "box", min = [0.2, 0.0], max = [0.7, 0.45] }}
+particles_per_cell = 2
+"#
+        );
+        let mut d = Deck::parse(&src, "t.toml").unwrap();
+        d.validate("t.toml").unwrap();
+        let mut sim = Simulation::<2>::new(&d).unwrap();
+        for p in 0..sim.particles.len() {
+            let x = sim.particles.x[p];
+            sim.particles.v[p] = Vector::<2>::new((3.0 * x[1]).sin(), x[0] * x[0]);
+            sim.particles.velocity_gradient[p] =
+                Matrix::<2>::new(0.0, 3.0 * (3.0 * x[1]).cos(), 2.0 * x[0], 0.0);
+        }
+        sim.particles_to_grid();
+        sim
+    }
+
+    const WALLS: &str = "x_min = \"slip\"\nx_max = \"slip\"\ny_min = \"no_slip\"\ny_max = \"open\"";
+
+    /// The operator the conjugate gradients need: a . A b = b . A a (symmetric), a . A a > 0
+    /// on the free components, and the Jacobi diagonal is A's own, for a Newtonian and a
+    /// Bingham fluid (whose viscosity varies from particle to particle) next to a no-slip
+    /// floor and slip walls.
+    #[test]
+    fn the_operator_is_symmetric_positive_and_its_diagonal_is_exact() {
+        for model in [
+            "model = \"newtonian\"",
+            "model = \"bingham\"\nyield_stress = 100.0\npapanastasiou_exponent = 10.0",
+        ] {
+            let sim = block(model, WALLS);
+            let (ps, grid, shape) = (&sim.particles, &sim.grid, sim.settings.shape);
+            let mut v = ImplicitViscosity::<2>::new(1e-8, 100);
+            let eps = sim.settings.mass_epsilon;
+            v.prepare(ps, grid, &sim.boundary, &sim.materials, shape, eps, 0.01);
+            let n = grid.geo.node_count();
+            let field = |k: f64| -> Vec<Vector<2>> {
+                (0..n)
+                    .map(|i| {
+                        let f = i as f64;
+                        Vector::<2>::new((k * f).sin(), (1.7 * k * f).cos())
+                            .component_mul(&v.mask[i])
+                    })
+                    .collect()
+            };
+            let (a, b) = (field(0.37), field(1.13));
+            v.apply(ps, &grid.geo, shape, &grid.mass, &b);
+            let ab: f64 = a.iter().zip(&v.q).map(|(x, y)| x.dot(y)).sum();
+            v.apply(ps, &grid.geo, shape, &grid.mass, &a);
+            let ba: f64 = b.iter().zip(&v.q).map(|(x, y)| x.dot(y)).sum();
+            let aa: f64 = a.iter().zip(&v.q).map(|(x, y)| x.dot(y)).sum();
+            assert!(
+                (ab - ba).abs() <= 1e-12 * ab.abs().max(ba.abs()),
+                "{ab} {ba}"
+            );
+            assert!(aa > 0.0);
+            // the viscous part is most of the diagonal at this step: the check has teeth
+            let mut free = 0;
+            for i in (0..n).filter(|&i| grid.mass[i] > 0.0) {
+                for c in 0..2 {
+                    if v.mask[i][c] == 0.0 {
+                        continue;
+                    }
+                    let mut e = vec![Vector::<2>::zeros(); n];
+                    e[i][c] = 1.0;
+                    v.apply(ps, &grid.geo, shape, &grid.mass, &e);
+                    let diagonal = 1.0 / v.inverse_diagonal[i][c];
+                    assert!(
+                        (v.q[i][c] - diagonal).abs() <= 1e-12 * diagonal,
+                        "node {i}, component {c}: {} against {diagonal}",
+                        v.q[i][c]
+                    );
+                    free += 1;
+                }
+            }
+            assert!(free > 50, "{free} free components");
+        }
+    }
+
+    /// A rigid translation has no strain rate: the solve leaves it as it is, bit for bit,
+    /// without an iteration (the property that keeps water at rest in a tank at rest).
+    #[test]
+    fn a_uniform_velocity_is_left_as_it_is() {
+        let open = "x_min = \"open\"\nx_max = \"open\"\ny_min = \"open\"\ny_max = \"open\"";
+        let mut sim = block("model = \"newtonian\"", open);
+        let uniform = Vector::<2>::new(0.3, -0.2);
+        sim.grid.velocity_new.fill(uniform);
+        let mut v = ImplicitViscosity::<2>::new(1e-10, 100);
+        let stats = v
+            .solve(
+                &sim.particles,
+                &mut sim.grid,
+                &sim.boundary,
+                &sim.materials,
+                sim.settings.shape,
+                sim.settings.mass_epsilon,
+                1.0,
+            )
+            .unwrap();
+        assert_eq!(stats.iterations, 0);
+        assert!(sim.grid.velocity_new.iter().all(|u| *u == uniform));
+    }
+
+    /// A solve that cannot reach its tolerance in its iterations says so, with the keys.
+    #[test]
+    fn a_solve_that_does_not_converge_names_its_keys() {
+        let mut sim = block("model = \"newtonian\"", WALLS);
+        sim.grid.velocity_new.clone_from(&sim.grid.velocity);
+        let mut v = ImplicitViscosity::<2>::new(1e-12, 2);
+        let e = v
+            .solve(
+                &sim.particles,
+                &mut sim.grid,
+                &sim.boundary,
+                &sim.materials,
+                sim.settings.shape,
+                sim.settings.mass_epsilon,
+                1.0,
+            )
+            .unwrap_err();
+        let m = e.to_string();
+        assert!(
+            matches!(e, ViscousError::NotConverged { iterations: 2, .. }),
+            "{m}"
+        );
+        assert!(m.contains("simulation.viscosity_max_iterations"), "{m}");
+        assert!(m.contains("simulation.viscosity_tolerance"), "{m}");
+    }
+}
