@@ -104,6 +104,22 @@ pub(super) fn prose_texts(quick: bool) -> Vec<String> {
     t
 }
 
+/// (mean y, mean x-velocity) of each particle row of the initial lattice (rows h/2 apart).
+fn row_profile(sim: &pmpm::scheme::Simulation<2>, h: f64) -> Vec<(f64, f64)> {
+    let rows = (2.0 * L / h).round() as usize;
+    let mut sum = vec![(0.0, 0.0, 0usize); rows];
+    for (x, v) in sim.particles.x.iter().zip(&sim.particles.v) {
+        let k = ((x[1] / (h / 2.0)).floor() as usize).min(rows - 1);
+        sum[k].0 += x[1];
+        sum[k].1 += v[0];
+        sum[k].2 += 1;
+    }
+    sum.iter()
+        .filter(|r| r.2 > 0)
+        .map(|r| (r.0 / r.2 as f64, r.1 / r.2 as f64))
+        .collect()
+}
+
 /// Start-up profile case: `couette` picks the moving wall, else the body force.
 fn startup(ctx: &Ctx, couette: bool) -> Result<Section, String> {
     let quick = ctx.opts.quick;
@@ -144,20 +160,7 @@ fn startup(ctx: &Ctx, couette: bool) -> Result<Section, String> {
     ];
     run_deck::<2>(&d, |sim, _| {
         while next < TIMES.len() && sim.time >= TIMES[next] - 1e-12 {
-            // rows of the lattice: bin by y in steps of h/2
-            let rows = (2.0 * L / h).round() as usize;
-            let mut sum = vec![(0.0, 0.0, 0usize); rows];
-            for (x, v) in sim.particles.x.iter().zip(&sim.particles.v) {
-                let k = ((x[1] / (h / 2.0)).floor() as usize).min(rows - 1);
-                sum[k].0 += x[1];
-                sum[k].1 += v[0];
-                sum[k].2 += 1;
-            }
-            let prof: Vec<(f64, f64)> = sum
-                .iter()
-                .filter(|r| r.2 > 0)
-                .map(|r| (r.0 / r.2 as f64, r.1 / r.2 as f64))
-                .collect();
+            let prof = row_profile(sim, h);
             for &(y, u) in &prof {
                 err = err.max((u - exact(y, sim.time)).abs() / u_ref);
             }
@@ -229,18 +232,9 @@ fn implicit_rows(
     let mut next = 0usize;
     let steps = run_deck::<2>(&d, |sim, _| {
         while next < times.len() && sim.time >= times[next] - 1e-12 {
-            let rows = (2.0 * L / h).round() as usize;
-            let mut sum = vec![(0.0, 0.0, 0usize); rows];
-            for (x, v) in sim.particles.x.iter().zip(&sim.particles.v) {
-                let k = ((x[1] / (h / 2.0)).floor() as usize).min(rows - 1);
-                sum[k].0 += x[1];
-                sum[k].1 += v[0];
-                sum[k].2 += 1;
-            }
-            let err = sum
+            let err = row_profile(sim, h)
                 .iter()
-                .filter(|r| r.2 > 0)
-                .map(|r| (r.1 / r.2 as f64 - exact(r.0 / r.2 as f64, sim.time)).abs() / u_ref)
+                .map(|&(y, u)| (u - exact(y, sim.time)).abs() / u_ref)
                 .fold(0.0, f64::max);
             if next == 0 {
                 (transient, at.0) = (err, sim.time);

@@ -151,8 +151,6 @@ impl<const D: usize> Boundary<D> {
         }
     }
 
-    /// The wall velocity of pair k (node, face).
-    #[inline]
     /// The fastest wall or rigid body: a lid or a body that drives a flow from rest sets the
     /// flow's speed before any particle has it.
     pub fn max_wall_speed(&self) -> f64 {
@@ -165,6 +163,8 @@ impl<const D: usize> Boundary<D> {
         faces.chain(nodes).fold(self.rigid.max_speed(), f64::max)
     }
 
+    /// The wall velocity of pair k (node, face).
+    #[inline]
     fn wall(&self, k: usize, f: usize) -> Vector<D> {
         if self.node_wall.is_empty() {
             self.faces[f].1

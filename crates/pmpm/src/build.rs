@@ -128,6 +128,7 @@ impl<const D: usize> Simulation<D> {
                 crate::viscosity::ImplicitViscosity::new(
                     deck.simulation.viscosity_tolerance,
                     deck.simulation.viscosity_max_iterations,
+                    settings.implicit_stress,
                 )
             }),
         };

@@ -610,12 +610,15 @@ impl<const D: usize> Simulation<D> {
     /// seconds long and never reaches this.
     fn strain_limit(&self, cfl: f64, dt: f64) -> f64 {
         let h = self.grid.geo.h;
-        let stiff: Vec<bool> = self
+        let implicit = self.settings.implicit_stress;
+        let stiff = self
             .materials
             .iter()
-            .map(|m| crate::viscosity::is_implicit(&m.law) && m.viscous_dt_limit(h, D) < dt)
-            .collect();
-        if !stiff.contains(&true) {
+            .enumerate()
+            .take(64)
+            .filter(|(k, m)| implicit >> k & 1 == 1 && m.viscous_dt_limit(h, D) < dt)
+            .fold(0u64, |mask, (k, _)| mask | 1 << k);
+        if stiff == 0 {
             return f64::INFINITY;
         }
         let ps = &self.particles;
@@ -623,7 +626,7 @@ impl<const D: usize> Simulation<D> {
             .velocity_gradient
             .par_iter()
             .zip(ps.material.par_iter())
-            .filter(|(_, &m)| stiff[m as usize])
+            .filter(|(_, &m)| stiff.checked_shr(u32::from(m)).is_some_and(|b| b & 1 == 1))
             .map(|(l, _)| {
                 let dev = material::deviatoric_strain_rate(l);
                 (2.0 * dev.norm_squared()).sqrt()

@@ -174,7 +174,7 @@ pub struct SimulationDeck {
     /// [`MAX_PARTICLE_CELLS`] cells.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub volume_limits: Option<[f64; 2]>,
-    /// The fluids' viscous stress: `implicit` (in the predictor at the new velocity, no
+    /// The fluids' viscous stress: `implicit` (at the new velocity, after the pressure, no
     /// viscous step limit; projection only) or `explicit` (from the last step's strain rate,
     /// dt <= rho h^2 / (2 d mu)). `validate` fills it in: implicit for the projection,
     /// explicit for the explicit scheme.
