@@ -16,7 +16,7 @@ use crate::pressure::Projection;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
 use crate::transfer::{self, P2gScratch, StressUpdate, TransferSettings};
-use crate::viscosity::{ImplicitViscosity, ViscousError};
+use crate::viscosity::{in_mask, ImplicitViscosity, ViscousError};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -585,13 +585,13 @@ impl<const D: usize> Simulation<D> {
         if g > 0.0 {
             dt = dt.min(cfl * (h / g).sqrt());
         }
-        let implicit = self.viscosity.is_some();
-        for m in mats {
-            if !(implicit && crate::viscosity::is_implicit(&m.law)) {
+        let implicit = self.settings.implicit_stress;
+        for (k, m) in mats.iter().enumerate() {
+            if !in_mask(implicit, k) {
                 dt = dt.min(m.viscous_dt_limit(h, D));
             }
         }
-        if implicit {
+        if implicit != 0 {
             dt = dt.min(self.strain_limit(cfl, dt));
         }
         if let Some(max) = self.policy.max_dt {
@@ -616,7 +616,7 @@ impl<const D: usize> Simulation<D> {
             .iter()
             .enumerate()
             .take(64)
-            .filter(|(k, m)| implicit >> k & 1 == 1 && m.viscous_dt_limit(h, D) < dt)
+            .filter(|(k, m)| in_mask(implicit, *k) && m.viscous_dt_limit(h, D) < dt)
             .fold(0u64, |mask, (k, _)| mask | 1 << k);
         if stiff == 0 {
             return f64::INFINITY;
@@ -626,7 +626,7 @@ impl<const D: usize> Simulation<D> {
             .velocity_gradient
             .par_iter()
             .zip(ps.material.par_iter())
-            .filter(|(_, &m)| stiff.checked_shr(u32::from(m)).is_some_and(|b| b & 1 == 1))
+            .filter(|(_, &m)| in_mask(stiff, m.into()))
             .map(|(l, _)| {
                 let dev = material::deviatoric_strain_rate(l);
                 (2.0 * dev.norm_squared()).sqrt()

@@ -367,10 +367,7 @@ fn scatter_p2g<const D: usize, const S: u8>(
         for p in range {
             let m = ps.mass[p];
             let vol = ps.volume(p);
-            let implicit = s
-                .implicit_stress
-                .checked_shr(u32::from(ps.material[p]))
-                .is_some_and(|bits| bits & 1 == 1);
+            let implicit = crate::viscosity::in_mask(s.implicit_stress, ps.material[p].into());
             let mut stress = if implicit {
                 Matrix::<D>::zeros()
             } else {

@@ -66,6 +66,16 @@ pub fn implicit_mask(materials: &[MaterialParams]) -> u64 {
         .fold(0, |mask, (k, _)| mask | 1 << k)
 }
 
+/// Whether bit `material` of `mask` ([`implicit_mask`]) is set: materials from the 64th on
+/// never are.
+#[inline]
+pub fn in_mask(mask: u64, material: usize) -> bool {
+    u32::try_from(material)
+        .ok()
+        .and_then(|m| mask.checked_shr(m))
+        .is_some_and(|bits| bits & 1 == 1)
+}
+
 /// Apparent viscosity of a particle of material `law` whose velocity gradient is `l`.
 fn apparent_viscosity<const D: usize>(law: &Law, l: &Matrix<D>) -> f64 {
     match law {
@@ -132,8 +142,6 @@ pub struct ImplicitViscosity<const D: usize> {
     q: Vec<Vector<D>>,
     bands: Vec<Band<Vector<D>>>,
     partials: Vec<f64>,
-    /// The last solve's outcome.
-    pub last: ViscousStats,
 }
 
 impl<const D: usize> ImplicitViscosity<D> {
@@ -193,7 +201,6 @@ impl<const D: usize> ImplicitViscosity<D> {
             });
         }
         let stats = self.iterate(ps, geo, shape, mass, u, b_norm)?;
-        self.last = stats;
         boundary.apply(u);
         Ok(stats)
     }
@@ -219,10 +226,7 @@ impl<const D: usize> ImplicitViscosity<D> {
             .for_each(|(p, c)| {
                 let m = ps.material[p];
                 let law = &materials[m as usize].law;
-                *c = if implicit
-                    .checked_shr(u32::from(m))
-                    .is_some_and(|b| b & 1 == 1)
-                {
+                *c = if in_mask(implicit, m as usize) {
                     dt * ps.volume(p) * apparent_viscosity(law, &ps.velocity_gradient[p])
                 } else {
                     0.0
