@@ -101,7 +101,9 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     // thick let water through at the floor, or lost 3.5 % of the volume passing over it)
     let g = &deck.grid;
     for (r, rigid) in deck.rigid_bodies.iter().enumerate() {
-        let (lo, hi) = rigid.shape.bounds();
+        let (Some(lo), Some(hi)) = (&rigid.shape.min, &rigid.shape.max) else {
+            continue;
+        };
         for d in 0..lo.len().min(g.size.len()) {
             let inside = lo[d] > g.origin[d] && hi[d] < g.origin[d] + g.size[d];
             let cells = (hi[d] - lo[d]) / g.cell_size;
@@ -114,11 +116,17 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
             }
         }
     }
+    // an inflow patch whose edge lies on a no-slip wall with a velocity there: the wall
+    // holds the flow at rest, and the buffer's particles at the edge run ahead of it
+    inflow_at_no_slip(deck, &mut w);
     // material that starts inside a rigid body: the body's nodes take its velocity, and the
     // particles inside are squeezed out (or held) in the first steps
-    for (b, body) in deck.bodies.iter().enumerate() {
+    for b in 0..deck.bodies.len() {
+        let Ok(body) = deck.body_solid(b) else {
+            continue;
+        };
         for (r, rigid) in deck.rigid_bodies.iter().enumerate() {
-            if let Some(x) = overlap_point(&body.shape, &rigid.shape) {
+            if let Some(x) = overlap_point(&body, &rigid.shape) {
                 let at: Vec<String> = x.iter().map(|c| format!("{c}")).collect();
                 w.push(format!(
                     "bodies[{b}] starts inside rigid_bodies[{r}] (for example at ({})): its material there will be pushed out of the body in the first steps; cut the body around the rigid one",
@@ -130,11 +138,59 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     w
 }
 
+/// Warns of an inflow patch that reaches a no-slip wall with a velocity that does not vanish
+/// there at t = 0.
+fn inflow_at_no_slip(deck: &Deck, w: &mut Vec<String>) {
+    let dim = deck.simulation.dimension;
+    let g = &deck.grid;
+    let faces = g.boundary.faces();
+    for (i, q) in deck.inflows.iter().enumerate() {
+        let Ok(field) = q.velocity.compile() else {
+            continue;
+        };
+        let axis = pmpm::deck::FACE_NAMES
+            .iter()
+            .position(|n| *n == q.face)
+            .unwrap_or(0)
+            / 2;
+        for d in (0..dim).filter(|&d| d != axis) {
+            for (f, at) in [(2 * d, q.min[d]), (2 * d + 1, q.max[d])] {
+                let wall = if f % 2 == 0 {
+                    g.origin[d]
+                } else {
+                    g.origin[d] + g.size[d]
+                };
+                let no_slip =
+                    faces[f].as_ref().map(|s| s.kind()) == Some(pmpm::deck::BoundaryKind::NoSlip);
+                if !no_slip || (at - wall).abs() > 1e-9 * g.cell_size {
+                    continue;
+                }
+                let mut x: Vec<f64> = (0..dim).map(|e| 0.5 * (q.min[e] + q.max[e])).collect();
+                x[d] = at;
+                let speed = match dim {
+                    2 => field
+                        .eval(&pmpm::grid::Vector::<2>::from_column_slice(&x), 0.0)
+                        .norm(),
+                    _ => field
+                        .eval(&pmpm::grid::Vector::<3>::from_column_slice(&x), 0.0)
+                        .norm(),
+                };
+                if speed > 1e-9 {
+                    w.push(format!(
+                        "inflows[{i}] meets the no-slip wall {} with a velocity of {speed:.3} m/s there: the wall holds the flow at rest, and the entering particles pack into the corner (volume is lost there); give a velocity that vanishes on the wall (a parabolic profile, docs/deck.md)",
+                        pmpm::deck::FACE_NAMES[f]
+                    ));
+                }
+            }
+        }
+    }
+}
+
 /// A point inside both a body's shape and a rigid body's box, if the two overlap (tested on a
-/// lattice of 9^D points over the boxes' common part).
-fn overlap_point(body: &pmpm::deck::ShapeDeck, rigid: &pmpm::deck::ShapeDeck) -> Option<Vec<f64>> {
+/// lattice of 9^D points over the common part of the box and the body's bounds).
+fn overlap_point(body: &pmpm::geometry::Solid, rigid: &pmpm::deck::ShapeDeck) -> Option<Vec<f64>> {
     let (blo, bhi) = body.bounds();
-    let (rlo, rhi) = rigid.bounds();
+    let (rlo, rhi) = (rigid.min.as_ref()?, rigid.max.as_ref()?);
     let dim = blo.len();
     let lo: Vec<f64> = (0..dim).map(|d| blo[d].max(rlo[d])).collect();
     let hi: Vec<f64> = (0..dim).map(|d| bhi[d].min(rhi[d])).collect();
@@ -149,7 +205,7 @@ fn overlap_point(body: &pmpm::deck::ShapeDeck, rigid: &pmpm::deck::ShapeDeck) ->
                 lo[d] + (hi[d] - lo[d]) * (i as f64 + 0.5) / n as f64
             })
             .collect();
-        (body.contains(&x) && rigid.contains(&x)).then_some(x)
+        body.contains(&x).then_some(x)
     })
 }
 
@@ -263,29 +319,53 @@ fn bodies<const D: usize>(
         .map(|b| {
             let mut one = deck.clone();
             one.bodies = vec![deck.bodies[b].clone()];
-            pmpm::build::particles::<D>(&one, geo).len()
+            pmpm::build::particles::<D>(&one, geo).map_or(0, |p| p.len())
         })
+        .collect();
+    let solids: Vec<Option<pmpm::geometry::Solid>> = (0..deck.bodies.len())
+        .map(|b| deck.body_solid(b).ok())
         .collect();
     let mut overlaps: Vec<(usize, usize, usize)> = Vec::new();
     let mut first = 0;
     for (b, &n) in per_body.iter().enumerate() {
         let xs = &sim.particles.x[first..first + n];
         for a in 0..b {
-            let inside = xs
-                .iter()
-                .filter(|x| deck.bodies[a].shape.contains(x.as_slice()))
-                .count();
+            let Some(solid) = &solids[a] else {
+                continue;
+            };
+            let inside = xs.iter().filter(|x| solid.contains(x.as_slice())).count();
             if inside > 0 {
                 overlaps.push((a, b, inside));
             }
         }
         first += n;
     }
+    let unit = if D == 2 {
+        "m2 (per metre of depth)"
+    } else {
+        "m3"
+    };
     for (b, body) in deck.bodies.iter().enumerate() {
+        let spacing = geo.h / body.particles_per_cell as f64;
         *out += &format!(
-            "  bodies[{b}]        {} particles of \"{}\" ({} per cell per direction)\n",
-            per_body[b], body.material, body.particles_per_cell
+            "  bodies[{b}]        {} particles of \"{}\" ({} per cell per direction), volume {:.6e} {unit}\n",
+            per_body[b],
+            body.material,
+            body.particles_per_cell,
+            per_body[b] as f64 * spacing.powi(D as i32)
         );
+        if let Some(solid) = &solids[b] {
+            let (lo, hi) = solid.bounds();
+            let (glo, ghi) = (geo.origin, geo.upper());
+            if let Some(d) = (0..D).find(|&d| {
+                (lo[d].is_finite() && lo[d] < glo[d]) || (hi[d].is_finite() && hi[d] > ghi[d])
+            }) {
+                warn.push(format!(
+                    "bodies[{b}].shape reaches past the grid along {} (it spans [{}, {}], the grid [{}, {}]): only the part inside the grid is filled",
+                    ["x", "y", "z"][d], lo[d], hi[d], glo[d], ghi[d]
+                ));
+            }
+        }
         if body.particles_per_cell < 2 {
             warn.push(format!(
                 "bodies[{b}].particles_per_cell = {}: fewer than 2 particles per cell per \
@@ -307,7 +387,10 @@ fn bodies<const D: usize>(
 fn rigid_bodies(deck: &Deck, dim: usize, out: &mut String) {
     let s = &deck.simulation;
     for r in &deck.rigid_bodies {
-        let (lo, hi) = r.shape.bounds();
+        let (lo, hi) = (
+            r.shape.min.clone().unwrap_or_default(),
+            r.shape.max.clone().unwrap_or_default(),
+        );
         let v = r.velocity.clone().unwrap_or_else(|| vec![0.0; dim]);
         let sides = match r.sides {
             pmpm::deck::RigidSides::Rough => "rough",

@@ -50,7 +50,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown table",
             edit(&[("[output]", "[outputs]")]),
-            "bad.toml:32:2: outputs: unknown key; did you mean `output`? (valid keys: pmpm, simulation, grid, pressure, materials, bodies, rigid_bodies, output)",
+            "bad.toml:32:2: outputs: unknown key; did you mean `output`? (valid keys: pmpm, simulation, grid, pressure, materials, bodies, rigid_bodies, inflows, output)",
         ),
         // unknown values: the nearest allowed value, and the allowed values
         (
@@ -98,7 +98,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown boundary kind",
             edit(&[("y_min = \"no_slip\"", "y_min = \"noslip\"")]),
-            "bad.toml:18:9: grid.boundary.y_min: unknown value \"noslip\"; did you mean \"no_slip\"? (allowed: \"slip\", \"no_slip\", \"open\", \"periodic\")",
+            "bad.toml:18:9: grid.boundary.y_min: unknown value \"noslip\"; did you mean \"no_slip\"? (allowed: \"slip\", \"no_slip\", \"open\", \"outflow\", \"periodic\")",
         ),
         (
             "unknown moving-wall type",
@@ -106,7 +106,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
                 "y_max = \"open\"",
                 "y_max = { type = \"wall\", velocity = [1.0, 0.0] }",
             )]),
-            "bad.toml:19:18: grid.boundary.y_max.type: unknown value \"wall\" (allowed: \"slip\", \"no_slip\", \"open\", \"periodic\")",
+            "bad.toml:19:18: grid.boundary.y_max.type: unknown value \"wall\" (allowed: \"slip\", \"no_slip\", \"open\", \"outflow\", \"periodic\")",
         ),
         (
             "unknown output format",
@@ -393,11 +393,78 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             format!("{SMALL_2D}\n[pressure]\nunknowns = \"faces\"\n"),
             "bad.toml:41:12: pressure.unknowns: unknown value \"faces\"; did you mean \"nodes\"? (allowed: \"nodes\", \"cells\")",
         ),
+        // shapes
+        (
+            "a key another kind of shape takes",
+            edit(&[(
+                "shape = { type = \"box\", min = [0.0, 0.0], max = [0.1, 0.1] }",
+                "shape = { type = \"sphere\", center = [0.05, 0.05], radius = 0.02, min = [0.0, 0.0] }",
+            )]),
+            "bad.toml: bodies[0].shape.min: is not a key of type = \"sphere\", which takes center, radius (and scale, rotate, translate)",
+        ),
+        (
+            "a union of one shape",
+            edit(&[(
+                "shape = { type = \"box\", min = [0.0, 0.0], max = [0.1, 0.1] }",
+                "shape = { type = \"union\", shapes = [{ type = \"box\", min = [0.0, 0.0], max = [0.1, 0.1] }] }",
+            )]),
+            "bad.toml: bodies[0].shape.shapes: needs at least two shapes, got 1",
+        ),
+        (
+            "a bad radius inside a difference",
+            edit(&[(
+                "shape = { type = \"box\", min = [0.0, 0.0], max = [0.1, 0.1] }",
+                "shape = { type = \"difference\", shapes = [{ type = \"box\", min = [0.0, 0.0], max = [0.1, 0.1] }, { type = \"sphere\", center = [0.0, 0.0], radius = -1.0 }] }",
+            )]),
+            "bad.toml: bodies[0].shape.shapes[1].radius: must be > 0, got -1",
+        ),
+        (
+            "a mesh in 2D",
+            edit(&[(
+                "shape = { type = \"box\", min = [0.0, 0.0], max = [0.1, 0.1] }",
+                "shape = { type = \"mesh\", file = \"column.stl\" }",
+            )]),
+            "bad.toml: bodies[0].shape: a mesh is three-dimensional: with dimension = 2 use type = \"polygon\"",
+        ),
+        (
+            "a 3D rotation in 2D",
+            edit(&[(
+                "shape = { type = \"box\", min = [0.0, 0.0], max = [0.1, 0.1] }",
+                "shape = { type = \"box\", min = [0.0, 0.0], max = [0.1, 0.1], rotate = [0.0, 0.0, 30.0] }",
+            )]),
+            "bad.toml: bodies[0].shape.rotate: in 2D is one angle in degrees (counter-clockwise)",
+        ),
+        // open boundaries
+        (
+            "an outflow face with a velocity",
+            edit(&[("x_max = \"slip\"", "x_max = { type = \"outflow\", velocity = [1.0, 0.0] }")]),
+            "bad.toml: grid.boundary.x_max.velocity: an open or outflow face imposes nothing: a velocity needs \"slip\" or \"no_slip\" (an inflow is an [[inflows]] entry)",
+        ),
+        (
+            "an inflow on an open face",
+            format!("{SMALL_2D}\n[[inflows]]\nmaterial = \"water\"\nface = \"y_max\"\nmin = [0.1, 0.2]\nmax = [0.2, 0.2]\nvelocity = [0.0, -0.1]\n"),
+            "bad.toml: inflows[0].face: grid.boundary.y_max is \"open\": an inflow is a patch of a slip or no-slip face",
+        ),
+        (
+            "an inflow off its face",
+            format!("{SMALL_2D}\n[[inflows]]\nmaterial = \"water\"\nface = \"x_min\"\nmin = [0.01, 0.0]\nmax = [0.0, 0.05]\nvelocity = [0.1, 0.0]\n"),
+            "bad.toml: inflows[0].min: must lie on the face x_min: its x component must be 0, got 0.01",
+        ),
+        (
+            "an inflow that points out",
+            format!("{SMALL_2D}\n[[inflows]]\nmaterial = \"water\"\nface = \"x_min\"\nmin = [0.0, 0.0]\nmax = [0.0, 0.05]\nvelocity = [-0.1, 0.0]\n"),
+            "bad.toml: inflows[0].velocity: points out of the domain at t = 0 (its x component is -0.1 on the face x_min): an inflow's velocity points into the grid",
+        ),
+        (
+            "an inflow of a material the deck lacks",
+            format!("{SMALL_2D}\n[[inflows]]\nmaterial = \"mud\"\nface = \"x_min\"\nmin = [0.0, 0.0]\nmax = [0.0, 0.05]\nvelocity = [0.1, 0.0]\n"),
+            "bad.toml: inflows[0].material: no material named \"mud\" (defined: \"water\")",
+        ),
         // rigid bodies
         (
             "a rigid body that is not a box",
             format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"ball\"\nshape = {{ type = \"sphere\", center = [0.2, 0.15], radius = 0.02 }}\n"),
-            "bad.toml: rigid_bodies[0].shape.type: must be \"box\": a rigid body is an axis-aligned box",
+            "bad.toml: rigid_bodies[0].shape.type: must be \"box\" without rotate, scale or translate: a rigid body is an axis-aligned box (other shapes are for [[bodies]])",
         ),
         (
             "a rigid body's velocity of the wrong size",

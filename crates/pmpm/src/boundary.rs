@@ -22,6 +22,9 @@ pub enum BoundaryKind {
     NoSlip,
     /// Nothing imposed.
     Open,
+    /// Open, and the particles that cross it leave the run: their mass and volume are counted
+    /// out in series.csv (a channel's end, a spillway).
+    Outflow,
     /// Periodic on both faces of the axis.
     Periodic,
 }
@@ -33,9 +36,15 @@ impl BoundaryKind {
             "slip" => Self::Slip,
             "no_slip" => Self::NoSlip,
             "open" => Self::Open,
+            "outflow" => Self::Outflow,
             "periodic" => Self::Periodic,
             _ => return None,
         })
+    }
+
+    /// Open or outflow: nothing held on the velocity, p = 0 beyond the face.
+    pub fn is_open(self) -> bool {
+        matches!(self, Self::Open | Self::Outflow)
     }
 }
 
@@ -52,10 +61,20 @@ pub struct Boundary<const D: usize> {
     fields: Vec<Option<crate::field::CompiledField>>,
     /// Per (node, face) pair, the wall velocity at the node now (only with `fields`).
     node_wall: Vec<Vector<D>>,
-    /// Node positions of the pairs (only with `fields`).
+    /// Node positions of the pairs (only with `fields` or inflows).
     node_x: Vec<Vector<D>>,
+    /// Time of `node_wall`.
+    time: f64,
     /// Rigid bodies moving through the material: their nodes take their velocity.
     pub rigid: crate::rigid::RigidBodies<D>,
+    /// Inflow patches ([`crate::flow`]).
+    pub inflows: Vec<crate::flow::Inflow<D>>,
+    /// Per (node, face) pair, the inflow whose patch holds it (`u32::MAX`: none; empty
+    /// without inflows). Such a node holds the inflow's velocity, every component.
+    inflow_of: Vec<u32>,
+    /// The nodes of the inflows' buffers: on a patch, behind it and in the first rows in
+    /// front of it, which the particles in a buffer read from ([`Boundary::hold_buffers`]).
+    buffer_nodes: Vec<usize>,
 }
 
 impl<const D: usize> Boundary<D> {
@@ -85,7 +104,12 @@ impl<const D: usize> Boundary<D> {
                 }
             }
         }
-        nodes.retain(|&(_, f)| !matches!(faces[f].0, BoundaryKind::Open | BoundaryKind::Periodic));
+        nodes.retain(|&(_, f)| {
+            !matches!(
+                faces[f].0,
+                BoundaryKind::Open | BoundaryKind::Outflow | BoundaryKind::Periodic
+            )
+        });
         let mirror = nodes
             .iter()
             .map(|&(i, f)| {
@@ -118,25 +142,94 @@ impl<const D: usize> Boundary<D> {
             mirror,
             fields,
             node_x,
+            time: f64::NAN,
             rigid,
+            inflows: Vec::new(),
+            inflow_of: Vec::new(),
+            buffer_nodes: Vec::new(),
         };
         b.set_time(0.0, geo);
         b
+    }
+
+    /// The same conditions with inflow patches on slip or no-slip faces: the face's nodes on
+    /// a patch, and the ghost nodes behind them, hold its velocity. `rows`: the rows of nodes
+    /// in front of a patch that a particle less than a cell from it reads from.
+    pub fn with_inflows(
+        mut self,
+        inflows: Vec<crate::flow::Inflow<D>>,
+        rows: usize,
+        geo: &GridGeometry<D>,
+    ) -> Self {
+        if inflows.is_empty() {
+            return self;
+        }
+        for inflow in &inflows {
+            let axis = inflow.face / 2;
+            for flat in 0..geo.node_count() {
+                let idx = geo.multi(flat);
+                let row = if inflow.face % 2 == 0 {
+                    idx[axis] as isize - PAD as isize
+                } else {
+                    (PAD + geo.cells[axis]) as isize - idx[axis] as isize
+                };
+                if row <= rows as isize && inflow.covers(&geo.node_position(&idx), geo.h) {
+                    self.buffer_nodes.push(flat);
+                }
+            }
+        }
+        self.inflow_of = self
+            .nodes
+            .iter()
+            .map(|&(i, f)| {
+                let x = geo.node_position(&geo.multi(i));
+                inflows
+                    .iter()
+                    .position(|q| q.face == f && q.covers(&x, geo.h))
+                    .map_or(u32::MAX, |q| q as u32)
+            })
+            .collect();
+        if self.node_x.is_empty() {
+            self.node_x = self
+                .nodes
+                .iter()
+                .map(|&(i, _)| geo.node_position(&geo.multi(i)))
+                .collect();
+            self.node_wall = vec![Vector::<D>::zeros(); self.nodes.len()];
+        }
+        self.inflows = inflows;
+        self.time = f64::NAN;
+        self.set_time(0.0, geo);
+        self
+    }
+
+    /// The kind of pair k (node, face): an inflow's node is held as on a no-slip wall.
+    #[inline]
+    fn kind(&self, k: usize, f: usize) -> BoundaryKind {
+        match self.inflow_of.get(k) {
+            Some(&q) if q != u32::MAX => BoundaryKind::NoSlip,
+            _ => self.faces[f].0,
+        }
     }
 
     /// Evaluates the wall velocities given by expressions at time `t`: at every wall node, and
     /// at each face's centre for the particles that [`Boundary::confine`] puts back.
     pub fn set_time(&mut self, t: f64, geo: &GridGeometry<D>) {
         self.rigid.set_time(t, geo);
-        if self.node_wall.is_empty() {
+        if self.node_wall.is_empty() || t == self.time {
             return;
         }
+        self.time = t;
         for (k, &(_, f)) in self.nodes.iter().enumerate() {
-            self.node_wall[k] = match &self.fields[f] {
-                Some(c) => c.eval(&self.node_x[k], t),
-                None => self.faces[f].1,
+            self.node_wall[k] = match (&self.fields[f], self.inflow_of.get(k)) {
+                (_, Some(&q)) if q != u32::MAX => {
+                    self.inflows[q as usize].velocity_at(&self.node_x[k], t)
+                }
+                (Some(c), _) => c.eval(&self.node_x[k], t),
+                (None, _) => self.faces[f].1,
             };
         }
+
         let centre = (geo.origin + geo.upper()) * 0.5;
         for f in 0..2 * D {
             if let Some(c) = &self.fields[f] {
@@ -202,13 +295,13 @@ impl<const D: usize> Boundary<D> {
                         r = 0.0;
                     }
                     x[d] = lo[d] + r;
-                } else if x[d] < lo[d] && x[d] > lo[d] - h && kmin != BoundaryKind::Open {
+                } else if x[d] < lo[d] && x[d] > lo[d] - h && !kmin.is_open() {
                     // reflected back by the distance it went past: a particle put on the wall
                     // itself stays on it (the wall nodes hold its normal velocity at zero), and
                     // a splash running along a wall packed its particles into that line
                     x[d] = (2.0 * lo[d] - x[d]).min(hi[d]);
                     v[d] = v[d].max(wmin[d]);
-                } else if x[d] > hi[d] && x[d] < hi[d] + h && kmax != BoundaryKind::Open {
+                } else if x[d] > hi[d] && x[d] < hi[d] + h && !kmax.is_open() {
                     x[d] = (2.0 * hi[d] - x[d]).max(lo[d]);
                     v[d] = v[d].min(wmax[d]);
                 }
@@ -216,16 +309,21 @@ impl<const D: usize> Boundary<D> {
         });
     }
 
-    /// Whether face `f` (x_min, x_max, y_min, ...) is open.
+    /// Whether face `f` (x_min, x_max, y_min, ...) is open (an outflow face is).
     pub fn is_open(&self, f: usize) -> bool {
-        self.faces[f].0 == BoundaryKind::Open
+        self.faces[f].0.is_open()
+    }
+
+    /// Whether face `f` lets particles out of the run.
+    pub fn is_outflow(&self, f: usize) -> bool {
+        self.faces[f].0 == BoundaryKind::Outflow
     }
 
     /// Imposes only the normal part of the face conditions (v . n = v_wall . n on slip and
     /// no-slip faces alike): what the walls' flux through them is measured against.
     pub fn apply_normal(&self, v: &mut [Vector<D>]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
-            let (kind, wall) = (self.faces[f].0, self.wall(k, f));
+            let (kind, wall) = (self.kind(k, f), self.wall(k, f));
             let axis = f / 2;
             if matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip) {
                 v[i][axis] = wall[axis];
@@ -241,23 +339,33 @@ impl<const D: usize> Boundary<D> {
     /// components a rigid body holds on its nodes: a correction that moves the particles must
     /// not move them through a wall or into a body.
     pub fn hold_still(&self, u: &mut [Vector<D>]) {
-        for &(i, f) in &self.nodes {
-            if matches!(self.faces[f].0, BoundaryKind::Slip | BoundaryKind::NoSlip) {
+        for (k, &(i, f)) in self.nodes.iter().enumerate() {
+            if matches!(self.kind(k, f), BoundaryKind::Slip | BoundaryKind::NoSlip) {
                 u[i][f / 2] = 0.0;
             }
         }
         self.rigid.hold_still(u);
     }
 
+    /// Zeroes a node displacement on the inflows' buffers: the density correction must not
+    /// move the particles there, which enter at the inflow's pace
+    /// ([`crate::flow::Inflow::hold_buffer`]; moved back towards the face, they let 11 % less
+    /// material in).
+    pub fn hold_buffers(&self, u: &mut [Vector<D>]) {
+        for &i in &self.buffer_nodes {
+            u[i] = Vector::<D>::zeros();
+        }
+    }
+
     /// Zeroes the velocity components the faces and rigid bodies prescribe (the normal on a
     /// slip face, every component on a no-slip one, ghost nodes behind them included): a mask
     /// of the free components when applied to ones.
     pub fn mask_held(&self, mask: &mut [Vector<D>]) {
-        for &(i, f) in &self.nodes {
-            match self.faces[f].0 {
+        for (k, &(i, f)) in self.nodes.iter().enumerate() {
+            match self.kind(k, f) {
                 BoundaryKind::Slip => mask[i][f / 2] = 0.0,
                 BoundaryKind::NoSlip => mask[i] = Vector::<D>::zeros(),
-                BoundaryKind::Open | BoundaryKind::Periodic => {}
+                BoundaryKind::Open | BoundaryKind::Outflow | BoundaryKind::Periodic => {}
             }
         }
         self.rigid.hold_still(mask);
@@ -269,11 +377,11 @@ impl<const D: usize> Boundary<D> {
     /// the ghost nodes' normal components mirrored about the wall.
     pub fn apply(&self, v: &mut [Vector<D>]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
-            let (kind, wall) = (self.faces[f].0, self.wall(k, f));
+            let (kind, wall) = (self.kind(k, f), self.wall(k, f));
             match kind {
                 BoundaryKind::Slip => v[i][f / 2] = wall[f / 2],
                 BoundaryKind::NoSlip => v[i] = wall,
-                BoundaryKind::Open | BoundaryKind::Periodic => {}
+                BoundaryKind::Open | BoundaryKind::Outflow | BoundaryKind::Periodic => {}
             }
         }
         self.rigid.apply(v);
@@ -294,7 +402,7 @@ impl<const D: usize> Boundary<D> {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
             let m = self.mirror[k];
             if m == usize::MAX
-                || !matches!(self.faces[f].0, BoundaryKind::Slip | BoundaryKind::NoSlip)
+                || !matches!(self.kind(k, f), BoundaryKind::Slip | BoundaryKind::NoSlip)
             {
                 continue;
             }

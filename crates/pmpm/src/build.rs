@@ -7,6 +7,7 @@ use crate::boundary::{Boundary, BoundaryKind};
 use crate::deck::{Deck, DeckError, MaterialDeck};
 use crate::driver::{Clock, StepSize};
 use crate::error::Error;
+use crate::flow::Inflow;
 use crate::grid::{GridGeometry, Vector};
 use crate::material::MaterialParams;
 use crate::particles::{InitialStress, Matrix, Particles};
@@ -18,23 +19,15 @@ use crate::transfer::{Transfer, TransferSettings};
 impl<const D: usize> Simulation<D> {
     /// Sets up particles, grid and every part of the step from a validated deck.
     pub fn new(deck: &Deck) -> Result<Self, Error> {
-        let g = &deck.grid;
-        let h = g.cell_size;
-        let counts = g.cells();
-        let cells: [usize; D] = std::array::from_fn(|d| counts[d]);
-        let faces = g.boundary.faces();
-        let periodic: [bool; D] = std::array::from_fn(|d| {
-            faces[2 * d].as_ref().map(|f| f.kind()) == Some(BoundaryKind::Periodic)
-        });
-        let geo = GridGeometry::new(Vector::<D>::from_column_slice(&g.origin), h, cells)
-            .with_periodic(periodic);
-        let particles = particles(deck, &geo);
-        if let Some(b) = (0..deck.bodies.len()).find(|&b| {
-            !particles
-                .x
-                .iter()
-                .any(|x| deck.bodies[b].shape.contains(x.as_slice()))
-        }) {
+        let geo = grid_geometry::<D>(deck);
+        let h = geo.h;
+        let particles = particles(deck, &geo)?;
+        let solids = (0..deck.bodies.len())
+            .map(|b| deck.body_solid(b))
+            .collect::<Result<Vec<_>, _>>()?;
+        if let Some(b) = (0..deck.bodies.len())
+            .find(|&b| !particles.x.iter().any(|x| solids[b].contains(x.as_slice())))
+        {
             let spacing = h / deck.bodies[b].particles_per_cell as f64;
             return Err(DeckError {
                 file: String::new(),
@@ -51,7 +44,7 @@ impl<const D: usize> Simulation<D> {
             .gravity
             .compile()
             .expect("validated expressions");
-        if let Some(why) = not_finite(&particles, deck, |x| gravity.eval(x, 0.0)) {
+        if let Some(why) = not_finite(&particles, deck, &solids, |x| gravity.eval(x, 0.0)) {
             return Err(why.into());
         }
         let materials: Vec<MaterialParams> =
@@ -136,6 +129,23 @@ impl<const D: usize> Simulation<D> {
     }
 }
 
+/// The grid of a validated deck: its origin, cells and periodic axes.
+pub fn grid_geometry<const D: usize>(deck: &Deck) -> GridGeometry<D> {
+    let g = &deck.grid;
+    let counts = g.cells();
+    let cells: [usize; D] = std::array::from_fn(|d| counts[d]);
+    let faces = g.boundary.faces();
+    let periodic: [bool; D] = std::array::from_fn(|d| {
+        faces[2 * d].as_ref().map(|f| f.kind()) == Some(BoundaryKind::Periodic)
+    });
+    GridGeometry::new(
+        Vector::<D>::from_column_slice(&g.origin),
+        g.cell_size,
+        cells,
+    )
+    .with_periodic(periodic)
+}
+
 /// The step's own settings of a validated deck.
 pub fn step_policy(deck: &Deck) -> StepPolicy {
     let s = &deck.simulation;
@@ -193,7 +203,43 @@ pub fn boundary<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Boundary<
     // under the nodal projection a ghost node behind a face mirrors the node as far inside it
     let mirrors = deck.simulation.scheme == Scheme::Projection
         && deck.pressure.unknowns == PressureUnknowns::Nodes;
-    Boundary::new(faces, fields, mirrors, rigid_bodies(deck), geo)
+    Boundary::new(faces, fields, mirrors, rigid_bodies(deck), geo).with_inflows(
+        inflows(deck, geo),
+        // the rows of nodes a particle less than a cell from the face reads from
+        match deck.simulation.shape_function {
+            crate::shape::ShapeFunction::Linear => 1,
+            _ => 2,
+        },
+        geo,
+    )
+}
+
+/// The inflow patches of a validated deck.
+pub fn inflows<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Vec<Inflow<D>> {
+    deck.inflows
+        .iter()
+        .map(|q| {
+            let face = crate::deck::FACE_NAMES
+                .iter()
+                .position(|n| *n == q.face)
+                .expect("validated face");
+            let mat = deck
+                .materials
+                .iter()
+                .position(|m| m.name == q.material)
+                .expect("validated: inflow material exists");
+            Inflow::new(
+                face,
+                Vector::<D>::from_column_slice(&q.min),
+                Vector::<D>::from_column_slice(&q.max),
+                q.velocity.compile().expect("validated expressions"),
+                mat as u16,
+                deck.materials[mat].density,
+                q.particles_per_cell,
+                geo.h,
+            )
+        })
+        .collect()
 }
 
 /// The rigid bodies of a validated deck.
@@ -203,10 +249,10 @@ pub fn rigid_bodies<const D: usize>(deck: &Deck) -> RigidBodies<D> {
         .rigid_bodies
         .iter()
         .map(|b| {
-            let (lo, hi) = b.shape.bounds();
+            let (lo, hi) = (b.shape.min.as_deref(), b.shape.max.as_deref());
             RigidBox {
-                lo: v(&lo),
-                hi: v(&hi),
+                lo: v(lo.expect("validated: a rigid box has min")),
+                hi: v(hi.expect("validated: a rigid box has max")),
                 velocity: b.velocity.as_deref().map_or_else(Vector::<D>::zeros, v),
                 sides: b.sides,
             }
@@ -219,7 +265,10 @@ pub fn rigid_bodies<const D: usize>(deck: &Deck) -> RigidBodies<D> {
 
 /// Fills every body of the deck with particles on a regular lattice of spacing
 /// h / particles_per_cell, lattice points at the centres of the sub-cells.
-pub fn particles<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Particles<D> {
+pub fn particles<const D: usize>(
+    deck: &Deck,
+    geo: &GridGeometry<D>,
+) -> Result<Particles<D>, DeckError> {
     let mut ps = Particles::default();
     // the hydrostatic initial stress takes the body force at the origin at t = 0
     let g = deck
@@ -231,7 +280,8 @@ pub fn particles<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Particle
     let gnorm = g.norm();
     let apic = deck.simulation.transfer == Some(Transfer::Apic);
     let isochoric = deck.simulation.scheme == Scheme::Projection;
-    for body in &deck.bodies {
+    for (b, body) in deck.bodies.iter().enumerate() {
+        let solid = deck.body_solid(b)?;
         let mat = deck
             .materials
             .iter()
@@ -241,7 +291,10 @@ pub fn particles<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Particle
         let ppc = body.particles_per_cell;
         let spacing = geo.h / ppc as f64;
         let vol = spacing.powi(D as i32);
-        let (lo, hi) = body.shape.bounds();
+        // the bounding box, cut off at the grid (a half-space has no bound of its own)
+        let (lo, hi) = solid.bounds();
+        let lo: Vec<f64> = (0..D).map(|d| lo[d].max(geo.origin[d])).collect();
+        let hi: Vec<f64> = (0..D).map(|d| hi[d].min(geo.upper()[d])).collect();
         // lattice index range covering the body's bounding box
         let first: [i64; D] =
             std::array::from_fn(|d| ((lo[d] - geo.origin[d]) / spacing - 0.5).floor() as i64);
@@ -252,7 +305,7 @@ pub fn particles<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Particle
         let mut idx = first;
         'lattice: loop {
             let x = Vector::<D>::from_fn(|d, _| geo.origin[d] + (idx[d] as f64 + 0.5) * spacing);
-            if geo.contains(&x) && body.shape.contains(x.as_slice()) {
+            if geo.contains(&x) && solid.contains(x.as_slice()) {
                 ps.x.push(x);
                 ps.v.push(velocity.eval(&x, 0.0));
                 if apic {
@@ -307,7 +360,7 @@ pub fn particles<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Particle
     if !apic {
         ps.affine = vec![Matrix::<D>::zeros(); n];
     }
-    ps
+    Ok(ps)
 }
 
 /// APIC's affine matrix C_p at t = 0: the gradient of the body's initial velocity field at `x`
@@ -338,6 +391,7 @@ fn initial_affine<const D: usize>(
 fn not_finite<const D: usize>(
     ps: &Particles<D>,
     deck: &Deck,
+    solids: &[crate::geometry::Solid],
     gravity: impl Fn(&Vector<D>) -> Vector<D>,
 ) -> Option<DeckError> {
     let error = |key: String, x: &Vector<D>, value: &Vector<D>| DeckError {
@@ -369,7 +423,7 @@ fn not_finite<const D: usize>(
         }
         if !v.iter().all(|a| a.is_finite()) {
             let b = (0..deck.bodies.len())
-                .find(|&b| deck.bodies[b].shape.contains(x.as_slice()))
+                .find(|&b| solids[b].contains(x.as_slice()))
                 .unwrap_or(0);
             return Some(error(format!("bodies[{b}].velocity"), x, v));
         }

@@ -9,6 +9,7 @@
 
 use crate::deck::Deck;
 use crate::error::Error;
+use crate::flow::Ledger;
 use crate::grid::Vector;
 use crate::particles::{FieldValue, FlatParticles, FlatSlice, Particles};
 use crate::scheme::Simulation;
@@ -215,7 +216,14 @@ pub fn write<const D: usize>(
             len: 0,
             failed: None,
         };
-        if let Err(e) = postcard::to_io(&state, &mut payload) {
+        // the open boundaries' ledger follows the format's fields when the deck has them: a
+        // checkpoint without them is the same bytes as before they existed
+        let flow = deck.has_open_flow().then_some(sim.ledger);
+        let mut encoded = postcard::to_io(&state, &mut payload).map(|_| ());
+        if let (Ok(()), Some(f)) = (&encoded, &flow) {
+            encoded = postcard::to_io(f, &mut payload).map(|_| ());
+        }
+        if let Err(e) = encoded {
             return Err(payload.failed.take().unwrap_or_else(|| {
                 std::io::Error::other(format!("cannot encode the checkpoint: {e}"))
             }));
@@ -229,8 +237,9 @@ pub fn write<const D: usize>(
     .map_err(|e| Error::io(path, e))
 }
 
-/// The state in a checkpoint file's bytes, or why it cannot be had.
-fn decode<const D: usize>(bytes: &[u8]) -> Result<State<D>, String> {
+/// The state in a checkpoint file's bytes (and the open boundaries' state, where the file
+/// holds one), or why it cannot be had.
+fn decode<const D: usize>(bytes: &[u8]) -> Result<(State<D>, Option<Ledger>), String> {
     if bytes.len() < 24 || &bytes[..8] != MAGIC {
         return Err("it is not a pmpm checkpoint".into());
     }
@@ -253,7 +262,14 @@ fn decode<const D: usize>(bytes: &[u8]) -> Result<State<D>, String> {
     if crc32fast::hash(payload) != crc {
         return Err("it is damaged (checksum mismatch)".into());
     }
-    postcard::from_bytes(payload).map_err(|e| format!("it cannot be decoded ({e})"))
+    let cannot = |e: postcard::Error| format!("it cannot be decoded ({e})");
+    let (state, rest) = postcard::take_from_bytes(payload).map_err(cannot)?;
+    let flow = if rest.is_empty() {
+        None
+    } else {
+        Some(postcard::from_bytes(rest).map_err(cannot)?)
+    };
+    Ok((state, flow))
 }
 
 /// Why a checkpoint file cannot be used, as the user should read it.
@@ -282,7 +298,7 @@ pub fn read<const D: usize>(
         std::io::ErrorKind::NotFound => refuse(path, "there is no such file"),
         _ => Error::io(path, e),
     })?;
-    let s = decode::<D>(&bytes).map_err(|why| refuse(path, why))?;
+    let (s, flow) = decode::<D>(&bytes).map_err(|why| refuse(path, why))?;
     if s.dimension != D {
         return Err(refuse(
             path,
@@ -307,7 +323,29 @@ pub fn read<const D: usize>(
             ),
         ));
     }
-    let n = sim.particles.len();
+    // with open boundaries the count changes as material enters and leaves
+    let open = deck.has_open_flow();
+    let flow =
+        match (open, flow) {
+            (true, Some(f)) => Some(f),
+            (true, _) => return Err(refuse(
+                path,
+                "it holds no state of the open boundaries (inflows, outflow faces) the deck has",
+            )),
+            (false, Some(_)) => {
+                return Err(refuse(
+                    path,
+                    "it holds open boundaries' state the deck has none for",
+                ))
+            }
+            (false, None) => None,
+        };
+    let n = if open {
+        s.particles.id.len()
+    } else {
+        sim.particles.len()
+    };
+    let id_limit = flow.as_ref().map_or(n, |f| f.next_id as usize);
     if s.particles.id.len() != n {
         return Err(refuse(
             path,
@@ -322,6 +360,7 @@ pub fn read<const D: usize>(
     consistent::<D>(
         &s,
         n,
+        id_limit,
         sim.materials.len(),
         &sim.grid.geo,
         node_pressure_len,
@@ -339,6 +378,10 @@ pub fn read<const D: usize>(
         p.previous = s.node_pressure;
         p.restore_volume_over_density(s.volume_over_density);
     }
+    if let Some(ledger) = flow {
+        sim.ledger = ledger;
+    }
+    sim.fit_particle_arrays();
     Ok(s.driver)
 }
 
@@ -349,13 +392,14 @@ pub fn read<const D: usize>(
 fn consistent<const D: usize>(
     s: &State<D>,
     n: usize,
+    id_limit: usize,
     materials: usize,
     geo: &crate::grid::GridGeometry<D>,
     node_pressure_len: Option<usize>,
     variable_body_force: bool,
 ) -> Result<(), String> {
     consistent_driver(s)?;
-    consistent_particles(s, n, materials, geo)?;
+    consistent_particles(s, n, id_limit, materials, geo)?;
     if variable_body_force && s.body_force.len() != n * D {
         return Err("it holds no body force values".into());
     }
@@ -408,6 +452,7 @@ fn consistent_driver<const D: usize>(s: &State<D>) -> Result<(), String> {
 fn consistent_particles<const D: usize>(
     s: &State<D>,
     n: usize,
+    id_limit: usize,
     materials: usize,
     geo: &crate::grid::GridGeometry<D>,
 ) -> Result<(), String> {
@@ -418,11 +463,19 @@ fn consistent_particles<const D: usize>(
             "its particle field {name} holds {got} values, {want} expected"
         ));
     }
-    let mut seen = vec![false; n];
+    // ids are 0 to n - 1, or with open boundaries distinct and below the next one to be given
+    let mut seen = vec![false; id_limit];
     for &id in &ps.id {
         match seen.get_mut(id as usize) {
             Some(b) if !*b => *b = true,
-            _ => return Err(format!("its particle ids are not 0 to {} (id {id})", n - 1)),
+            _ if id_limit == n => {
+                return Err(format!("its particle ids are not 0 to {} (id {id})", n - 1))
+            }
+            _ => {
+                return Err(format!(
+                    "its particle ids are not distinct and below {id_limit} (id {id})"
+                ))
+            }
         }
     }
     if let Some(p) = ps.material.iter().position(|&m| m as usize >= materials) {
@@ -524,7 +577,7 @@ particles_per_cell = 2
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("checkpoint.bin");
         write(&path, &deck, &sim, &driver).unwrap();
-        let good = decode::<2>(&std::fs::read(&path).unwrap()).unwrap();
+        let good = decode::<2>(&std::fs::read(&path).unwrap()).unwrap().0;
         if let Err(e) = read(&path, &deck, &mut sim) {
             panic!("the good checkpoint: {e}");
         }
@@ -549,7 +602,7 @@ particles_per_cell = 2
             }),
         ];
         for (why, tamper) in cases {
-            let mut bad = decode::<2>(&std::fs::read(&path).unwrap()).unwrap();
+            let mut bad = decode::<2>(&std::fs::read(&path).unwrap()).unwrap().0;
             tamper(&mut bad);
             let bad_path = dir.join("bad.bin");
             std::fs::write(&bad_path, encode(&bad)).unwrap();
@@ -588,7 +641,7 @@ particles_per_cell = 2
         let path = dir.join("checkpoint.bin");
         write(&path, &deck, &sim, &driver).unwrap();
         let bytes = std::fs::read(&path).unwrap();
-        let state = decode::<2>(&bytes).unwrap();
+        let state = decode::<2>(&bytes).unwrap().0;
         assert_eq!(encode(&state), bytes);
         assert_eq!(state.particles.x, FieldValue::flatten(&sim.particles.x));
         assert_eq!(

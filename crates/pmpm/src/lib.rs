@@ -73,6 +73,8 @@ pub mod deck;
 pub mod driver;
 pub mod error;
 pub mod field;
+pub mod flow;
+pub mod geometry;
 pub mod grid;
 pub mod linalg;
 pub mod material;

@@ -22,6 +22,8 @@ pub struct OutputWriter {
     probes: Option<BufWriter<File>>,
     /// rigid_bodies.csv, when the deck has rigid bodies.
     rigid: Option<BufWriter<File>>,
+    /// Whether series.csv has the open boundaries' columns.
+    flow: bool,
     /// Frames written so far.
     pub frames: usize,
 }
@@ -217,6 +219,20 @@ fn create(path: &Path) -> Result<BufWriter<File>, Error> {
 const SERIES_HEADER: &str =
     "frame,time,step,dt,kinetic_energy,max_speed,pressure_iterations,wall_seconds";
 
+/// The columns series.csv gains when the deck has open boundaries (an outflow face or an
+/// inflow): the particles and their mass now, what entered and left, and the mass balance
+/// (m(0) + m_in - m_out - m(t)) / (m(0) + m_in).
+const FLOW_COLUMNS: &str = ",particles,mass,mass_in,mass_out,volume_in,volume_out,mass_balance";
+
+/// The header of series.csv for `deck`.
+fn series_header(deck: &Deck) -> String {
+    let mut head = SERIES_HEADER.to_string();
+    if deck.has_open_flow() {
+        head += FLOW_COLUMNS;
+    }
+    head
+}
+
 /// The header of probes.csv: time, then per probe its pressure and velocity components.
 fn probes_header(deck: &Deck, dim: usize) -> String {
     let mut head = String::from("time");
@@ -294,7 +310,7 @@ impl OutputWriter {
     pub fn new(dir: &Path, deck: &Deck) -> Result<Self, Error> {
         prepare(dir, deck)?;
         let dim = deck.simulation.dimension;
-        let series = fresh(&dir.join("series.csv"), SERIES_HEADER)?;
+        let series = fresh(&dir.join("series.csv"), &series_header(deck))?;
         let probes = if deck.output.probes.is_empty() {
             None
         } else {
@@ -325,6 +341,7 @@ impl OutputWriter {
         Self {
             dir: dir.to_path_buf(),
             csv: formats.contains(&Format::Csv),
+            flow: deck.has_open_flow(),
             vtk: formats.contains(&Format::Vtk),
             pvd,
             series,
@@ -346,7 +363,7 @@ impl OutputWriter {
     ) -> Result<Self, Error> {
         prepare(dir, deck)?;
         let frames = driver.frames;
-        let series = reopen(&dir.join("series.csv"), SERIES_HEADER, |f| {
+        let series = reopen(&dir.join("series.csv"), &series_header(deck), |f| {
             f.parse::<usize>().is_ok_and(|k| k < frames)
         })?;
         // rows are stamped with the time at the start of their step, printed as {:.9e}
@@ -443,15 +460,33 @@ impl OutputWriter {
             write_pvd(&pvd, &self.pvd).map_err(|e| Error::io(&pvd, e))?;
         }
         let series_path = self.dir.join("series.csv");
-        writeln!(
+        write!(
             self.series,
-            "{n},{:.9e},{},{dt:.6e},{:.9e},{:.9e},{},{wall_seconds:.3}",
+            "{n},{:.9e},{},{dt:.6e},{:.9e},{:.9e},{},{wall_seconds:.3}{}",
             sim.time,
             sim.steps,
             sim.kinetic_energy(),
             sim.max_speed(),
-            sim.pressure_iterations()
+            sim.pressure_iterations(),
+            if self.flow { "" } else { "\n" }
         )
+        .and_then(|_| {
+            if !self.flow {
+                return Ok(());
+            }
+            let l = &sim.ledger;
+            let mass: f64 = sim.particles.mass.iter().sum();
+            writeln!(
+                self.series,
+                ",{},{mass:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.3e}",
+                sim.particles.len(),
+                l.mass_in,
+                l.mass_out,
+                l.volume_in,
+                l.volume_out,
+                l.balance(&sim.particles)
+            )
+        })
         .and_then(|_| self.series.flush())
         .map_err(|e| Error::io(&series_path, e))?;
         if let Some(w) = &mut self.probes {
@@ -518,8 +553,8 @@ fn write_csv_to<const D: usize>(
         writeln!(w, "id,x,y,z,vx,vy,vz,pressure,mass,volume,material")?;
     }
     // rows in id order, wherever the last sort put each particle
-    for (id, &p) in ps.places().iter().enumerate() {
-        write!(w, "{id}")?;
+    for &p in &ps.places() {
+        write!(w, "{}", ps.id[p])?;
         for c in ps.x[p].iter().chain(ps.v[p].iter()) {
             write!(w, ",{c:.9e}")?;
         }

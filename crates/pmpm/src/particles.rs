@@ -136,6 +136,16 @@ macro_rules! particle_fields {
                 $(permute(&mut self.$name, order, scratch);)+
             }
 
+            /// Keeps the particles at the places `kept` (increasing), in that order, and drops
+            /// the others: those an outflow face let out.
+            pub fn keep(&mut self, kept: &[u32]) {
+                $(keep(&mut self.$name, kept);)+
+            }
+
+            fn append_fields(&mut self, other: &mut Self) {
+                $(self.$name.append(&mut other.$name);)+
+            }
+
             /// Gives back the arrays' unused capacity.
             pub fn shrink_to_fit(&mut self) {
                 $(self.$name.shrink_to_fit();)+
@@ -239,13 +249,17 @@ impl<const D: usize> Particles<D> {
         self.jacobian[p] * self.volume0[p]
     }
 
-    /// Places of the particles in id order: `places()[k]` is where particle `k` is stored.
+    /// Places of the particles in id order: `places()[k]` is where the particle with the
+    /// k-th smallest id is stored (particle k while none has left or entered the run).
     pub fn places(&self) -> Vec<usize> {
-        let mut at = vec![0; self.len()];
-        for (p, &id) in self.id.iter().enumerate() {
-            at[id as usize] = p;
-        }
+        let mut at: Vec<usize> = (0..self.len()).collect();
+        at.sort_unstable_by_key(|&p| self.id[p]);
         at
+    }
+
+    /// Appends `other`'s particles, leaving its arrays empty (their room kept).
+    pub fn append(&mut self, other: &mut Self) {
+        self.append_fields(other);
     }
 
     /// A copy of a per-particle field in id order.
@@ -261,6 +275,15 @@ impl<const D: usize> Particles<D> {
 #[derive(Debug, Default)]
 pub struct PermuteScratch<const D: usize> {
     done: Vec<u64>,
+}
+
+/// Keeps `field[kept[k]]` at place k and drops the rest (`kept` increasing, so each value
+/// moves down or stays: in place, without a second array).
+pub fn keep<T: Copy>(field: &mut Vec<T>, kept: &[u32]) {
+    for (k, &i) in kept.iter().enumerate() {
+        field[k] = field[i as usize];
+    }
+    field.truncate(kept.len());
 }
 
 /// `field[k] = old field[order[k]]` in place (`order` a permutation of the indices).

@@ -7,6 +7,7 @@
 use crate::averaging::NodalAveraging;
 use crate::boundary::Boundary;
 use crate::error::Error;
+use crate::flow::{has_left, Ledger};
 use crate::grid::CellBins;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::linalg::SolveError;
@@ -85,6 +86,10 @@ struct Work<const D: usize> {
     /// Cells of the particles, for the periodic sort.
     sort_bins: CellBins,
     sort_scratch: PermuteScratch<D>,
+    /// Places of the particles an outflow face leaves in the run.
+    kept: Vec<u32>,
+    /// The particles the inflows emit this step, before they join the others.
+    entering: Particles<D>,
 }
 
 /// What a simulation is made of at t = 0, each part built from its settings.
@@ -142,6 +147,8 @@ pub struct Simulation<const D: usize> {
     /// The implicit viscous solve (`simulation.viscosity = "implicit"`).
     pub viscosity: Option<ImplicitViscosity<D>>,
     work: Work<D>,
+    /// What entered and left through the open boundaries ([`crate::flow`]).
+    pub ledger: Ledger,
     /// Wall-clock seconds per phase of the step.
     pub timers: PhaseTimers,
 }
@@ -150,6 +157,7 @@ impl<const D: usize> Simulation<D> {
     /// A simulation at t = 0 from its parts (the `build` module makes them from a deck).
     pub fn from_parts(parts: Parts<D>) -> Self {
         let n = parts.particles.len();
+        let mass0 = parts.particles.mass.iter().sum();
         let body_force = parts.body_force.map(|f| {
             let at = parts.particles.x.iter().map(|x| f.eval(x, 0.0)).collect();
             (f, at)
@@ -176,6 +184,13 @@ impl<const D: usize> Simulation<D> {
                 advect: vec![Vector::<D>::zeros(); n],
                 sort_bins: CellBins::default(),
                 sort_scratch: PermuteScratch::default(),
+                kept: Vec::new(),
+                entering: Particles::default(),
+            },
+            ledger: Ledger {
+                mass0,
+                next_id: n as u32,
+                ..Ledger::default()
             },
             timers: PhaseTimers::default(),
         }
@@ -214,6 +229,8 @@ impl<const D: usize> Simulation<D> {
         self.correct_density(dt)?;
         self.time += dt;
         self.steps += 1;
+        // 7. the inflows emit the material that entered over the step
+        self.emit_inflow();
         self.check_particles()?;
         self.check_volumes()
     }
@@ -367,8 +384,14 @@ impl<const D: usize> Simulation<D> {
                 transfer::grid_to_particles_usl(&mut self.particles, &self.grid, &self.settings, dt)
             }
         }
+        // the inflows' buffers move at the inflows' velocity
+        for q in &self.boundary.inflows {
+            q.hold_buffer(&mut self.particles, self.time + dt, dt, self.grid.geo.h);
+        }
         self.boundary
             .confine(&self.grid.geo, dt, &mut self.particles);
+        // the particles the move carried past an outflow face leave the run
+        self.drain_outflow();
         self.check_particles()
     }
 
@@ -425,6 +448,7 @@ impl<const D: usize> Simulation<D> {
                 })?;
             self.boundary
                 .confine(&self.grid.geo, dt, &mut self.particles);
+            self.drain_outflow();
             self.timers.lap(Phase::Density);
         }
         Ok(())
@@ -490,6 +514,75 @@ impl<const D: usize> Simulation<D> {
     /// The same, to restore it from a checkpoint.
     pub fn body_force_values_mut(&mut self) -> Option<&mut Vec<Vector<D>>> {
         self.body_force.as_mut().map(|(_, f)| f)
+    }
+
+    /// Takes out the particles that crossed an outflow face, with every per-particle array of
+    /// the step, and counts them out in the ledger.
+    fn drain_outflow(&mut self) {
+        let outflow: [bool; 6] = std::array::from_fn(|f| f < 2 * D && self.boundary.is_outflow(f));
+        let geo = &self.grid.geo;
+        if outflow.iter().any(|&o| o)
+            && self
+                .particles
+                .x
+                .par_iter()
+                .any(|x| has_left(geo, &outflow, x))
+        {
+            let ps = &self.particles;
+            let kept = &mut self.work.kept;
+            kept.clear();
+            for p in 0..ps.len() {
+                if has_left(geo, &outflow, &ps.x[p]) {
+                    self.ledger.mass_out += ps.mass[p];
+                    self.ledger.volume_out += ps.volume(p);
+                } else {
+                    kept.push(p as u32);
+                }
+            }
+            let kept = &self.work.kept;
+            self.particles.keep(kept);
+            crate::particles::keep(&mut self.work.advect, kept);
+            if let Some((_, f)) = &mut self.body_force {
+                crate::particles::keep(f, kept);
+            }
+            if let Some(projection) = &mut self.projection {
+                projection.keep_particles(kept);
+            }
+        }
+    }
+
+    /// Step 7: adds the particles the inflows have room for now.
+    fn emit_inflow(&mut self) {
+        if self.boundary.inflows.is_empty() {
+            return;
+        }
+        let mut entering = std::mem::take(&mut self.work.entering);
+        for q in &mut self.boundary.inflows {
+            q.emit(&self.particles, self.time, &mut self.ledger, &mut entering);
+        }
+        if !entering.is_empty() {
+            if let Some(projection) = &mut self.projection {
+                projection.add_particles(&entering);
+            }
+            self.particles.append(&mut entering);
+            self.fit_particle_arrays();
+        }
+        self.work.entering = entering;
+    }
+
+    /// Sizes the step's per-particle arrays to the particles (after particles entered, or a
+    /// resume from a checkpoint with another count): the body force evaluated at the new ones.
+    pub fn fit_particle_arrays(&mut self) {
+        let n = self.particles.len();
+        self.work.advect.resize(n, Vector::<D>::zeros());
+        if let Some((field, f)) = &mut self.body_force {
+            let (from, t) = (f.len().min(n), self.time);
+            f.truncate(n);
+            f.extend(self.particles.x[from..].iter().map(|x| field.eval(x, t)));
+        }
+        if let Some(projection) = &mut self.projection {
+            projection.fit_particles(n);
+        }
     }
 
     /// Reorders the particles and every per-particle array of the step by cell (a stable

@@ -3,7 +3,7 @@
 //! `--allow-large`: a deck that needs more memory than the machine has used to allocate for
 //! seconds and abort, and one that needs 1e150 steps used to start without a word.
 
-use super::{Deck, ShapeKind};
+use super::Deck;
 use crate::error::Error;
 
 /// The most steps a deck may need without `--allow-large`.
@@ -45,21 +45,33 @@ pub fn estimate(deck: &Deck) -> Estimate {
     let particles: f64 = deck
         .bodies
         .iter()
-        .map(|b| {
-            let (lo, hi) = b.shape.bounds();
-            // the bounding box clipped to the grid; a sphere fills pi/4 (2D) or pi/6 (3D) of it
-            let boxed: f64 = (0..dim)
-                .map(|d| {
-                    let a = lo[d].max(g.origin[d]);
-                    let z = hi[d].min(g.origin[d] + g.size[d]);
-                    (z - a).max(0.0)
-                })
-                .product();
-            let fill = match b.shape.kind {
-                ShapeKind::Box => 1.0,
-                ShapeKind::Sphere if dim == 2 => std::f64::consts::PI / 4.0,
-                ShapeKind::Sphere => std::f64::consts::PI / 6.0,
+        .enumerate()
+        .map(|(i, b)| {
+            // the bounding box clipped to the grid, and the part of it inside the shape, from
+            // 16 points per axis (a sphere fills pi/4 of its box in 2D, pi/6 in 3D)
+            let Ok(solid) = deck.body_solid(i) else {
+                return 0.0;
             };
+            let (lo, hi) = solid.bounds();
+            let a: Vec<f64> = (0..dim).map(|d| lo[d].max(g.origin[d])).collect();
+            let z: Vec<f64> = (0..dim)
+                .map(|d| hi[d].min(g.origin[d] + g.size[d]))
+                .collect();
+            let boxed: f64 = (0..dim).map(|d| (z[d] - a[d]).max(0.0)).product();
+            const N: usize = 16;
+            let total = N.pow(dim as u32);
+            let inside = (0..total)
+                .filter(|&k| {
+                    let x: Vec<f64> = (0..dim)
+                        .map(|d| {
+                            let j = (k / N.pow(d as u32)) % N;
+                            a[d] + (z[d] - a[d]) * (j as f64 + 0.5) / N as f64
+                        })
+                        .collect();
+                    solid.contains(&x)
+                })
+                .count();
+            let fill = inside as f64 / total as f64;
             let spacing = h / b.particles_per_cell as f64;
             (boxed * fill / spacing.powi(dim as i32)).round()
         })

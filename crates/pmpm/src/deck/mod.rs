@@ -30,12 +30,13 @@ use std::path::Path;
 
 pub use crate::boundary::BoundaryKind;
 pub use crate::error::DeckError;
+pub use crate::geometry::{Numbers, ShapeDeck, ShapeKind};
 pub use crate::material::Model;
 use crate::material::{Law, MaterialParams, Newtonian, ViscoElastic};
 use crate::material::{NeoHookean, Viscoplastic, VonMises};
 pub use crate::particles::InitialStress;
 
-const BOUNDARY_KINDS: &[&str] = &["slip", "no_slip", "open", "periodic"];
+const BOUNDARY_KINDS: &[&str] = &["slip", "no_slip", "open", "outflow", "periodic"];
 
 /// One face's condition: a kind, and for a moving wall its velocity.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -86,7 +87,7 @@ impl<'de> Deserialize<'de> for BoundarySpec {
         impl<'de> serde::de::Visitor<'de> for V {
             type Value = BoundarySpec;
             fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-                f.write_str("a boundary kind (\"slip\", \"no_slip\", \"open\", \"periodic\") or a table { type = ..., velocity = [...] }")
+                f.write_str("a boundary kind (\"slip\", \"no_slip\", \"open\", \"outflow\", \"periodic\") or a table { type = ..., velocity = [...] }")
             }
             fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<BoundarySpec, E> {
                 BoundaryKind::from_name(s)
@@ -473,69 +474,6 @@ impl MaterialDeck {
     }
 }
 
-/// Kind of a body's shape.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ShapeKind {
-    /// Axis-aligned box `min`..`max`.
-    Box,
-    /// Sphere (disc in 2D) of `center` and `radius`.
-    Sphere,
-}
-
-/// A body's shape: `{ type = "box", min, max }` or `{ type = "sphere", center, radius }`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-#[allow(missing_docs)]
-pub struct ShapeDeck {
-    #[serde(rename = "type")]
-    pub kind: ShapeKind,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub min: Option<Vec<f64>>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub max: Option<Vec<f64>>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub center: Option<Vec<f64>>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub radius: Option<f64>,
-}
-
-impl ShapeDeck {
-    /// Bounding box (lower, upper) of a validated shape.
-    pub fn bounds(&self) -> (Vec<f64>, Vec<f64>) {
-        match self.kind {
-            ShapeKind::Box => (
-                self.min.clone().unwrap_or_default(),
-                self.max.clone().unwrap_or_default(),
-            ),
-            ShapeKind::Sphere => {
-                let c = self.center.clone().unwrap_or_default();
-                let r = self.radius.unwrap_or(0.0);
-                (
-                    c.iter().map(|x| x - r).collect(),
-                    c.iter().map(|x| x + r).collect(),
-                )
-            }
-        }
-    }
-    /// Whether the point lies inside the shape.
-    pub fn contains(&self, x: &[f64]) -> bool {
-        match self.kind {
-            ShapeKind::Box => {
-                let (lo, hi) = self.bounds();
-                x.iter()
-                    .zip(lo.iter().zip(&hi))
-                    .all(|(x, (l, h))| x >= l && x <= h)
-            }
-            ShapeKind::Sphere => {
-                let c = self.center.as_deref().unwrap_or_default();
-                let r = self.radius.unwrap_or(0.0);
-                x.iter().zip(c).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() <= r * r
-            }
-        }
-    }
-}
-
 /// `[[bodies]]`
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -630,6 +568,28 @@ pub struct RigidBodyDeck {
     pub sides: RigidSides,
 }
 
+/// `[[inflows]]`: a patch of a wall face through which material enters at a given velocity
+/// ([`crate::flow`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InflowDeck {
+    /// Name of a `[[materials]]` entry.
+    pub material: String,
+    /// The face: "x_min", "x_max", "y_min", ... (a slip or no-slip face).
+    pub face: String,
+    /// The patch's lower corner on the face (its component along the face's normal is the
+    /// face's coordinate).
+    pub min: Vec<f64>,
+    /// The patch's upper corner.
+    pub max: Vec<f64>,
+    /// Velocity of the entering material (numbers or expressions in x, y, z, t), into the
+    /// domain.
+    pub velocity: VectorField,
+    /// Particles per cell per direction of the emitted lattice (default 2).
+    #[serde(default = "default_ppc")]
+    pub particles_per_cell: usize,
+}
+
 /// The whole deck.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -651,6 +611,9 @@ pub struct Deck {
     /// `[[rigid_bodies]]`: boxes moving at a prescribed velocity (pmpm).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub rigid_bodies: Vec<RigidBodyDeck>,
+    /// `[[inflows]]`: patches of wall faces through which material enters.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inflows: Vec<InflowDeck>,
     /// `[output]`
     #[serde(default)]
     pub output: OutputDeck,
@@ -990,6 +953,31 @@ impl Check<'_> {
 }
 
 impl Deck {
+    /// Whether material enters or leaves through the grid's faces (an outflow face or an
+    /// inflow): series.csv then has the mass balance's columns.
+    pub fn has_open_flow(&self) -> bool {
+        !self.inflows.is_empty()
+            || self
+                .grid
+                .boundary
+                .faces()
+                .iter()
+                .any(|f| f.as_ref().map(|f| f.kind()) == Some(BoundaryKind::Outflow))
+    }
+
+    /// The region of `bodies[b]` of a validated deck (its mesh file is read again).
+    pub fn body_solid(&self, b: usize) -> Result<crate::geometry::Solid, DeckError> {
+        self.bodies[b]
+            .shape
+            .solid(self.simulation.dimension)
+            .map_err(|e| DeckError {
+                file: String::new(),
+                key: format!("bodies[{b}].shape{}", e.key),
+                line_col: None,
+                message: e.message,
+            })
+    }
+
     /// Reads and validates a deck file. `file` is used in messages as the user named it.
     pub fn load(path: &Path) -> Result<Deck, DeckError> {
         let file = path.display().to_string();
@@ -1070,6 +1058,7 @@ impl Deck {
         self.check_materials(&c)?;
         self.check_bodies(&c)?;
         self.check_rigid_bodies(&c)?;
+        self.check_inflows(&c)?;
         self.check_output(&c)?;
         self.check_time_step(&c)?;
         Ok(())
@@ -1297,10 +1286,10 @@ impl Deck {
                         "a periodic face imposes nothing: a velocity needs \"slip\" or \"no_slip\"",
                     ))
                 }
-                BoundaryKind::Open if spec.velocity().is_some() => {
+                BoundaryKind::Open | BoundaryKind::Outflow if spec.velocity().is_some() => {
                     return Err(c.err(
                         format!("{key}.velocity"),
-                        "an open face imposes nothing: a velocity needs \"slip\" or \"no_slip\"",
+                        "an open or outflow face imposes nothing: a velocity needs \"slip\" or \"no_slip\" (an inflow is an [[inflows]] entry)",
                     ))
                 }
                 _ => {}
@@ -1468,17 +1457,36 @@ impl Deck {
         for (i, b) in self.bodies.iter_mut().enumerate() {
             let k = format!("bodies[{i}]");
             check_body_material(&self.materials, &b.material, &k, c)?;
-            let sh = &b.shape;
-            check_body_shape(sh, &k, dim, c)?;
-            let (mn, mx) = sh.bounds();
+            b.shape
+                .resolve_files(Path::new(c.file).parent().unwrap_or(Path::new("")));
+            let solid = shape_solid(&b.shape, &format!("{k}.shape"), dim, c)?;
+            let (mn, mx) = solid.bounds();
             let tol = 1e-9 * self.grid.cell_size;
-            if let Some(d) = (0..dim).find(|&d| mn[d] < lo[d] - tol || mx[d] > hi[d] + tol) {
+            // a box or a sphere past the grid is a typing slip; a mesh, a half-space or a
+            // rotated shape may reach past it on purpose, and is cut off there
+            let plain = matches!(b.shape.kind, ShapeKind::Box | ShapeKind::Sphere)
+                && b.shape.scale.is_none()
+                && b.shape.rotate.is_none()
+                && b.shape.translate.is_none();
+            if let Some(d) =
+                (0..dim).find(|&d| plain && (mn[d] < lo[d] - tol || mx[d] > hi[d] + tol))
+            {
                 return Err(c.err(
                     format!("{k}.shape"),
                     format!(
                         "extends outside the grid along {}: the body spans [{}, {}], the grid [{}, {}]",
                         AXES[d], mn[d], mx[d], lo[d], hi[d]
                     ),
+                ));
+            }
+            let (mn, mx): (Vec<f64>, Vec<f64>) = (
+                (0..dim).map(|d| mn[d].max(lo[d])).collect(),
+                (0..dim).map(|d| mx[d].min(hi[d])).collect(),
+            );
+            if let Some(d) = (0..dim).find(|&d| mx[d] <= mn[d]) {
+                return Err(c.err(
+                    format!("{k}.shape"),
+                    format!("lies outside the grid along {}", AXES[d]),
                 ));
             }
             if !(1..=8).contains(&b.particles_per_cell) {
@@ -1523,12 +1531,13 @@ impl Deck {
             if self.rigid_bodies[..i].iter().any(|q| q.name == r.name) {
                 return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", r.name)));
             }
-            if r.shape.kind != ShapeKind::Box {
+            if !r.shape.is_plain_box() {
                 return Err(c.err(
                     format!("{k}.shape.type"),
-                    "must be \"box\": a rigid body is an axis-aligned box",
+                    "must be \"box\" without rotate, scale or translate: a rigid body is an axis-aligned box (other shapes are for [[bodies]])",
                 ));
             }
+            shape_solid(&r.shape, &format!("{k}.shape"), dim, c)?;
             let (Some(mn), Some(mx)) = (&r.shape.min, &r.shape.max) else {
                 return Err(c.err(format!("{k}.shape"), "a box needs both min and max"));
             };
@@ -1540,14 +1549,104 @@ impl Deck {
                     format!("must exceed min along {}: {} <= {}", AXES[d], mx[d], mn[d]),
                 ));
             }
-            if r.shape.center.is_some() || r.shape.radius.is_some() {
-                return Err(c.err(
-                    format!("{k}.shape"),
-                    "a box takes min and max, not center or radius",
-                ));
-            }
             if let Some(v) = &r.velocity {
                 c.vector(&format!("{k}.velocity"), v, dim)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The `[[inflows]]`.
+    fn check_inflows(&self, c: &Check) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
+        let (lo, hi) = self.domain();
+        let h = self.grid.cell_size;
+        let faces = self.grid.boundary.faces();
+        for (i, q) in self.inflows.iter().enumerate() {
+            let k = format!("inflows[{i}]");
+            check_body_material(&self.materials, &q.material, &k, c)?;
+            let Some(f) = FACE_NAMES[..2 * dim].iter().position(|n| *n == q.face) else {
+                return Err(c.err(
+                    format!("{k}.face"),
+                    format!(
+                        "must be one of {} (dimension = {dim}), got \"{}\"",
+                        FACE_NAMES[..2 * dim].join(", "),
+                        q.face
+                    ),
+                ));
+            };
+            let kind = faces[f].as_ref().map_or(BoundaryKind::Slip, |s| s.kind());
+            if !matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip) {
+                return Err(c.err(
+                    format!("{k}.face"),
+                    format!(
+                        "grid.boundary.{} is \"{}\": an inflow is a patch of a slip or no-slip face",
+                        q.face,
+                        BOUNDARY_KINDS
+                            .iter()
+                            .find(|n| BoundaryKind::from_name(n) == Some(kind))
+                            .unwrap_or(&"?")
+                    ),
+                ));
+            }
+            c.vector(&format!("{k}.min"), &q.min, dim)?;
+            c.vector(&format!("{k}.max"), &q.max, dim)?;
+            let axis = f / 2;
+            let plane = if f % 2 == 0 { lo[axis] } else { hi[axis] };
+            for (name, v) in [("min", &q.min), ("max", &q.max)] {
+                if (v[axis] - plane).abs() > 1e-9 * h {
+                    return Err(c.err(
+                        format!("{k}.{name}"),
+                        format!(
+                            "must lie on the face {}: its {} component must be {plane}, got {}",
+                            q.face, AXES[axis], v[axis]
+                        ),
+                    ));
+                }
+            }
+            for d in (0..dim).filter(|&d| d != axis) {
+                if q.max[d] <= q.min[d] {
+                    return Err(c.err(
+                        format!("{k}.max"),
+                        format!(
+                            "must exceed min along {}: {} <= {}",
+                            AXES[d], q.max[d], q.min[d]
+                        ),
+                    ));
+                }
+                if q.min[d] < lo[d] - 1e-9 * h || q.max[d] > hi[d] + 1e-9 * h {
+                    return Err(c.err(
+                        format!("{k}.min"),
+                        format!(
+                            "the patch spans [{}, {}] along {}, past the grid's [{}, {}]",
+                            q.min[d], q.max[d], AXES[d], lo[d], hi[d]
+                        ),
+                    ));
+                }
+            }
+            if !(1..=8).contains(&q.particles_per_cell) {
+                return Err(c.err(
+                    format!("{k}.particles_per_cell"),
+                    format!("must be between 1 and 8, got {}", q.particles_per_cell),
+                ));
+            }
+            c.field(&format!("{k}.velocity"), &q.velocity, dim)?;
+            // the material must enter: the velocity's normal part at the patch's centre at t = 0
+            let field = q.velocity.compile().expect("checked above");
+            let centre: Vec<f64> = (0..dim).map(|d| 0.5 * (q.min[d] + q.max[d])).collect();
+            let un = match dim {
+                2 => field.eval(&crate::grid::Vector::<2>::from_column_slice(&centre), 0.0)[axis],
+                _ => field.eval(&crate::grid::Vector::<3>::from_column_slice(&centre), 0.0)[axis],
+            };
+            let inward = if f % 2 == 0 { un } else { -un };
+            if inward.is_nan() || inward < 0.0 {
+                return Err(c.err(
+                    format!("{k}.velocity"),
+                    format!(
+                        "points out of the domain at t = 0 (its {} component is {un} on the face {}): an inflow's velocity points into the grid",
+                        AXES[axis], q.face
+                    ),
+                ));
             }
         }
         Ok(())
@@ -1748,57 +1847,13 @@ fn check_body_material(
 }
 
 /// A body's shape has the keys its type takes, and a box has positive extent.
-fn check_body_shape(sh: &ShapeDeck, k: &str, dim: usize, c: &Check) -> Result<(), DeckError> {
-    match sh.kind {
-        ShapeKind::Box => {
-            for (name, v) in [("min", &sh.min), ("max", &sh.max)] {
-                let v = v.as_ref().ok_or_else(|| {
-                    c.err(
-                        format!("{k}.shape.{name}"),
-                        "is required for type = \"box\"",
-                    )
-                })?;
-                c.vector(&format!("{k}.shape.{name}"), v, dim)?;
-            }
-            let (mn, mx) = sh.bounds();
-            if let Some(d) = (0..dim).find(|&d| mn[d] >= mx[d]) {
-                return Err(c.err(
-                    format!("{k}.shape.max"),
-                    format!(
-                        "must exceed min in every direction: max[{d}] = {} <= min[{d}] = {}",
-                        mx[d], mn[d]
-                    ),
-                ));
-            }
-            if sh.center.is_some() || sh.radius.is_some() {
-                return Err(c.err(
-                    format!("{k}.shape"),
-                    "a box takes min and max, not center or radius",
-                ));
-            }
-        }
-        ShapeKind::Sphere => {
-            let ctr = sh.center.as_ref().ok_or_else(|| {
-                c.err(
-                    format!("{k}.shape.center"),
-                    "is required for type = \"sphere\"",
-                )
-            })?;
-            c.vector(&format!("{k}.shape.center"), ctr, dim)?;
-            let r = sh.radius.ok_or_else(|| {
-                c.err(
-                    format!("{k}.shape.radius"),
-                    "is required for type = \"sphere\"",
-                )
-            })?;
-            c.positive(&format!("{k}.shape.radius"), r)?;
-            if sh.min.is_some() || sh.max.is_some() {
-                return Err(c.err(
-                    format!("{k}.shape"),
-                    "a sphere takes center and radius, not min or max",
-                ));
-            }
-        }
-    }
-    Ok(())
+/// Checks a shape (reading any mesh) and builds it, errors against `key` and the keys below.
+fn shape_solid(
+    sh: &ShapeDeck,
+    key: &str,
+    dim: usize,
+    c: &Check,
+) -> Result<crate::geometry::Solid, DeckError> {
+    sh.solid(dim)
+        .map_err(|e| c.err(format!("{key}{}", e.key), e.message))
 }

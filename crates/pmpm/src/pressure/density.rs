@@ -355,6 +355,7 @@ impl<const D: usize> PositionCorrection<D> {
                 }
             });
         b.hold_still(&mut self.displacement);
+        b.hold_buffers(&mut self.displacement);
     }
 
     /// x_p += sum_i N_ip u_i, F_p <- (I + H_p) F_p, J_p <- J_p det(I + H_p) with

@@ -320,6 +320,28 @@ impl<const D: usize> Projection<D> {
         self.work.volume_over_density = v;
     }
 
+    /// Keeps the per-particle state of the particles at `kept` ([`Particles::keep`]).
+    pub fn keep_particles(&mut self, kept: &[u32]) {
+        crate::particles::keep(&mut self.work.volume_over_density, kept);
+        self.fit_particles(kept.len());
+    }
+
+    /// Appends the per-particle state of particles joining the run.
+    pub fn add_particles(&mut self, ps: &Particles<D>) {
+        self.work
+            .volume_over_density
+            .extend(ps.volume0.iter().zip(&ps.mass).map(|(v, m)| v * v / m));
+    }
+
+    /// Sizes the per-particle scratch to `n` particles.
+    pub fn fit_particles(&mut self, n: usize) {
+        self.work.pressure_gradient.resize(n, Vector::<D>::zeros());
+        if !self.work.divergence.is_empty() || !self.work.velocity_star.is_empty() {
+            self.work.divergence.resize(n, 0.0);
+            self.work.velocity_star.resize(n, Vector::<D>::zeros());
+        }
+    }
+
     /// Follows a reordering of the particles ([`Particles::permute`]): the arrays that live
     /// from step to step move with them (the others are refilled every step).
     pub fn permute_particles(
