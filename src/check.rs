@@ -138,6 +138,23 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     w
 }
 
+/// A velocity as the deck gives it: numbers as `[0, -0.1]`, expressions quoted.
+fn describe_field(f: &pmpm::field::VectorField) -> String {
+    match f.numbers() {
+        Some(v) => format!("{v:?}"),
+        None => {
+            let parts: Vec<String> =
+                f.0.iter()
+                    .map(|c| match c {
+                        pmpm::field::Component::Number(x) => format!("{x:?}"),
+                        pmpm::field::Component::Expression(e) => format!("\"{e}\""),
+                    })
+                    .collect();
+            format!("[{}]", parts.join(", "))
+        }
+    }
+}
+
 /// Warns of an inflow patch that reaches a no-slip wall with a velocity that does not vanish
 /// there at t = 0.
 fn inflow_at_no_slip(deck: &Deck, w: &mut Vec<String>) {
@@ -391,7 +408,10 @@ fn rigid_bodies(deck: &Deck, dim: usize, out: &mut String) {
             r.shape.min.clone().unwrap_or_default(),
             r.shape.max.clone().unwrap_or_default(),
         );
-        let v = r.velocity.clone().unwrap_or_else(|| vec![0.0; dim]);
+        let v = r
+            .velocity
+            .as_ref()
+            .map_or_else(|| format!("{:?}", vec![0.0; dim]), describe_field);
         let sides = match r.sides {
             pmpm::deck::RigidSides::Rough => "rough",
             pmpm::deck::RigidSides::Smooth => "smooth sides",
@@ -405,7 +425,7 @@ fn rigid_bodies(deck: &Deck, dim: usize, out: &mut String) {
             "faces act at node resolution (put them midway between node rows)"
         };
         *out += &format!(
-            "  rigid body       \"{}\": box {lo:?} to {hi:?} m, velocity {v:?} m/s, {sides}, {faces}; its force in rigid_bodies.csv every step\n",
+            "  rigid body       \"{}\": box {lo:?} to {hi:?} m, velocity {v} m/s, {sides}, {faces}; its force in rigid_bodies.csv every step\n",
             r.name
         );
     }

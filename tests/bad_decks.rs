@@ -453,7 +453,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "an inflow that points out",
             format!("{SMALL_2D}\n[[inflows]]\nmaterial = \"water\"\nface = \"x_min\"\nmin = [0.0, 0.0]\nmax = [0.0, 0.05]\nvelocity = [-0.1, 0.0]\n"),
-            "bad.toml: inflows[0].velocity: points out of the domain at t = 0 (its x component is -0.1 on the face x_min): an inflow's velocity points into the grid",
+            "bad.toml: inflows[0].velocity: points out of the domain at (0, 0) at t = 0 (its x component is -0.1 on the face x_min): an inflow's velocity points into the grid",
         ),
         (
             "an inflow of a material the deck lacks",

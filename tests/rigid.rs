@@ -237,7 +237,10 @@ fn rigid_bodies_csv_has_a_row_per_step() {
     let bodies = pmpm_cli::table::Table::read(&out.join("rigid_bodies.csv")).unwrap();
     assert_eq!(
         bodies.header,
-        ["time", "shelf_ux", "shelf_uy", "shelf_fx", "shelf_fy"]
+        [
+            "time", "shelf_ux", "shelf_uy", "shelf_x", "shelf_y", "shelf_vx", "shelf_vy",
+            "shelf_fx", "shelf_fy"
+        ]
     );
     let rows = bodies.rows;
     let series = pmpm_cli::table::Table::read(&out.join("series.csv")).unwrap();

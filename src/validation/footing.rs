@@ -64,7 +64,7 @@ fn push(v: Variant, h: f64, w: f64, speed: f64) -> Result<Curve, String> {
         // the clay's 2 m and about 0.4 m above it, a whole number of cells
         d.grid.size[1] = 2.0 + (0.4 / h).round() * h;
         d.simulation.end_time = (0.1 * B + h / 2.0) / speed;
-        d.rigid_bodies[0].velocity = Some(vec![0.0, -speed]);
+        d.rigid_bodies[0].velocity = Some(pmpm::field::VectorField::constant_from(&[0.0, -speed]));
         if let Some(max) = d.rigid_bodies[0].shape.max.as_mut() {
             max[0] = w;
         }

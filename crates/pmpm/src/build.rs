@@ -253,7 +253,16 @@ pub fn rigid_bodies<const D: usize>(deck: &Deck) -> RigidBodies<D> {
             RigidBox {
                 lo: v(lo.expect("validated: a rigid box has min")),
                 hi: v(hi.expect("validated: a rigid box has max")),
-                velocity: b.velocity.as_deref().map_or_else(Vector::<D>::zeros, v),
+                velocity: b.velocity.as_ref().map_or_else(Vector::<D>::zeros, |f| {
+                    f.compile()
+                        .expect("validated expressions")
+                        .eval(&Vector::<D>::zeros(), 0.0)
+                }),
+                motion: b
+                    .velocity
+                    .as_ref()
+                    .map(|f| f.compile().expect("validated expressions"))
+                    .filter(|f| !f.is_constant()),
                 sides: b.sides,
             }
         })

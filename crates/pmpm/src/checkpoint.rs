@@ -345,6 +345,14 @@ pub fn read<const D: usize>(
     } else {
         sim.particles.len()
     };
+    if let Some(l) = &flow {
+        let finite = [l.mass0, l.mass_in, l.mass_out, l.volume_in, l.volume_out]
+            .iter()
+            .all(|x| x.is_finite() && *x >= 0.0);
+        if !finite || (l.next_id as usize) < n {
+            return Err(refuse(path, "its ledger of the open boundaries is damaged"));
+        }
+    }
     let id_limit = flow.as_ref().map_or(n, |f| f.next_id as usize);
     if s.particles.id.len() != n {
         return Err(refuse(
@@ -464,19 +472,19 @@ fn consistent_particles<const D: usize>(
         ));
     }
     // ids are 0 to n - 1, or with open boundaries distinct and below the next one to be given
-    let mut seen = vec![false; id_limit];
-    for &id in &ps.id {
-        match seen.get_mut(id as usize) {
-            Some(b) if !*b => *b = true,
-            _ if id_limit == n => {
-                return Err(format!("its particle ids are not 0 to {} (id {id})", n - 1))
-            }
-            _ => {
-                return Err(format!(
-                    "its particle ids are not distinct and below {id_limit} (id {id})"
-                ))
-            }
-        }
+    // (sorted, not marked in a table as long as the largest id: a damaged ledger may say 4e9)
+    let mut ids = ps.id.clone();
+    ids.sort_unstable();
+    let bad = ids
+        .iter()
+        .enumerate()
+        .find(|&(k, &id)| id as usize >= id_limit || (k > 0 && ids[k - 1] == id));
+    if let Some((_, &id)) = bad {
+        return Err(if id_limit == n {
+            format!("its particle ids are not 0 to {} (id {id})", n - 1)
+        } else {
+            format!("its particle ids are not distinct and below {id_limit} (id {id})")
+        });
     }
     if let Some(p) = ps.material.iter().position(|&m| m as usize >= materials) {
         return Err(format!(

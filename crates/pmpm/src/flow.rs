@@ -23,7 +23,6 @@ use crate::field::CompiledField;
 use crate::grid::{GridGeometry, Vector};
 use crate::particles::Matrix;
 use crate::particles::Particles;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// What entered and left the run through its open boundaries, and the next particle id.
@@ -77,6 +76,8 @@ pub struct Inflow<const D: usize> {
     layer: Vec<Vector<D>>,
     /// Scratch: per lane, the distance from the face of the nearest particle.
     nearest: Vec<f64>,
+    /// The particles in the buffer at the step's start, and their positions then.
+    buffer: Vec<(u32, Vector<D>)>,
 }
 
 impl<const D: usize> Inflow<D> {
@@ -129,6 +130,7 @@ impl<const D: usize> Inflow<D> {
             counts,
             layer,
             nearest: Vec::new(),
+            buffer: Vec::new(),
         }
     }
 
@@ -177,7 +179,7 @@ impl<const D: usize> Inflow<D> {
         let mass = self.density * volume;
         for (lane, x0) in self.layer.iter().enumerate() {
             let mut d = self.nearest[lane];
-            while d >= 1.5 * s {
+            while d >= 1.5 * s && ledger.next_id < u32::MAX {
                 d -= s;
                 let mut x = x0 + n * d;
                 x[axis] = plane + n[axis] * d;
@@ -201,30 +203,32 @@ impl<const D: usize> Inflow<D> {
         }
     }
 
-    /// Moves the particles in the buffer, less than a cell in front of the patch, at the
-    /// patch's velocity over the step `dt` ending at `t` that has just moved them with the
-    /// grid's: they leave the buffer at the rate the patch gives, whatever the flow beyond it
-    /// (a no-slip floor that slows the water at the patch's foot), and the lanes open at that
-    /// rate. Emitting at that rate without the buffer piled particles three deep in the
-    /// floor's corner; emitting as the grid moved them fell a third short, the flow fanning
-    /// out of the lanes in the first cell.
-    pub fn hold_buffer(&self, ps: &mut Particles<D>, t: f64, dt: f64, h: f64) {
+    /// Notes the particles in the buffer, less than a cell in front of the patch, and where
+    /// they are, before the step moves them ([`Inflow::hold_buffer`]).
+    pub fn mark_buffer(&mut self, ps: &Particles<D>, h: f64) {
         let n = self.inward();
-        (
-            ps.x.par_iter_mut(),
-            ps.v.par_iter_mut(),
-            ps.affine.par_iter_mut(),
-        )
-            .into_par_iter()
-            .for_each(|(x, v, c)| {
-                let dn = (*x - self.lo).dot(&n);
-                if (0.0..h).contains(&dn) && self.lane(x).is_some() {
-                    let u = self.velocity.eval(x, t);
-                    *x += (u - *v) * dt;
-                    *v = u;
-                    *c = Matrix::<D>::zeros();
-                }
-            });
+        self.buffer.clear();
+        for (p, x) in ps.x.iter().enumerate() {
+            if (0.0..h).contains(&(x - self.lo).dot(&n)) && self.lane(x).is_some() {
+                self.buffer.push((p as u32, *x));
+            }
+        }
+    }
+
+    /// Moves the particles [`Inflow::mark_buffer`] noted at the patch's velocity over the
+    /// step `dt` ending at `t`, instead of the grid's: they leave the buffer at the rate the
+    /// patch gives, whatever the flow beyond it (a no-slip floor that slows the water at the
+    /// patch's foot), and the lanes open at that rate. Emitting at that rate without the
+    /// buffer piled particles three deep in the floor's corner; emitting as the grid moved
+    /// them fell a third short, the flow fanning out of the lanes in the first cell.
+    pub fn hold_buffer(&self, ps: &mut Particles<D>, t: f64, dt: f64) {
+        for &(p, x0) in &self.buffer {
+            let p = p as usize;
+            let u = self.velocity.eval(&x0, t);
+            ps.x[p] = x0 + u * dt;
+            ps.v[p] = u;
+            ps.affine[p] = Matrix::<D>::zeros();
+        }
     }
 
     /// The lane of the patch's lattice a point lies in, if it lies within the patch.

@@ -474,9 +474,8 @@ impl ShapeDeck {
             Some(v) => point("translate", v, dim)?,
         };
         let linear = r.matrix() * Matrix3::from_diagonal(&scale);
-        let inverse = linear
-            .try_inverse()
-            .expect("a rotation times a positive scale is invertible");
+        // (R S)^-1 = S^-1 R^T, built as such: no determinant to underflow
+        let inverse = Matrix3::from_diagonal(&scale.map(|s| 1.0 / s)) * r.matrix().transpose();
         Ok(Some(Affine {
             linear,
             inverse,
@@ -686,20 +685,6 @@ impl Solid {
         let Some(a) = &self.transform else {
             return (lo, hi);
         };
-        if !(lo.iter().chain(hi.iter()).all(|x| x.is_finite())) {
-            // the transform of an unbounded box: unbounded wherever the linear part mixes
-            // an unbounded axis in
-            let mut out = (Vector3::repeat(f64::NEG_INFINITY), inf);
-            for d in 0..3 {
-                let row = a.linear.row(d);
-                if (0..3).all(|e| row[e] == 0.0 || (lo[e].is_finite() && hi[e].is_finite())) {
-                    let (x, y) = interval(&row.transpose(), &lo, &hi);
-                    out.0[d] = x + a.shift[d];
-                    out.1[d] = y + a.shift[d];
-                }
-            }
-            return out;
-        }
         let (mut blo, mut bhi) = (inf, -inf);
         for d in 0..3 {
             let (x, y) = interval(&a.linear.row(d).transpose(), &lo, &hi);
@@ -779,10 +764,13 @@ impl Mesh {
         let remap: Vec<u32> = vertices
             .iter()
             .map(|v| {
-                *index.entry(v.map(f64::to_bits)).or_insert_with(|| {
-                    points.push(Vector3::from(*v));
-                    (points.len() - 1) as u32
-                })
+                // + 0.0 makes -0.0 and 0.0 one point
+                *index
+                    .entry(v.map(|c| (c + 0.0).to_bits()))
+                    .or_insert_with(|| {
+                        points.push(Vector3::from(*v));
+                        (points.len() - 1) as u32
+                    })
             })
             .collect();
         let mut tris: Vec<[u32; 3]> = Vec::with_capacity(triangles.len());

@@ -255,17 +255,16 @@ fn prepare(dir: &Path, deck: &Deck) -> Result<(), Error> {
     write_atomic(&run_toml, |w| w.write_all(text.as_bytes())).map_err(|e| Error::io(&run_toml, e))
 }
 
-/// The header of rigid_bodies.csv: time, then per body its displacement and the force the
-/// material exerts on it.
+/// The header of rigid_bodies.csv: time, then per body its displacement, its centre, its
+/// velocity and the force the material exerts on it.
 fn rigid_header(deck: &Deck, dim: usize) -> String {
     let mut head = String::from("time");
     let axes = ["x", "y", "z"];
     for b in &deck.rigid_bodies {
-        for a in &axes[..dim] {
-            head += &format!(",{}_u{a}", b.name);
-        }
-        for a in &axes[..dim] {
-            head += &format!(",{}_f{a}", b.name);
+        for what in ["u", "", "v", "f"] {
+            for a in &axes[..dim] {
+                head += &format!(",{}_{what}{a}", b.name);
+            }
         }
     }
     head
@@ -406,11 +405,18 @@ impl OutputWriter {
             let res = (|| {
                 write!(w, "{:.9e}", sim.time)?;
                 for b in 0..r.len() {
-                    for u in r.displacement(b, sim.time).iter() {
-                        write!(w, ",{u:.9e}")?;
-                    }
-                    for f in r.force(b).iter() {
-                        write!(w, ",{f:.9e}")?;
+                    let (u, c, v) = (
+                        r.displacement(b, sim.time),
+                        r.centre(b, sim.time),
+                        r.velocity(b),
+                    );
+                    for x in u
+                        .iter()
+                        .chain(c.iter())
+                        .chain(v.iter())
+                        .chain(r.force(b).iter())
+                    {
+                        write!(w, ",{x:.9e}")?;
                     }
                 }
                 writeln!(w)
@@ -602,7 +608,10 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
             name: "id",
             vtk_type: "Int64",
             components: 1,
-            bytes: (0..n as i64).flat_map(i64::to_le_bytes).collect(),
+            bytes: at
+                .iter()
+                .flat_map(|&p| (ps.id[p] as i64).to_le_bytes())
+                .collect(),
         },
         Array {
             name: "velocity",
@@ -643,7 +652,10 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
             name: "connectivity",
             vtk_type: "Int64",
             components: 1,
-            bytes: (0..n as i64).flat_map(i64::to_le_bytes).collect(),
+            bytes: at
+                .iter()
+                .flat_map(|&p| (ps.id[p] as i64).to_le_bytes())
+                .collect(),
         },
         Array {
             name: "offsets",

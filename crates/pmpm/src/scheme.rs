@@ -230,7 +230,7 @@ impl<const D: usize> Simulation<D> {
         self.time += dt;
         self.steps += 1;
         // 7. the inflows emit the material that entered over the step
-        self.emit_inflow();
+        self.emit_inflow()?;
         self.check_particles()?;
         self.check_volumes()
     }
@@ -357,6 +357,11 @@ impl<const D: usize> Simulation<D> {
     /// from node velocities remapped from the particles (MUSL) or from v^{n+1} (USL). A
     /// particle that left the grid stops the run here, before a transfer reads it.
     fn grid_to_particles(&mut self, dt: f64) -> Result<(), Error> {
+        // the particles in the inflows' buffers, before the move
+        let h = self.grid.geo.h;
+        for q in &mut self.boundary.inflows {
+            q.mark_buffer(&self.particles, h);
+        }
         match self.policy.stress_update {
             StressUpdate::Musl => {
                 transfer::grid_to_particles(
@@ -386,7 +391,7 @@ impl<const D: usize> Simulation<D> {
         }
         // the inflows' buffers move at the inflows' velocity
         for q in &self.boundary.inflows {
-            q.hold_buffer(&mut self.particles, self.time + dt, dt, self.grid.geo.h);
+            q.hold_buffer(&mut self.particles, self.time + dt, dt);
         }
         self.boundary
             .confine(&self.grid.geo, dt, &mut self.particles);
@@ -552,9 +557,9 @@ impl<const D: usize> Simulation<D> {
     }
 
     /// Step 7: adds the particles the inflows have room for now.
-    fn emit_inflow(&mut self) {
+    fn emit_inflow(&mut self) -> Result<(), Error> {
         if self.boundary.inflows.is_empty() {
-            return;
+            return Ok(());
         }
         let mut entering = std::mem::take(&mut self.work.entering);
         for q in &mut self.boundary.inflows {
@@ -568,6 +573,14 @@ impl<const D: usize> Simulation<D> {
             self.fit_particle_arrays();
         }
         self.work.entering = entering;
+        if self.ledger.next_id == u32::MAX {
+            return Err(Error::BlowUp(format!(
+                "run stopped at t = {:.6} s: the inflows have given out {} particle ids, the most pmpm numbers; use a larger cell_size or fewer particles_per_cell",
+                self.time,
+                u32::MAX
+            )));
+        }
+        Ok(())
     }
 
     /// Sizes the step's per-particle arrays to the particles (after particles entered, or a

@@ -560,9 +560,10 @@ pub struct RigidBodyDeck {
     pub name: String,
     /// Its shape at t = 0: `{ type = "box", min, max }`.
     pub shape: ShapeDeck,
-    /// Velocity (m/s), constant; default at rest.
+    /// Velocity (m/s): numbers, or expressions of t (a gate lifted at a given pace); default
+    /// at rest.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub velocity: Option<Vec<f64>>,
+    pub velocity: Option<VectorField>,
     /// Contact on the faces that do not lead the motion (a footing's sides).
     #[serde(default)]
     pub sides: RigidSides,
@@ -1550,7 +1551,26 @@ impl Deck {
                 ));
             }
             if let Some(v) = &r.velocity {
-                c.vector(&format!("{k}.velocity"), v, dim)?;
+                let key = format!("{k}.velocity");
+                c.field(&key, v, dim)?;
+                // a rigid body moves as a whole: its velocity is a function of time only
+                let f = v.compile().expect("checked above");
+                let at = |x: f64, t: f64| match dim {
+                    2 => f
+                        .eval(&crate::grid::Vector::<2>::repeat(x), t)
+                        .as_slice()
+                        .to_vec(),
+                    _ => f
+                        .eval(&crate::grid::Vector::<3>::repeat(x), t)
+                        .as_slice()
+                        .to_vec(),
+                };
+                if at(0.0, 0.0) != at(1.0, 0.0) || at(0.0, 1.0) != at(1.0, 1.0) {
+                    return Err(c.err(
+                        key,
+                        "may depend on t only (a rigid body moves as a whole): remove x, y and z from the expressions",
+                    ));
+                }
             }
         }
         Ok(())
@@ -1630,23 +1650,91 @@ impl Deck {
                     format!("must be between 1 and 8, got {}", q.particles_per_cell),
                 ));
             }
-            c.field(&format!("{k}.velocity"), &q.velocity, dim)?;
-            // the material must enter: the velocity's normal part at the patch's centre at t = 0
-            let field = q.velocity.compile().expect("checked above");
-            let centre: Vec<f64> = (0..dim).map(|d| 0.5 * (q.min[d] + q.max[d])).collect();
-            let un = match dim {
-                2 => field.eval(&crate::grid::Vector::<2>::from_column_slice(&centre), 0.0)[axis],
-                _ => field.eval(&crate::grid::Vector::<3>::from_column_slice(&centre), 0.0)[axis],
-            };
-            let inward = if f % 2 == 0 { un } else { -un };
-            if inward.is_nan() || inward < 0.0 {
+            // each lane of the lattice carries s^(D-1) of the patch: its width must be a whole
+            // number of spacings, and at least a cell so that the face's nodes hold its flux
+            let s = h / q.particles_per_cell as f64;
+            for d in (0..dim).filter(|&d| d != axis) {
+                let w = q.max[d] - q.min[d];
+                let lanes = w / s;
+                if w < h * (1.0 - 1e-9) || (lanes - lanes.round()).abs() > 1e-6 * lanes {
+                    return Err(c.err(
+                        format!("{k}.max"),
+                        format!(
+                            "the patch is {w} m wide along {}: it must be at least a cell (grid.cell_size = {h}) and a whole number of particle spacings (cell_size / particles_per_cell = {s})",
+                            AXES[d]
+                        ),
+                    ));
+                }
+            }
+            if let Some((j, _)) = self.inflows[..i].iter().enumerate().find(|(_, o)| {
+                o.face == q.face
+                    && (0..dim)
+                        .filter(|&d| d != axis)
+                        .all(|d| o.min[d] < q.max[d] && q.min[d] < o.max[d])
+            }) {
                 return Err(c.err(
-                    format!("{k}.velocity"),
-                    format!(
-                        "points out of the domain at t = 0 (its {} component is {un} on the face {}): an inflow's velocity points into the grid",
-                        AXES[axis], q.face
-                    ),
+                    format!("{k}.min"),
+                    format!("the patch overlaps inflows[{j}]'s on the face {}", q.face),
                 ));
+            }
+            c.field(&format!("{k}.velocity"), &q.velocity, dim)?;
+            // the material must enter: the velocity at t = 0 on a lattice over the patch (its
+            // corners, its edges, the face's nodes on it) is finite and points inwards
+            let field = q.velocity.compile().expect("checked above");
+            let steps: Vec<usize> = (0..dim)
+                .map(|d| {
+                    if d == axis {
+                        0
+                    } else {
+                        ((q.max[d] - q.min[d]) / h).round() as usize
+                    }
+                })
+                .collect();
+            let total: usize = steps.iter().map(|n| n + 1).product();
+            for m in 0..total {
+                let mut rem = m;
+                let x: Vec<f64> = (0..dim)
+                    .map(|d| {
+                        let i = rem % (steps[d] + 1);
+                        rem /= steps[d] + 1;
+                        if steps[d] == 0 {
+                            q.min[d]
+                        } else {
+                            q.min[d] + (q.max[d] - q.min[d]) * i as f64 / steps[d] as f64
+                        }
+                    })
+                    .collect();
+                let v: Vec<f64> = match dim {
+                    2 => field
+                        .eval(&crate::grid::Vector::<2>::from_column_slice(&x), 0.0)
+                        .as_slice()
+                        .to_vec(),
+                    _ => field
+                        .eval(&crate::grid::Vector::<3>::from_column_slice(&x), 0.0)
+                        .as_slice()
+                        .to_vec(),
+                };
+                let at = x
+                    .iter()
+                    .map(|c| format!("{c}"))
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                if v.iter().any(|c| !c.is_finite()) {
+                    return Err(c.err(
+                        format!("{k}.velocity"),
+                        format!("is not a finite number at ({at}) at t = 0: {v:?}"),
+                    ));
+                }
+                let inward = if f % 2 == 0 { v[axis] } else { -v[axis] };
+                if inward < 0.0 {
+                    return Err(c.err(
+                        format!("{k}.velocity"),
+                        format!(
+                            "points out of the domain at ({at}) at t = 0 (its {} component is {} on the face {}): an inflow's velocity points into the grid",
+                            AXES[axis], v[axis], q.face
+                        ),
+                    ));
+                }
             }
         }
         Ok(())

@@ -336,7 +336,7 @@ impl<const D: usize> Projection<D> {
     /// Sizes the per-particle scratch to `n` particles.
     pub fn fit_particles(&mut self, n: usize) {
         self.work.pressure_gradient.resize(n, Vector::<D>::zeros());
-        if !self.work.divergence.is_empty() || !self.work.velocity_star.is_empty() {
+        if self.settings.quadrature == Quadrature::Particle {
             self.work.divergence.resize(n, 0.0);
             self.work.velocity_star.resize(n, Vector::<D>::zeros());
         }
