@@ -298,6 +298,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         out += &format!("  material         {}\n", m.describe());
     }
     rigid_bodies(deck, D, &mut out);
+    inflows::<D>(deck, &mut out);
     out += &format!("  particles        {}\n", sim.particles.len());
     out += &format!(
         "  transfer         {:?}, shape functions {:?}\n",
@@ -397,6 +398,59 @@ fn bodies<const D: usize>(
             "bodies[{a}] and bodies[{b}] overlap: {n} particles of bodies[{b}] lie inside \
              bodies[{a}], which has its own there (more mass than the material's density)"
         ));
+    }
+}
+
+/// One line per inflow: its patch and the mass it lets in at t = 0, rho sum over its lanes of
+/// u . n s^(D-1).
+fn inflows<const D: usize>(deck: &Deck, out: &mut String) {
+    for (i, q) in deck.inflows.iter().enumerate() {
+        let Ok(field) = q.velocity.compile() else {
+            continue;
+        };
+        let Some(f) = pmpm::deck::FACE_NAMES.iter().position(|n| *n == q.face) else {
+            continue;
+        };
+        let axis = f / 2;
+        let s = deck.grid.cell_size / q.particles_per_cell as f64;
+        let lanes: Vec<usize> = (0..D)
+            .map(|d| {
+                if d == axis {
+                    1
+                } else {
+                    ((q.max[d] - q.min[d]) / s).round().max(1.0) as usize
+                }
+            })
+            .collect();
+        let mut flux = 0.0;
+        for k in 0..lanes.iter().product::<usize>() {
+            let mut rem = k;
+            let x = pmpm::grid::Vector::<D>::from_fn(|d, _| {
+                let j = rem % lanes[d];
+                rem /= lanes[d];
+                if d == axis {
+                    q.min[d]
+                } else {
+                    q.min[d] + (j as f64 + 0.5) * s
+                }
+            });
+            let un = field.eval(&x, 0.0)[axis] * if f % 2 == 0 { 1.0 } else { -1.0 };
+            flux += un * s.powi(D as i32 - 1);
+        }
+        let rho = deck
+            .materials
+            .iter()
+            .find(|m| m.name == q.material)
+            .map_or(0.0, |m| m.density);
+        let unit = if D == 2 { "kg/s per metre" } else { "kg/s" };
+        *out += &format!(
+            "  inflows[{i}]       \"{}\" through {} from {:?} to {:?}: {:.4e} {unit} at t = 0; what enters and leaves is in series.csv\n",
+            q.material,
+            q.face,
+            q.min,
+            q.max,
+            rho * flux
+        );
     }
 }
 

@@ -1145,4 +1145,17 @@ mod tests {
         b.apply(&mut v);
         assert_eq!(v[node(3)], Vector::<2>::new(0.0, 1.0));
     }
+
+    /// A body lifted wholly out of the grid holds no node (clamped into the grid, its range
+    /// was the top row of nodes, which it held and pulled the water with).
+    #[test]
+    fn a_body_past_the_grid_holds_no_node() {
+        let mut b = bodies([0.45, 1.2], [0.55, 1.5], [0.0, 1.0]);
+        let g = geo();
+        b.set_time(0.0, &g);
+        assert!(b.nodes.is_empty(), "{:?}", b.nodes);
+        // lowered back into the grid it holds nodes again
+        b.set_time(-0.5, &g);
+        assert!(!b.nodes.is_empty());
+    }
 }
