@@ -184,14 +184,12 @@ fn inflow_at_no_slip(deck: &Deck, w: &mut Vec<String>) {
                 }
                 let mut x: Vec<f64> = (0..dim).map(|e| 0.5 * (q.min[e] + q.max[e])).collect();
                 x[d] = at;
-                let speed = match dim {
-                    2 => field
-                        .eval(&pmpm::grid::Vector::<2>::from_column_slice(&x), 0.0)
-                        .norm(),
-                    _ => field
-                        .eval(&pmpm::grid::Vector::<3>::from_column_slice(&x), 0.0)
-                        .norm(),
-                };
+                let speed = field
+                    .eval_at(&x, 0.0)
+                    .iter()
+                    .map(|c| c * c)
+                    .sum::<f64>()
+                    .sqrt();
                 if speed > 1e-9 {
                     w.push(format!(
                         "inflows[{i}] meets the no-slip wall {} with a velocity of {speed:.3} m/s there: the wall holds the flow at rest, and the entering particles pack into the corner (volume is lost there); give a velocity that vanishes on the wall (a parabolic profile, docs/deck.md)",

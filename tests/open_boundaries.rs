@@ -9,22 +9,12 @@ use std::path::Path;
 
 /// The columns of series.csv by name, one vector per column.
 fn series(dir: &Path) -> std::collections::HashMap<String, Vec<f64>> {
-    let text = std::fs::read_to_string(dir.join("series.csv")).unwrap();
-    let mut lines = text.lines();
-    let head: Vec<String> = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .map(str::to_string)
-        .collect();
-    let mut cols: std::collections::HashMap<String, Vec<f64>> =
-        head.iter().map(|h| (h.clone(), Vec::new())).collect();
-    for l in lines {
-        for (h, v) in head.iter().zip(l.split(',')) {
-            cols.get_mut(h).unwrap().push(v.parse().unwrap());
-        }
-    }
-    cols
+    let t = pmpm_cli::table::Table::read(&dir.join("series.csv")).unwrap();
+    t.header
+        .iter()
+        .enumerate()
+        .map(|(k, h)| (h.clone(), t.rows.iter().map(|r| r[k]).collect()))
+        .collect()
 }
 
 fn run(name: &str, text: &str) -> std::path::PathBuf {

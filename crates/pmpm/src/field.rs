@@ -209,6 +209,20 @@ impl CompiledField {
         xyzt[3] = t;
         Vector::<D>::from_fn(|d, _| eval_one(&self.comps[d], &xyzt).unwrap_or(f64::NAN))
     }
+
+    /// The value at a point given as a slice of its components (as many as the field's),
+    /// for the deck's checks, which know the dimension only at run time.
+    pub fn eval_at(&self, x: &[f64], t: f64) -> Vec<f64> {
+        let mut xyzt = [0.0; 4];
+        for (d, c) in x.iter().take(3).enumerate() {
+            xyzt[d] = *c;
+        }
+        xyzt[3] = t;
+        self.comps
+            .iter()
+            .map(|c| eval_one(c, &xyzt).unwrap_or(f64::NAN))
+            .collect()
+    }
 }
 
 #[cfg(test)]

@@ -1555,16 +1555,7 @@ impl Deck {
                 c.field(&key, v, dim)?;
                 // a rigid body moves as a whole: its velocity is a function of time only
                 let f = v.compile().expect("checked above");
-                let at = |x: f64, t: f64| match dim {
-                    2 => f
-                        .eval(&crate::grid::Vector::<2>::repeat(x), t)
-                        .as_slice()
-                        .to_vec(),
-                    _ => f
-                        .eval(&crate::grid::Vector::<3>::repeat(x), t)
-                        .as_slice()
-                        .to_vec(),
-                };
+                let at = |x: f64, t: f64| f.eval_at(&vec![x; dim], t);
                 if at(0.0, 0.0) != at(1.0, 0.0) || at(0.0, 1.0) != at(1.0, 1.0) {
                     return Err(c.err(
                         key,
@@ -1704,16 +1695,7 @@ impl Deck {
                         }
                     })
                     .collect();
-                let v: Vec<f64> = match dim {
-                    2 => field
-                        .eval(&crate::grid::Vector::<2>::from_column_slice(&x), 0.0)
-                        .as_slice()
-                        .to_vec(),
-                    _ => field
-                        .eval(&crate::grid::Vector::<3>::from_column_slice(&x), 0.0)
-                        .as_slice()
-                        .to_vec(),
-                };
+                let v = field.eval_at(&x, 0.0);
                 let at = x
                     .iter()
                     .map(|c| format!("{c}"))
