@@ -121,15 +121,16 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     inflow_at_no_slip(deck, &mut w);
     // material that starts inside a rigid body: the body's nodes take its velocity, and the
     // particles inside are squeezed out (or held) in the first steps
+    let (glo, ghi) = deck.domain();
     for b in 0..deck.bodies.len() {
         let Ok(body) = deck.body_solid(b) else {
             continue;
         };
         for (r, rigid) in deck.rigid_bodies.iter().enumerate() {
-            if let Some(x) = overlap_point(&body, &rigid.shape) {
+            if let Some(x) = overlap_point(&body, &rigid.shape, (&glo, &ghi)) {
                 let at: Vec<String> = x.iter().map(|c| format!("{c}")).collect();
                 w.push(format!(
-                    "bodies[{b}] starts inside rigid_bodies[{r}] (for example at ({})): its material there will be pushed out of the body in the first steps; cut the body around the rigid one",
+                    "bodies[{b}] reaches into rigid_bodies[{r}] (for example at ({})): no particle is placed inside a rigid body, so that part of the body is left out (its particle count and volume above are what remains)",
                     at.join(", ")
                 ));
             }
@@ -203,12 +204,21 @@ fn inflow_at_no_slip(deck: &Deck, w: &mut Vec<String>) {
 
 /// A point inside both a body's shape and a rigid body's box, if the two overlap (tested on a
 /// lattice of 9^D points over the common part of the box and the body's bounds).
-fn overlap_point(body: &pmpm::geometry::Solid, rigid: &pmpm::deck::ShapeDeck) -> Option<Vec<f64>> {
+fn overlap_point(
+    body: &pmpm::geometry::Solid,
+    rigid: &pmpm::deck::ShapeDeck,
+    grid: (&[f64], &[f64]),
+) -> Option<Vec<f64>> {
     let (blo, bhi) = body.bounds();
-    let (rlo, rhi) = (rigid.min.as_ref()?, rigid.max.as_ref()?);
     let dim = blo.len();
-    let lo: Vec<f64> = (0..dim).map(|d| blo[d].max(rlo[d])).collect();
-    let hi: Vec<f64> = (0..dim).map(|d| bhi[d].min(rhi[d])).collect();
+    let rigid = rigid.solid(dim).ok()?;
+    let (rlo, rhi) = rigid.bounds();
+    let lo: Vec<f64> = (0..dim)
+        .map(|d| blo[d].max(rlo[d]).max(grid.0[d]))
+        .collect();
+    let hi: Vec<f64> = (0..dim)
+        .map(|d| bhi[d].min(rhi[d]).min(grid.1[d]))
+        .collect();
     if (0..dim).any(|d| hi[d] <= lo[d]) {
         return None;
     }
@@ -220,7 +230,7 @@ fn overlap_point(body: &pmpm::geometry::Solid, rigid: &pmpm::deck::ShapeDeck) ->
                 lo[d] + (hi[d] - lo[d]) * (i as f64 + 0.5) / n as f64
             })
             .collect();
-        body.contains(&x).then_some(x)
+        (body.contains(&x) && rigid.contains(&x)).then_some(x)
     })
 }
 
@@ -452,10 +462,15 @@ fn inflows<const D: usize>(deck: &Deck, out: &mut String) {
     }
 }
 
-/// One line per rigid body: its box, velocity, sides and how its faces act.
+/// One line per rigid body: its box, velocity, sides and how its faces act; for a body of
+/// another shape, or one that turns or moves freely, its volume, centroid and motion.
 fn rigid_bodies(deck: &Deck, dim: usize, out: &mut String) {
     let s = &deck.simulation;
     for r in &deck.rigid_bodies {
+        if let Some(line) = shaped_rigid_line(deck, r, dim) {
+            *out += &line;
+            continue;
+        }
         let (lo, hi) = (
             r.shape.min.clone().unwrap_or_default(),
             r.shape.max.clone().unwrap_or_default(),
@@ -482,6 +497,66 @@ fn rigid_bodies(deck: &Deck, dim: usize, out: &mut String) {
         );
     }
 }
+/// The line of a rigid body of the general path (or a free box): its shape's volume and
+/// centroid, its motion, a free body's mass and the added mass its coupling assumes.
+fn shaped_rigid_line(deck: &Deck, r: &pmpm::deck::RigidBodyDeck, dim: usize) -> Option<String> {
+    use pmpm::deck::RigidMotion;
+    if !r.is_shaped() && r.motion != RigidMotion::Free {
+        return None;
+    }
+    let shape = pmpm::build::rigid_shape(deck, r)?;
+    let unit = if dim == 2 { "m2 (per metre)" } else { "m3" };
+    let c: Vec<f64> = shape.centroid.as_slice()[..dim].to_vec();
+    let motion = match r.motion {
+        RigidMotion::Free => {
+            let rho = r.density.unwrap_or(0.0);
+            let mass_unit = if dim == 2 { "kg/m" } else { "kg" };
+            let held = if r.fixed.is_empty() {
+                String::new()
+            } else {
+                format!(", holding {}", r.fixed.join(", "))
+            };
+            format!(
+                "free, density {rho} kg/m3, mass {:.4e} {mass_unit}{held}",
+                rho * shape.volume
+            )
+        }
+        RigidMotion::Prescribed => {
+            let v = r
+                .velocity
+                .as_ref()
+                .map_or_else(|| format!("{:?}", vec![0.0; dim]), describe_field);
+            match &r.angular_velocity {
+                Some(w) => format!(
+                    "velocity {v} m/s, angular velocity {} rad/s about {:?}",
+                    describe_field(&w.field()),
+                    &shape.reference().as_slice()[..dim]
+                ),
+                None => format!("velocity {v} m/s"),
+            }
+        }
+    };
+    let path = if r.is_shaped() {
+        "its nodes hold it where it is (node resolution)"
+    } else {
+        "a box whose faces cut the cells where they lie (with the projection's cut cells)"
+    };
+    Some(format!(
+        "  rigid body       \"{}\": {} of volume {:.4e} {unit}, centroid {c:.4?}, {motion}; {path}; its force in rigid_bodies.csv every step\n",
+        r.name,
+        spelling_kind(&r.shape),
+        shape.volume,
+    ))
+}
+
+/// The shape's type as the deck spells it.
+fn spelling_kind(s: &pmpm::deck::ShapeDeck) -> String {
+    toml::Value::try_from(s.kind)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_else(|| "shape".into())
+}
+
 /// The time step at t = 0 (`dt0`: the fixed one, or the one cfl gives the initial state) and
 /// the steps to the end; a fixed step too large for a fall.
 /// The time step at t = 0 and the steps to the end; a fixed step too large for a fall.

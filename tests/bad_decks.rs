@@ -461,10 +461,41 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "bad.toml: inflows[0].material: no material named \"mud\" (defined: \"water\")",
         ),
         // rigid bodies
+        // rigid bodies of the general path and free bodies: the keys that do not go together
         (
-            "a rigid body that is not a box",
-            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"ball\"\nshape = {{ type = \"sphere\", center = [0.2, 0.15], radius = 0.02 }}\n"),
-            "bad.toml: rigid_bodies[0].shape.type: must be \"box\" without rotate, scale or translate: a rigid body is an axis-aligned box (other shapes are for [[bodies]])",
+            "a free body without a density",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"b\"\nshape = {{ type = \"box\", min = [0.2, 0.12], max = [0.26, 0.16] }}\nmotion = \"free\"\n"),
+            "bad.toml: rigid_bodies[0].density: a free body needs its density (kg/m^3)",
+        ),
+        (
+            "a density on a prescribed body",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"b\"\nshape = {{ type = \"box\", min = [0.2, 0.12], max = [0.26, 0.16] }}\ndensity = 500.0\n"),
+            "bad.toml: rigid_bodies[0].density: is for motion = \"free\" (a prescribed body's motion does not depend on its mass)",
+        ),
+        (
+            "a free body held along an axis it has not",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"b\"\nshape = {{ type = \"box\", min = [0.2, 0.12], max = [0.26, 0.16] }}\nmotion = \"free\"\ndensity = 500.0\nfixed = [\"z\"]\n"),
+            "bad.toml: rigid_bodies[0].fixed[0]: must be one of x, y, rotation, got \"z\"",
+        ),
+        (
+            "a 2D angular velocity given as a vector",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"b\"\nshape = {{ type = \"box\", min = [0.2, 0.12], max = [0.26, 0.16] }}\nangular_velocity = [0.0, 0.0, 1.0]\n"),
+            "bad.toml: rigid_bodies[0].angular_velocity: in 2D is one number or expression of t (rad/s, counter-clockwise)",
+        ),
+        (
+            "a free body's velocity as an expression",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"b\"\nshape = {{ type = \"box\", min = [0.2, 0.12], max = [0.26, 0.16] }}\nmotion = \"free\"\ndensity = 500.0\nvelocity = [0.0, \"t\"]\n"),
+            "bad.toml: rigid_bodies[0].velocity: of a free body is its value at t = 0: numbers, not expressions",
+        ),
+        (
+            "smooth sides on a turning body",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"b\"\nshape = {{ type = \"box\", min = [0.2, 0.12], max = [0.26, 0.16] }}\nangular_velocity = 1.0\nsides = \"smooth\"\n"),
+            "bad.toml: rigid_bodies[0].sides: \"smooth\" is for a box that does not turn (an axis-aligned box moved by velocity alone); this body is held rough",
+        ),
+        (
+            "a moving half-space",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"floor\"\nshape = {{ type = \"half_space\", point = [0.0, 0.02], normal = [0.0, 1.0] }}\nvelocity = [0.1, 0.0]\n"),
+            "bad.toml: rigid_bodies[0].shape: is unbounded (a half-space): only a body at rest may be, cut off at the grid",
         ),
         (
             "a rigid body's velocity of the wrong size",

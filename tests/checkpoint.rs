@@ -81,8 +81,16 @@ fn a_resumed_run_writes_the_frames_of_the_uninterrupted_run() {
         open.contains("outflow") && open.contains("[0.3, 0.0]") && open.contains("[5.0"),
         "the edit found its lines"
     );
+    // a free box (no turning) afloat and a free disc that turns, dropped on the water: their
+    // pose, velocity and the velocity of the step before carry over
+    // (the disc's speed sets the step, which does not divide 0.02 s: the steps land on frames)
+    let free = SMALL_2D
+        .replace("\"explicit\"", "\"projection\"")
+        .replace("transfer = \"apic\"", "transfer = \"apic\"\nland_on_frames = true")
+        + "\n[[rigid_bodies]]\nname = \"boat\"\nshape = { type = \"box\", min = [0.02, 0.08], max = [0.08, 0.12] }\nmotion = \"free\"\ndensity = 500.0\nfixed = [\"rotation\"]\n\n[[rigid_bodies]]\nname = \"log\"\nshape = { type = \"sphere\", center = [0.2, 0.1], radius = 0.03 }\nmotion = \"free\"\ndensity = 800.0\nvelocity = [-1.0, 0.0]\nangular_velocity = 2.0\n";
     for (scheme, full) in [
         ("explicit", SMALL_2D.to_string()),
+        ("free", free),
         (
             "projection",
             SMALL_2D.replace("\"explicit\"", "\"projection\""),
@@ -114,7 +122,14 @@ fn a_resumed_run_writes_the_frames_of_the_uninterrupted_run() {
         ]);
         let n = same_frames(Path::new(a), Path::new(b));
         assert_eq!(n, 12, "{scheme}: 6 frames in CSV and VTU");
-        for file in ["probes.csv", "particles.pvd"] {
+        let rigid = Path::new(a).join("rigid_bodies.csv").exists();
+        assert_eq!(rigid, scheme == "free", "{scheme}: rigid_bodies.csv");
+        let files: &[&str] = if rigid {
+            &["probes.csv", "particles.pvd", "rigid_bodies.csv"]
+        } else {
+            &["probes.csv", "particles.pvd"]
+        };
+        for file in files {
             assert_eq!(
                 std::fs::read_to_string(Path::new(a).join(file)).unwrap(),
                 std::fs::read_to_string(Path::new(b).join(file)).unwrap(),

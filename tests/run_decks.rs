@@ -485,7 +485,7 @@ fn check_summarises_the_run_and_warns() {
 /// method that runs: the level set, with rigid bodies or without.
 #[test]
 fn check_warns_of_water_inside_a_rigid_body() {
-    let warning = "warning: bodies[0] starts inside rigid_bodies[0]";
+    let warning = "warning: bodies[0] reaches into rigid_bodies[0]";
     let dir = scratch_dir("check-inside");
     let deck = dir.join("inside.toml");
     let text = std::fs::read_to_string(
@@ -501,7 +501,7 @@ fn check_warns_of_water_inside_a_rigid_body() {
     let inside = check(deck.to_str().unwrap());
     assert!(inside.contains(warning), "{inside}");
     let apart = check("examples/dam_break_obstacle_2d.toml");
-    assert!(!apart.contains("starts inside"), "{apart}");
+    assert!(!apart.contains("reaches into"), "{apart}");
     assert!(apart.contains("free surface from the level set"), "{apart}");
     let plain = check("examples/dam_break_2d.toml");
     assert!(plain.contains("free surface from the level set"), "{plain}");

@@ -4,6 +4,7 @@
 
 use crate::averaging::{NodalAveraging, VolumetricAveraging};
 use crate::boundary::{Boundary, BoundaryKind};
+use crate::deck::RigidMotion;
 use crate::deck::{Deck, DeckError, MaterialDeck};
 use crate::driver::{Clock, StepSize};
 use crate::error::Error;
@@ -12,7 +13,7 @@ use crate::grid::{GridGeometry, Vector};
 use crate::material::MaterialParams;
 use crate::particles::{InitialStress, Matrix, Particles};
 use crate::pressure::{PressureUnknowns, Projection};
-use crate::rigid::{RigidBodies, RigidBox};
+use crate::rigid::{Free, Motion, Pose, RigidBodies, RigidBox, Shaped, ShapedBody};
 use crate::scheme::{least_density, Parts, Scheme, Simulation, StepPolicy, LIGHT_NODE};
 use crate::transfer::{Transfer, TransferSettings};
 
@@ -245,14 +246,37 @@ pub fn inflows<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Vec<Inflow
 /// The rigid bodies of a validated deck.
 pub fn rigid_bodies<const D: usize>(deck: &Deck) -> RigidBodies<D> {
     let v = |x: &[f64]| Vector::<D>::from_column_slice(x);
+    let dim = deck.simulation.dimension;
     let bodies: Vec<RigidBox<D>> = deck
         .rigid_bodies
         .iter()
         .map(|b| {
-            let (lo, hi) = (b.shape.min.as_deref(), b.shape.max.as_deref());
+            let shaped = b.is_shaped().then(|| shaped_body::<D>(deck, b));
+            let (lo, hi) = match &shaped {
+                // a shaped body's box is its bounds (for the reach of its nodes)
+                Some(_) => {
+                    let (lo, hi) = b.shape.solid(dim).expect("validated shape").bounds();
+                    (v(&lo), v(&hi))
+                }
+                None => (
+                    v(b.shape
+                        .min
+                        .as_deref()
+                        .expect("validated: a rigid box has min")),
+                    v(b.shape
+                        .max
+                        .as_deref()
+                        .expect("validated: a rigid box has max")),
+                ),
+            };
+            let free = (shaped.is_none() && b.motion == RigidMotion::Free).then(|| {
+                let volume: f64 = (0..D).map(|d| hi[d] - lo[d]).product();
+                let r = 0.5 * (hi - lo).norm();
+                free_motion(deck, b, volume, nalgebra::Matrix3::zeros(), r)
+            });
             RigidBox {
-                lo: v(lo.expect("validated: a rigid box has min")),
-                hi: v(hi.expect("validated: a rigid box has max")),
+                lo,
+                hi,
                 velocity: b.velocity.as_ref().map_or_else(Vector::<D>::zeros, |f| {
                     f.compile()
                         .expect("validated expressions")
@@ -262,14 +286,108 @@ pub fn rigid_bodies<const D: usize>(deck: &Deck) -> RigidBodies<D> {
                     .velocity
                     .as_ref()
                     .map(|f| f.compile().expect("validated expressions"))
-                    .filter(|f| !f.is_constant()),
+                    .filter(|f| !f.is_constant() && free.is_none()),
                 sides: b.sides,
+                shaped,
+                free,
             }
         })
         .collect();
     let cut = deck.simulation.scheme == Scheme::Projection
         && deck.pressure.cuts_cells(deck.simulation.shape_function);
     RigidBodies::new(&bodies, cut)
+}
+
+/// A rigid body of the general path ([`crate::rigid`]): its shape (cut to the grid, grown by a
+/// cell, where it is unbounded), its motion, and its pose at t = 0.
+fn shaped_body<const D: usize>(deck: &Deck, b: &crate::deck::RigidBodyDeck) -> ShapedBody {
+    use nalgebra::Vector3;
+    let dim = deck.simulation.dimension;
+    let shape = rigid_shape(deck, b).expect("validated: the shape holds a volume");
+    let compile = |f: &crate::field::VectorField| f.compile().expect("validated expressions");
+    let velocity = b.velocity.as_ref().map(compile);
+    let spin = b.angular_velocity.as_ref().map(|w| compile(&w.field()));
+    let mut start = Pose::at(shape.reference());
+    if let Some(f) = &velocity {
+        start.velocity = f.eval_t(0.0);
+    }
+    if let Some(f) = &spin {
+        let w = f.eval_t(0.0);
+        start.omega = if dim == 2 {
+            Vector3::new(0.0, 0.0, w[0])
+        } else {
+            w
+        };
+    }
+    let motion = match b.motion {
+        RigidMotion::Prescribed => Motion::Prescribed { velocity, spin },
+        RigidMotion::Free => Motion::Free(free_motion(
+            deck,
+            b,
+            shape.volume,
+            shape.inertia,
+            shape.radius(),
+        )),
+    };
+    ShapedBody {
+        shape: std::sync::Arc::new(shape),
+        motion,
+        start,
+    }
+}
+
+/// A rigid body's shape on the deck's grid (cut to the grid, grown by a cell, where it is
+/// unbounded), with its volume, centroid, inertia and surface; None when it holds no volume
+/// there or is not a valid shape.
+pub fn rigid_shape(deck: &Deck, b: &crate::deck::RigidBodyDeck) -> Option<Shaped> {
+    use nalgebra::Vector3;
+    let dim = deck.simulation.dimension;
+    let h = deck.grid.cell_size;
+    let v3 = |x: &[f64]| Vector3::from_fn(|d, _| x.get(d).copied().unwrap_or(0.0));
+    let (lo, hi) = deck.domain();
+    let clip = (v3(&lo).add_scalar(-h), v3(&hi).add_scalar(h));
+    let solid = b.shape.solid(dim).ok()?;
+    Shaped::new(solid, dim, clip, b.centre.as_deref().map(v3), h)
+}
+
+/// A free body's mass and inertia (from its `volume` and its second moments `moments` about
+/// its centroid per unit density), gravity, the motions it keeps still, and the added mass
+/// the coupling assumes ([`crate::rigid::Free::advance`]): the densest material's mass in the
+/// disc (2D) or ball of radius `r` about the centroid that holds the body, above the added
+/// mass of any body it holds (a plate's across the disc, rho pi a^2, is the most), so that
+/// the coupling is stable at any density.
+fn free_motion(
+    deck: &Deck,
+    b: &crate::deck::RigidBodyDeck,
+    volume: f64,
+    moments: nalgebra::Matrix3<f64>,
+    r: f64,
+) -> Free {
+    let dim = deck.simulation.dimension;
+    let density = b.density.expect("validated: a free body has a density");
+    let gravity = deck
+        .simulation
+        .gravity
+        .compile()
+        .expect("validated expressions")
+        .eval_t(0.0);
+    let fluid = deck.materials.iter().map(|m| m.density).fold(0.0, f64::max);
+    let ball = if dim == 2 {
+        std::f64::consts::PI * r * r
+    } else {
+        4.0 / 3.0 * std::f64::consts::PI * r * r * r
+    };
+    let held = |n: &str| b.fixed.iter().any(|f| f == n);
+    Free {
+        mass: density * volume,
+        inertia: moments * density,
+        gravity,
+        held_axes: [held("x"), held("y"), held("z")],
+        held_rotation: held("rotation"),
+        dim,
+        added_mass: fluid * ball,
+        added_inertia: 0.5 * fluid * ball * r * r,
+    }
 }
 
 /// Fills every body of the deck with particles on a regular lattice of spacing
@@ -279,6 +397,11 @@ pub fn particles<const D: usize>(
     geo: &GridGeometry<D>,
 ) -> Result<Particles<D>, DeckError> {
     let mut ps = Particles::default();
+    // no material starts inside a rigid body: a body of water drawn around an obstacle, or
+    // under a floating box, fills only the room the rigid bodies leave (`check` counts what
+    // they take)
+    let mut rigid = rigid_bodies::<D>(deck);
+    rigid.set_time(0.0, geo);
     // the hydrostatic initial stress takes the body force at the origin at t = 0
     let g = deck
         .simulation
@@ -314,7 +437,7 @@ pub fn particles<const D: usize>(
         let mut idx = first;
         'lattice: loop {
             let x = Vector::<D>::from_fn(|d, _| geo.origin[d] + (idx[d] as f64 + 0.5) * spacing);
-            if geo.contains(&x) && solid.contains(x.as_slice()) {
+            if geo.contains(&x) && solid.contains(x.as_slice()) && !rigid.contains(&x) {
                 ps.x.push(x);
                 ps.v.push(velocity.eval(&x, 0.0));
                 if apic {

@@ -219,8 +219,15 @@ pub fn write<const D: usize>(
         // the open boundaries' ledger follows the format's fields when the deck has them: a
         // checkpoint without them is the same bytes as before they existed
         let flow = deck.has_open_flow().then_some(sim.ledger);
+        // and then the free rigid bodies' state, where the deck has any
+        let free = deck
+            .has_free_bodies()
+            .then(|| sim.boundary.rigid.free_states(sim.time));
         let mut encoded = postcard::to_io(&state, &mut payload).map(|_| ());
         if let (Ok(()), Some(f)) = (&encoded, &flow) {
+            encoded = postcard::to_io(f, &mut payload).map(|_| ());
+        }
+        if let (Ok(()), Some(f)) = (&encoded, &free) {
             encoded = postcard::to_io(f, &mut payload).map(|_| ());
         }
         if let Err(e) = encoded {
@@ -237,9 +244,9 @@ pub fn write<const D: usize>(
     .map_err(|e| Error::io(path, e))
 }
 
-/// The state in a checkpoint file's bytes (and the open boundaries' state, where the file
-/// holds one), or why it cannot be had.
-fn decode<const D: usize>(bytes: &[u8]) -> Result<(State<D>, Option<Ledger>), String> {
+/// The state in a checkpoint file's bytes and the bytes after it (the open boundaries' and the
+/// free rigid bodies' state, where the deck has them), or why it cannot be had.
+fn decode<const D: usize>(bytes: &[u8]) -> Result<(State<D>, &[u8]), String> {
     if bytes.len() < 24 || &bytes[..8] != MAGIC {
         return Err("it is not a pmpm checkpoint".into());
     }
@@ -264,12 +271,7 @@ fn decode<const D: usize>(bytes: &[u8]) -> Result<(State<D>, Option<Ledger>), St
     }
     let cannot = |e: postcard::Error| format!("it cannot be decoded ({e})");
     let (state, rest) = postcard::take_from_bytes(payload).map_err(cannot)?;
-    let flow = if rest.is_empty() {
-        None
-    } else {
-        Some(postcard::from_bytes(rest).map_err(cannot)?)
-    };
-    Ok((state, flow))
+    Ok((state, rest))
 }
 
 /// Why a checkpoint file cannot be used, as the user should read it.
@@ -298,7 +300,60 @@ pub fn read<const D: usize>(
         std::io::ErrorKind::NotFound => refuse(path, "there is no such file"),
         _ => Error::io(path, e),
     })?;
-    let (s, flow) = decode::<D>(&bytes).map_err(|why| refuse(path, why))?;
+    let (s, rest) = decode::<D>(&bytes).map_err(|why| refuse(path, why))?;
+    let cannot = |e: postcard::Error| refuse(path, format!("it cannot be decoded ({e})"));
+    let (flow, rest) = if deck.has_open_flow() && !rest.is_empty() {
+        let (f, rest) = postcard::take_from_bytes::<Ledger>(rest).map_err(cannot)?;
+        (Some(f), rest)
+    } else {
+        (None, rest)
+    };
+    let (free, rest) = if deck.has_free_bodies() && !rest.is_empty() {
+        let (f, rest) =
+            postcard::take_from_bytes::<Vec<crate::rigid::FreeState>>(rest).map_err(cannot)?;
+        (Some(f), rest)
+    } else {
+        (None, rest)
+    };
+    if !rest.is_empty() {
+        return Err(refuse(
+            path,
+            "it holds state of open boundaries or free rigid bodies the deck has none for",
+        ));
+    }
+    let wanted = (0..sim.boundary.rigid.len())
+        .filter(|&b| sim.boundary.rigid.is_free(b))
+        .count();
+    match &free {
+        None if wanted > 0 => {
+            return Err(refuse(
+                path,
+                "it holds no state of the free rigid bodies the deck has",
+            ))
+        }
+        Some(f)
+            if f.len() != wanted
+                || f.iter().any(|s| {
+                    // the velocities of the step before are NaN before the first step
+                    s.centre
+                        .iter()
+                        .chain(&s.rotation)
+                        .chain(&s.velocity)
+                        .chain(&s.omega)
+                        .any(|x| !x.is_finite())
+                        || s.last_velocity.iter().chain(&s.last_omega).any(|x| x.is_infinite())
+                }) =>
+        {
+            return Err(refuse(
+                path,
+                format!(
+                    "its state of the free rigid bodies is damaged or not this deck's ({} bodies, the deck has {wanted})",
+                    f.len()
+                ),
+            ))
+        }
+        _ => {}
+    }
     if s.dimension != D {
         return Err(refuse(
             path,
@@ -388,6 +443,9 @@ pub fn read<const D: usize>(
     }
     if let Some(ledger) = flow {
         sim.ledger = ledger;
+    }
+    if let Some(f) = free {
+        sim.boundary.rigid.set_free_states(&f);
     }
     sim.fit_particle_arrays();
     Ok(s.driver)

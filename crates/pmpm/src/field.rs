@@ -210,6 +210,27 @@ impl CompiledField {
         Vector::<D>::from_fn(|d, _| eval_one(&self.comps[d], &xyzt).unwrap_or(f64::NAN))
     }
 
+    /// Number of components.
+    pub fn len(&self) -> usize {
+        self.comps.len()
+    }
+
+    /// Whether it has no component.
+    pub fn is_empty(&self) -> bool {
+        self.comps.is_empty()
+    }
+
+    /// The value at the origin at time `t` as a 3-vector (components past the field's zero),
+    /// for fields of t only: a rigid body's velocity and angular velocity.
+    pub fn eval_t(&self, t: f64) -> nalgebra::Vector3<f64> {
+        let xyzt = [0.0, 0.0, 0.0, t];
+        nalgebra::Vector3::from_fn(|d, _| {
+            self.comps
+                .get(d)
+                .map_or(0.0, |c| eval_one(c, &xyzt).unwrap_or(f64::NAN))
+        })
+    }
+
     /// The value at a point given as a slice of its components (as many as the field's),
     /// for the deck's checks, which know the dimension only at run time.
     pub fn eval_at(&self, x: &[f64], t: f64) -> Vec<f64> {

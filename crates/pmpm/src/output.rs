@@ -266,6 +266,18 @@ fn rigid_header(deck: &Deck, dim: usize) -> String {
                 head += &format!(",{}_{what}{a}", b.name);
             }
         }
+        // a turning body's angle (its rotation vector in 3D), angular velocity and torque
+        if b.turns() {
+            if dim == 2 {
+                head += &format!(",{0}_angle,{0}_omega,{0}_torque", b.name);
+            } else {
+                for what in ["r", "w", "m"] {
+                    for a in &axes {
+                        head += &format!(",{}_{what}{a}", b.name);
+                    }
+                }
+            }
+        }
     }
     head
 }
@@ -417,6 +429,17 @@ impl OutputWriter {
                         .chain(r.force(b).iter())
                     {
                         write!(w, ",{x:.9e}")?;
+                    }
+                    if r.turns(b) {
+                        let pose = r.pose_now(b, sim.time);
+                        let (angle, omega, torque) =
+                            (pose.rotation_vector(), pose.omega, r.torque(b));
+                        let from = if D == 2 { 2 } else { 0 };
+                        for v in [angle, omega, torque] {
+                            for x in &v.as_slice()[from..] {
+                                write!(w, ",{x:.9e}")?;
+                            }
+                        }
                     }
                 }
                 writeln!(w)

@@ -551,22 +551,90 @@ pub struct ProgramInfo {
     pub version: String,
 }
 
-/// `[[rigid_bodies]]`: a box that moves through the material at a constant velocity (a footing,
-/// a gate); its nodes take its velocity and the force on it is written to rigid_bodies.csv.
+/// `[[rigid_bodies]]`: a body that moves through the material along a prescribed path (a
+/// footing, a gate, a paddle, a mixer's blade) or freely under the material's push and gravity
+/// (a floating box); its nodes take its velocity and the force on it is written to
+/// rigid_bodies.csv.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RigidBodyDeck {
     /// Name, for the columns of rigid_bodies.csv.
     pub name: String,
-    /// Its shape at t = 0: `{ type = "box", min, max }`.
+    /// Its shape at t = 0 (docs/deck.md, "Shapes").
     pub shape: ShapeDeck,
+    /// "prescribed" (default: moved by `velocity` and `angular_velocity`) or "free".
+    #[serde(default)]
+    pub motion: RigidMotion,
     /// Velocity (m/s): numbers, or expressions of t (a gate lifted at a given pace); default
-    /// at rest.
+    /// at rest. A free body's velocity at t = 0 (numbers).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub velocity: Option<VectorField>,
+    /// Angular velocity (rad/s) about `centre`: in 2D one number or expression of t
+    /// (counter-clockwise), in 3D a vector of them. A free body's at t = 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub angular_velocity: Option<Spin>,
+    /// The point it turns about at t = 0 (default: its centroid; a free body turns about its
+    /// centroid).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub centre: Option<Vec<f64>>,
+    /// A free body's density (kg/m^3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub density: Option<f64>,
+    /// A free body's motions that are held: any of "x", "y", "z" (its velocity along the
+    /// axis stays as it started) and "rotation".
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub fixed: Vec<String>,
     /// Contact on the faces that do not lead the motion (a footing's sides).
     #[serde(default)]
     pub sides: RigidSides,
+}
+
+/// How a rigid body moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum RigidMotion {
+    /// Along the path `velocity` and `angular_velocity` give.
+    #[default]
+    Prescribed,
+    /// Moved by the material's force and torque and by gravity.
+    Free,
+}
+
+/// An angular velocity: one component (2D) or a vector (3D).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Spin {
+    /// About z (2D).
+    About(crate::field::Component),
+    /// A vector (3D).
+    Vector(VectorField),
+}
+
+impl Spin {
+    /// As a field of one component (2D) or three.
+    pub fn field(&self) -> VectorField {
+        match self {
+            Spin::About(c) => VectorField(vec![c.clone()]),
+            Spin::Vector(v) => v.clone(),
+        }
+    }
+}
+
+impl RigidBodyDeck {
+    /// Whether it turns: its angle, angular velocity and torque are written.
+    pub fn turns(&self) -> bool {
+        self.angular_velocity.is_some()
+            || (self.motion == RigidMotion::Free && !self.fixed.iter().any(|f| f == "rotation"))
+    }
+
+    /// Whether it takes the general path of [`crate::rigid`] (any shape, turning, or free to
+    /// turn) rather than the axis-aligned box's, whose faces cut the cells where they lie (a
+    /// box that moves freely without turning keeps the box's path).
+    pub fn is_shaped(&self) -> bool {
+        !self.shape.is_plain_box()
+            || self.angular_velocity.is_some()
+            || (self.motion == RigidMotion::Free && !self.fixed.iter().any(|f| f == "rotation"))
+    }
 }
 
 /// `[[inflows]]`: a patch of a wall face through which material enters at a given velocity
@@ -955,6 +1023,13 @@ impl Check<'_> {
 
 impl Deck {
     /// Whether material enters or leaves through the grid's faces (an outflow face or an
+    /// Whether a rigid body moves freely (its state goes into the checkpoint).
+    pub fn has_free_bodies(&self) -> bool {
+        self.rigid_bodies
+            .iter()
+            .any(|b| b.motion == RigidMotion::Free)
+    }
+
     /// inflow): series.csv then has the mass balance's columns.
     pub fn has_open_flow(&self) -> bool {
         !self.inflows.is_empty()
@@ -1519,8 +1594,15 @@ impl Deck {
     }
 
     /// The `[[rigid_bodies]]`.
-    fn check_rigid_bodies(&self, c: &Check) -> Result<(), DeckError> {
+    fn check_rigid_bodies(&mut self, c: &Check) -> Result<(), DeckError> {
         let dim = self.simulation.dimension;
+        let dir = Path::new(c.file)
+            .parent()
+            .unwrap_or(Path::new(""))
+            .to_path_buf();
+        for r in &mut self.rigid_bodies {
+            r.shape.resolve_files(&dir);
+        }
         for (i, r) in self.rigid_bodies.iter().enumerate() {
             let k = format!("rigid_bodies[{i}]");
             if r.name.is_empty() || r.name.contains([',', '"', '\n']) {
@@ -1532,13 +1614,17 @@ impl Deck {
             if self.rigid_bodies[..i].iter().any(|q| q.name == r.name) {
                 return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", r.name)));
             }
-            if !r.shape.is_plain_box() {
-                return Err(c.err(
-                    format!("{k}.shape.type"),
-                    "must be \"box\" without rotate, scale or translate: a rigid body is an axis-aligned box (other shapes are for [[bodies]])",
-                ));
+            let solid = shape_solid(&r.shape, &format!("{k}.shape"), dim, c)?;
+            if r.is_shaped()
+                || r.motion == RigidMotion::Free
+                || r.density.is_some()
+                || !r.fixed.is_empty()
+            {
+                self.check_shaped_rigid(r, &k, &solid, c)?;
+                if r.is_shaped() {
+                    continue;
+                }
             }
-            shape_solid(&r.shape, &format!("{k}.shape"), dim, c)?;
             let (Some(mn), Some(mx)) = (&r.shape.min, &r.shape.max) else {
                 return Err(c.err(format!("{k}.shape"), "a box needs both min and max"));
             };
@@ -1563,6 +1649,141 @@ impl Deck {
                     ));
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// A rigid body of the general path: its motion's keys, and a shape that holds a volume
+    /// and, unless it stands still, is bounded.
+    fn check_shaped_rigid(
+        &self,
+        r: &RigidBodyDeck,
+        k: &str,
+        solid: &crate::geometry::Solid,
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
+        if r.sides == RigidSides::Smooth && r.is_shaped() {
+            return Err(c.err(
+                format!("{k}.sides"),
+                "\"smooth\" is for a box that does not turn (an axis-aligned box moved by velocity alone); this body is held rough",
+            ));
+        }
+        if let Some(w) = &r.angular_velocity {
+            let key = format!("{k}.angular_velocity");
+            let f = w.field();
+            let want = if dim == 2 { 1 } else { 3 };
+            if f.len() != want {
+                return Err(c.err(
+                    key,
+                    if dim == 2 {
+                        "in 2D is one number or expression of t (rad/s, counter-clockwise)"
+                            .to_string()
+                    } else {
+                        format!(
+                            "in 3D is a vector of 3 numbers or expressions of t, got {}",
+                            f.len()
+                        )
+                    },
+                ));
+            }
+            let g = f.compile().map_err(|e| c.err(key.clone(), e))?;
+            let at = |x: f64, t: f64| g.eval_at(&[x, x, x], t);
+            if at(0.0, 0.0) != at(1.0, 0.0) || at(0.0, 1.0) != at(1.0, 1.0) {
+                return Err(c.err(
+                    key,
+                    "may depend on t only (a rigid body turns as a whole): remove x, y and z from the expressions",
+                ));
+            }
+        }
+        if let Some(v) = &r.velocity {
+            let key = format!("{k}.velocity");
+            c.field(&key, v, dim)?;
+            let f = v.compile().expect("checked above");
+            let at = |x: f64, t: f64| f.eval_at(&vec![x; dim], t);
+            if at(0.0, 0.0) != at(1.0, 0.0) || at(0.0, 1.0) != at(1.0, 1.0) {
+                return Err(c.err(
+                    key,
+                    "may depend on t only (a rigid body moves as a whole): remove x, y and z from the expressions",
+                ));
+            }
+        }
+        if let Some(x) = &r.centre {
+            c.vector(&format!("{k}.centre"), x, dim)?;
+        }
+        let free = r.motion == RigidMotion::Free;
+        if free {
+            match r.density {
+                None => {
+                    return Err(c.err(
+                        format!("{k}.density"),
+                        "a free body needs its density (kg/m^3)",
+                    ))
+                }
+                Some(rho) => c.positive(&format!("{k}.density"), rho)?,
+            }
+            if r.centre.is_some() {
+                return Err(c.err(
+                    format!("{k}.centre"),
+                    "a free body turns about its centroid: remove centre",
+                ));
+            }
+            for (key, given) in [
+                (
+                    "velocity",
+                    r.velocity.as_ref().map(|v| v.numbers().is_none()),
+                ),
+                (
+                    "angular_velocity",
+                    r.angular_velocity
+                        .as_ref()
+                        .map(|w| w.field().numbers().is_none()),
+                ),
+            ] {
+                if given == Some(true) {
+                    return Err(c.err(
+                        format!("{k}.{key}"),
+                        "of a free body is its value at t = 0: numbers, not expressions",
+                    ));
+                }
+            }
+            let names: &[&str] = if dim == 2 {
+                &["x", "y", "rotation"]
+            } else {
+                &["x", "y", "z", "rotation"]
+            };
+            for (j, f) in r.fixed.iter().enumerate() {
+                if !names.contains(&f.as_str()) {
+                    return Err(c.err(
+                        format!("{k}.fixed[{j}]"),
+                        format!("must be one of {}, got \"{f}\"", names.join(", ")),
+                    ));
+                }
+            }
+        } else {
+            if r.density.is_some() {
+                return Err(c.err(
+                    format!("{k}.density"),
+                    "is for motion = \"free\" (a prescribed body's motion does not depend on its mass)",
+                ));
+            }
+            if !r.fixed.is_empty() {
+                return Err(c.err(format!("{k}.fixed"), "is for motion = \"free\""));
+            }
+        }
+        if crate::build::rigid_shape(self, r).is_none() {
+            return Err(c.err(
+                format!("{k}.shape"),
+                "holds no volume inside the grid (a shape thinner than a quarter cell, or one wholly outside)",
+            ));
+        }
+        let (mn, mx) = solid.bounds();
+        let moves = free || r.velocity.is_some() || r.angular_velocity.is_some();
+        if moves && (0..dim).any(|d| !mn[d].is_finite() || !mx[d].is_finite()) {
+            return Err(c.err(
+                format!("{k}.shape"),
+                "is unbounded (a half-space): only a body at rest may be, cut off at the grid",
+            ));
         }
         Ok(())
     }
@@ -1818,7 +2039,7 @@ impl Deck {
     }
 
     /// The grid's lower and upper corners.
-    fn domain(&self) -> (Vec<f64>, Vec<f64>) {
+    pub fn domain(&self) -> (Vec<f64>, Vec<f64>) {
         let g = &self.grid;
         let hi = g.origin.iter().zip(&g.size).map(|(o, s)| o + s).collect();
         (g.origin.clone(), hi)

@@ -68,6 +68,35 @@ impl EllMatrix {
         });
     }
 
+    /// Pins the rows that hold nothing, x_r = 0: a row whose slots are all zero (an unknown
+    /// none of whose cells holds a quadrature point: a node beside a sliver that a rigid
+    /// body's face leaves of a cell) gets a 1 on its diagonal and b_r = 0, so that the
+    /// solvers, which divide by the diagonal, see a definite system. A row pinned before (a
+    /// lone diagonal of exactly 1) gets b_r = 0 again. Rows that hold anything are untouched.
+    pub fn pin_empty_rows(&mut self, b: &mut [f64]) {
+        let w = self.width;
+        self.vals
+            .par_chunks_mut(w)
+            .zip(self.cols.par_chunks(w))
+            .zip(b.par_iter_mut())
+            .enumerate()
+            .for_each(|(r, ((vals, cols), b))| {
+                let lone = vals
+                    .iter()
+                    .zip(cols)
+                    .all(|(&v, &c)| v == 0.0 || (c as usize == r && v == 1.0));
+                if lone {
+                    let k = cols.iter().position(|&c| c as usize == r);
+                    if let Some(k) = k {
+                        if vals.iter().all(|&v| v == 0.0) || vals[k] == 1.0 {
+                            vals[k] = 1.0;
+                            *b = 0.0;
+                        }
+                    }
+                }
+            });
+    }
+
     /// The diagonal entries (summed over the row's slots that hold column r).
     pub fn diagonal(&self, d: &mut Vec<f64>) {
         let w = self.width;

@@ -222,6 +222,7 @@ impl<const D: usize> PositionCorrection<D> {
         for (b, &i) in self.rhs.iter_mut().zip(&self.unknowns.node_of_row) {
             *b += self.excess[i as usize];
         }
+        self.matrix.pin_empty_rows(&mut self.rhs);
         // solve
         self.solution.clear();
         self.solution.resize(rows, 0.0);

@@ -715,6 +715,7 @@ impl<const D: usize> Projection<D> {
             let u = &mut self.system.unknowns;
             describe_layout(&mut u.layout, geo, self.settings.shape, &u.node_of_row);
         }
+        self.system.matrix.pin_empty_rows(&mut self.system.rhs);
         let system = System {
             matrix: &self.system.matrix,
             layout: &self.system.unknowns.layout,
@@ -1143,7 +1144,12 @@ impl<const D: usize> GaussPoints<D> {
             let rho = if v > 0.0 { m / v } else { mean_density };
             let lower = geo.node_position(&idx);
             if let Some(rigid) = domain.as_ref().and_then(|d| d.cut) {
-                if matrix_share > 0.0 && matrix_share < 1.0 - 1e-12 {
+                // (a cell only a shaped body covers takes the Gauss points below: its nodes
+                // hold the body where it is)
+                if matrix_share > 0.0
+                    && matrix_share < 1.0 - 1e-12
+                    && rigid.box_meets_cell(&lower, geo.h)
+                {
                     // a cell a body cuts: the midpoints of SUB^D sub-cells, those in its open
                     // part, which the fluid of the cell fills in the share w / open
                     self.sub_cells = true;
@@ -1156,7 +1162,7 @@ impl<const D: usize> GaussPoints<D> {
                             rem /= SUB;
                             lower[d] + (j as f64 + 0.5) / SUB as f64 * geo.h
                         });
-                        if rigid.contains(&x) {
+                        if rigid.cuts_at(&x) {
                             continue;
                         }
                         self.x.push(x);

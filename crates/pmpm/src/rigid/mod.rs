@@ -24,12 +24,21 @@
 //! the pressure on the wet faces, int p n dS, is added: the corrector's gradient form pushes the
 //! material away from a face with it, whichever nodes carry the push.
 
+mod motion;
+mod shaped;
+
+pub use motion::{Free, FreeState, Motion};
+pub use shaped::{Pose, Shaped};
+
 use crate::grid::NodeKind;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::particles::Particles;
 use crate::shape::{ShapeFunction, Stencil, PAD};
+use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use shaped::{from3, to3, SurfacePoint};
+use std::sync::Arc;
 
 /// How a rigid body holds the material on its faces that do not lead its motion: the faces
 /// whose outward normal does not point along its velocity (a footing's vertical sides and its
@@ -67,6 +76,35 @@ pub struct RigidBox<const D: usize> {
     pub motion: Option<crate::field::CompiledField>,
     /// How it holds the material on its trailing faces.
     pub sides: RigidSides,
+    /// A body of any shape, or one that turns ([`shaped`]); None: the box above.
+    pub shaped: Option<ShapedBody>,
+    /// A box that moves freely (without turning): its mass and what it keeps still; it
+    /// starts at `velocity` and `motion` is None.
+    pub free: Option<Free>,
+}
+
+/// A world box (lower, upper corner).
+type Bounds = (Vector3<f64>, Vector3<f64>);
+
+/// A rigid body of any shape: its shape, its motion, and its pose at t = 0.
+#[derive(Debug, Clone)]
+pub struct ShapedBody {
+    /// Its shape and what follows from it.
+    pub shape: Arc<Shaped>,
+    /// How it moves.
+    pub motion: Motion,
+    /// Its pose at t = 0.
+    pub start: Pose,
+}
+
+/// What a shaped body holds at its last pose, kept while it does not move (a fixed obstacle's
+/// nodes, cover and surface are found once).
+#[derive(Debug, Clone, Default)]
+struct Cache<const D: usize> {
+    pose: Option<Pose>,
+    nodes: Vec<(usize, u8, Vector<D>)>,
+    cover: Vec<(usize, f64)>,
+    surface: Vec<SurfacePoint<D>>,
 }
 
 /// The integral of a velocity given as a function of t from 0 to `t`: three-point Gauss
@@ -152,6 +190,30 @@ pub struct RigidBodies<const D: usize> {
     ghosts: Vec<(usize, usize, usize, usize, f64)>,
     /// Scratch: the Gauss points along each tangential axis of a face, (position, weight).
     lines: [Vec<(f64, f64)>; 2],
+    /// Per body, its shape and motion when it is not a box ([`shaped`]).
+    shaped: Vec<Option<ShapedBody>>,
+    /// Per box, its mass when it moves freely: then `velocity` is its velocity over the step
+    /// after the time of `set_time` (the force of the step before moved it), `offset` its
+    /// displacement at that time, and `last` holds its velocity the step before.
+    free_box: Vec<Option<Free>>,
+    /// Per shaped body, its pose now (a free body's: at the end of the last step), and a free
+    /// body's velocity and angular velocity the step before ([`Free::advance`]).
+    pose: Vec<Pose>,
+    last: Vec<(Vector3<f64>, Vector3<f64>)>,
+    /// Per shaped body, its nodes, cover and surface at its last pose.
+    cache: Vec<Cache<D>>,
+    /// The velocity each of `nodes` holds (a turning body's varies from node to node).
+    node_velocity: Vec<Vector<D>>,
+    /// The shaped bodies' cover and surface points now.
+    shaped_cover: Vec<(usize, f64)>,
+    surface: Vec<SurfacePoint<D>>,
+    /// Per body, the torque about its reference point over the last step (N m; N in 2D,
+    /// about z), and the torque of the momentum its nodes would reach without it.
+    torque: Vec<Vector3<f64>>,
+    free_torque: Vec<Vector3<f64>>,
+    /// Scratch of [`RigidBodies::push_out`]: each shaped body's pose at the step's end and
+    /// the box that holds it there.
+    ends: Vec<Option<(Pose, Bounds)>>,
 }
 
 /// A quadrature point on a rigid body's face.
@@ -168,9 +230,18 @@ struct FacePoint<const D: usize> {
 }
 
 impl<const D: usize> RigidBodies<D> {
-    /// The fastest body's speed (0 without bodies).
+    /// The fastest body's speed (0 without bodies): for a turning body, the speed of its
+    /// point farthest from the axis.
     pub fn max_speed(&self) -> f64 {
-        self.velocity.iter().map(|v| v.norm()).fold(0.0, f64::max)
+        (0..self.len())
+            .map(|b| match &self.shaped[b] {
+                Some(s) => {
+                    let p = &self.pose[b];
+                    p.velocity.norm() + p.omega.norm() * s.shape.radius()
+                }
+                None => self.velocity[b].norm(),
+            })
+            .fold(0.0, f64::max)
     }
 
     /// The bodies, seen by the projection where their faces lie when `cut` (cut cells) or
@@ -199,6 +270,25 @@ impl<const D: usize> RigidBodies<D> {
             faces: Vec::new(),
             ghosts: Vec::new(),
             lines: [Vec::new(), Vec::new()],
+            shaped: bodies.iter().map(|b| b.shaped.clone()).collect(),
+            free_box: bodies.iter().map(|b| b.free.clone()).collect(),
+            pose: bodies
+                .iter()
+                .map(|b| {
+                    b.shaped
+                        .as_ref()
+                        .map_or(Pose::at(Vector3::zeros()), |s| s.start)
+                })
+                .collect(),
+            // no step before the first ([`Free::advance`])
+            last: vec![(Vector3::repeat(f64::NAN), Vector3::repeat(f64::NAN)); n],
+            cache: vec![Cache::default(); n],
+            node_velocity: Vec::new(),
+            shaped_cover: Vec::new(),
+            surface: Vec::new(),
+            torque: vec![Vector3::zeros(); n],
+            free_torque: vec![Vector3::zeros(); n],
+            ends: Vec::new(),
         }
     }
 
@@ -213,8 +303,20 @@ impl<const D: usize> RigidBodies<D> {
     }
 
     /// Displacement of body `b` at time `t`: v t at a constant velocity, else the velocity's
-    /// integral from 0 to t ([`displacement`]).
+    /// integral from 0 to t ([`displacement`]); a shaped body's reference point's (a free
+    /// body's now, whatever `t`).
     pub fn displacement(&self, b: usize, t: f64) -> Vector<D> {
+        if let Some(s) = &self.shaped[b] {
+            return from3(&(self.pose_now(b, t).centre - s.start.centre));
+        }
+        if self.free_box[b].is_some() {
+            let since = if self.time.is_nan() {
+                0.0
+            } else {
+                t - self.time
+            };
+            return self.offset[b] + self.velocity[b] * since;
+        }
         match &self.motion[b] {
             None => self.velocity[b] * t,
             Some(_) if t == self.time => self.offset[b],
@@ -222,13 +324,21 @@ impl<const D: usize> RigidBodies<D> {
         }
     }
 
-    /// Centre of body `b`'s box at time `t`.
+    /// Centre of body `b`'s box at time `t`; a shaped body's reference point (its centroid
+    /// unless the deck gives the centre it turns about).
     pub fn centre(&self, b: usize, t: f64) -> Vector<D> {
+        if self.shaped[b].is_some() {
+            return from3(&self.pose_now(b, t).centre);
+        }
         (self.lo[b] + self.hi[b]) * 0.5 + self.displacement(b, t)
     }
 
-    /// Velocity of body `b` at the time of [`RigidBodies::set_time`].
+    /// Velocity of body `b` at the time of [`RigidBodies::set_time`] (a free body's at the
+    /// end of the last step).
     pub fn velocity(&self, b: usize) -> Vector<D> {
+        if self.shaped[b].is_some() {
+            return from3(&self.pose[b].velocity);
+        }
         self.velocity[b]
     }
 
@@ -237,11 +347,78 @@ impl<const D: usize> RigidBodies<D> {
         self.force[b]
     }
 
+    /// The torque the material exerted on body `b` about its reference point over the last
+    /// step (about z in 2D).
+    pub fn torque(&self, b: usize) -> Vector3<f64> {
+        self.torque[b]
+    }
+
+    /// Whether body `b` turns (its angle, angular velocity and torque are written).
+    pub fn turns(&self, b: usize) -> bool {
+        self.shaped[b].as_ref().is_some_and(|s| s.motion.turns())
+    }
+
+    /// The pose of shaped body `b` at time `t`: a prescribed one's at t, a free one's now.
+    pub fn pose_now(&self, b: usize, t: f64) -> Pose {
+        let s = self.shaped[b].as_ref().expect("a shaped body");
+        if t == self.time {
+            return self.pose[b];
+        }
+        s.motion.pose_at(&s.start, t).unwrap_or(self.pose[b])
+    }
+
+    /// Whether body `b` moves freely.
+    pub fn is_free(&self, b: usize) -> bool {
+        self.free_box[b].is_some()
+            || matches!(&self.shaped[b], Some(s) if matches!(s.motion, Motion::Free(_)))
+    }
+
+    /// The free bodies' state at time `t` (the end of the last step), in body order, for the
+    /// checkpoint.
+    pub fn free_states(&self, t: f64) -> Vec<FreeState> {
+        (0..self.len())
+            .filter(|&b| self.is_free(b))
+            .map(|b| {
+                if self.shaped[b].is_some() {
+                    FreeState::new(&self.pose[b], &self.last[b])
+                } else {
+                    let mut p = Pose::at(to3(&self.displacement(b, t)));
+                    p.velocity = to3(&self.velocity[b]);
+                    FreeState::new(&p, &self.last[b])
+                }
+            })
+            .collect()
+    }
+
+    /// Puts back the free bodies' state from the checkpoint (as many as [`free_states`] gave).
+    ///
+    /// [`free_states`]: RigidBodies::free_states
+    pub fn set_free_states(&mut self, states: &[FreeState]) {
+        let mut it = states.iter();
+        for b in 0..self.len() {
+            if !self.is_free(b) {
+                continue;
+            }
+            if let Some(s) = it.next() {
+                let (pose, last) = s.pose();
+                self.last[b] = last;
+                if self.shaped[b].is_some() {
+                    self.pose[b] = pose;
+                    self.cache[b].pose = None;
+                } else {
+                    self.offset[b] = from3(&pose.centre);
+                    self.velocity[b] = from3(&pose.velocity);
+                }
+            }
+        }
+        self.time = f64::NAN;
+    }
+
     /// Box of body `b` at the time of [`RigidBodies::set_time`].
     fn bounds(&self, b: usize) -> (Vector<D>, Vector<D>) {
         let d = match self.motion[b] {
-            None => self.velocity[b] * self.time,
-            Some(_) => self.offset[b],
+            None if self.free_box[b].is_none() => self.velocity[b] * self.time,
+            _ => self.offset[b],
         };
         (self.lo[b] + d, self.hi[b] + d)
     }
@@ -252,11 +429,16 @@ impl<const D: usize> RigidBodies<D> {
         if self.is_empty() || t == self.time {
             return;
         }
+        let before = self.time;
         self.time = t;
         for b in 0..self.len() {
             if let Some(f) = &self.motion[b] {
                 self.velocity[b] = f.eval(&Vector::<D>::zeros(), t);
                 self.offset[b] = displacement(f, t);
+            }
+            if self.free_box[b].is_some() && !before.is_nan() {
+                // the free box's step: its new velocity over the time since
+                self.offset[b] += self.velocity[b] * (t - before);
             }
         }
         for &(i, _, _) in &self.nodes {
@@ -264,8 +446,15 @@ impl<const D: usize> RigidBodies<D> {
         }
         self.owner.resize(geo.node_count(), (usize::MAX, 0));
         self.nodes.clear();
+        self.node_velocity.clear();
         self.ghosts.clear();
+        self.shaped_cover.clear();
+        self.surface.clear();
         for b in 0..self.len() {
+            if self.shaped[b].is_some() {
+                self.place_shaped(b, t, geo);
+                continue;
+            }
             let Some(span) = self.span(b, geo) else {
                 continue;
             };
@@ -281,6 +470,7 @@ impl<const D: usize> RigidBodies<D> {
                     h |= self.ghost_normals(b, &span, &idx, geo);
                 }
                 self.nodes.push((i, b, h));
+                self.node_velocity.push(self.velocity[b]);
                 self.owner[i] = (b, h);
                 for d in 0..D {
                     if (idx[d] as isize) < span.last[d] {
@@ -293,6 +483,39 @@ impl<const D: usize> RigidBodies<D> {
             }
         }
         self.place_face_points(geo);
+    }
+
+    /// Moves shaped body `b` to its pose at `t` (a free body stays at its own) and takes its
+    /// nodes, cover and surface there, found afresh when it has moved.
+    fn place_shaped(&mut self, b: usize, t: f64, geo: &GridGeometry<D>) {
+        let s = self.shaped[b].as_ref().expect("a shaped body");
+        if let Some(p) = s.motion.pose_at(&s.start, t) {
+            self.pose[b] = p;
+        }
+        let pose = self.pose[b];
+        self.velocity[b] = from3(&pose.velocity);
+        let cache = &mut self.cache[b];
+        if cache.pose != Some(pose) {
+            cache.nodes.clear();
+            cache.cover.clear();
+            cache.surface.clear();
+            s.shape.nodes(&pose, geo, &mut cache.nodes);
+            s.shape.cover(&pose, geo, &mut cache.cover);
+            s.shape.surface(&pose, b, &mut cache.surface);
+            cache.pose = Some(pose);
+        }
+        for &(i, h, v) in &cache.nodes {
+            self.nodes.push((i, b, h));
+            self.node_velocity.push(v);
+            self.owner[i] = (b, h);
+        }
+        self.shaped_cover.extend_from_slice(&cache.cover);
+        self.surface.extend_from_slice(&cache.surface);
+        let (lo, hi) = s.shape.world_bounds(&pose);
+        self.reach[b] = (
+            from3(&((lo - to3(&geo.origin)) / geo.h)),
+            from3(&((hi - to3(&geo.origin)) / geo.h)),
+        );
     }
 
     /// The faces of body `b` now, which of them can meet material, and the range of nodes it
@@ -468,6 +691,9 @@ impl<const D: usize> RigidBodies<D> {
         let tol = 1e-9 * geo.h;
         let mut lines = std::mem::take(&mut self.lines);
         for b in 0..self.len() {
+            if self.shaped[b].is_some() {
+                continue;
+            }
             let (lo, hi) = self.bounds(b);
             for axis in 0..D {
                 for (plane, sign) in [(lo[axis], 1.0), (hi[axis], -1.0)] {
@@ -512,7 +738,9 @@ impl<const D: usize> RigidBodies<D> {
                         // a face inside another body meets no material
                         let covered = (0..self.len()).any(|o| {
                             let (olo, ohi) = self.bounds(o);
-                            o != b && (0..D).all(|d| x[d] > olo[d] - tol && x[d] < ohi[d] + tol)
+                            o != b
+                                && self.shaped[o].is_none()
+                                && (0..D).all(|d| x[d] > olo[d] - tol && x[d] < ohi[d] + tol)
                         });
                         if !covered {
                             self.faces.push(FacePoint {
@@ -532,9 +760,34 @@ impl<const D: usize> RigidBodies<D> {
 
     /// Whether `x` lies inside a body, at the time of [`RigidBodies::set_time`].
     pub fn contains(&self, x: &Vector<D>) -> bool {
+        (0..self.len()).any(|b| match &self.shaped[b] {
+            Some(s) => s.shape.holds(&self.pose[b], &to3(x)),
+            None => {
+                let (lo, hi) = self.bounds(b);
+                (0..D).all(|d| x[d] > lo[d] && x[d] < hi[d])
+            }
+        })
+    }
+
+    /// Whether `x` lies inside a box body that cuts cells, at the time of
+    /// [`RigidBodies::set_time`] (a shaped body's nodes hold it where it is: its cells are not
+    /// cut).
+    pub fn cuts_at(&self, x: &Vector<D>) -> bool {
         (0..self.len()).any(|b| {
-            let (lo, hi) = self.bounds(b);
-            (0..D).all(|d| x[d] > lo[d] && x[d] < hi[d])
+            self.shaped[b].is_none() && {
+                let (lo, hi) = self.bounds(b);
+                (0..D).all(|d| x[d] > lo[d] && x[d] < hi[d])
+            }
+        })
+    }
+
+    /// Whether a box body (not a shaped one) overlaps the cell whose lower corner is `lower`.
+    pub fn box_meets_cell(&self, lower: &Vector<D>, h: f64) -> bool {
+        (0..self.len()).any(|b| {
+            self.shaped[b].is_none() && {
+                let (lo, hi) = self.bounds(b);
+                (0..D).all(|d| hi[d] > lower[d] && lo[d] < lower[d] + h)
+            }
         })
     }
 
@@ -587,10 +840,10 @@ impl<const D: usize> RigidBodies<D> {
 
     /// Sets the bodies' nodes to the bodies' velocities (the components they hold).
     pub fn apply(&self, v: &mut [Vector<D>]) {
-        for &(i, b, h) in &self.nodes {
+        for (&(i, _, h), set) in self.nodes.iter().zip(&self.node_velocity) {
             for d in 0..D {
                 if h & (1 << d) != 0 {
-                    v[i][d] = self.velocity[b][d];
+                    v[i][d] = set[d];
                 }
             }
         }
@@ -636,8 +889,29 @@ impl<const D: usize> RigidBodies<D> {
             return;
         }
         let (lo_grid, hi_grid) = (geo.origin, geo.upper());
+        let grid_box = (to3(&lo_grid), to3(&hi_grid));
         let eps = 1e-9 * geo.h;
         let n = x.len();
+        // the shaped bodies where they are at the step's end
+        let mut ends = std::mem::take(&mut self.ends);
+        ends.clear();
+        for b in 0..self.len() {
+            ends.push(self.shaped[b].as_ref().map(|s| {
+                let pose = match s.motion {
+                    Motion::Free(_) => self.pose[b],
+                    Motion::Prescribed { .. } => s
+                        .motion
+                        .pose_at(&s.start, self.time + dt)
+                        .expect("prescribed"),
+                };
+                let (mut lo, mut hi) = s.shape.world_bounds(&pose);
+                for d in D..3 {
+                    (lo[d], hi[d]) = (f64::NEG_INFINITY, f64::INFINITY);
+                }
+                (pose, (lo, hi))
+            }));
+        }
+        self.ends = ends;
         let (mut hits, mut impulses) = (
             std::mem::take(&mut self.hit),
             std::mem::take(&mut self.impulse),
@@ -656,6 +930,27 @@ impl<const D: usize> RigidBodies<D> {
             .for_each(|(x, v, &m, hit, impulse)| {
                 *hit = u32::MAX;
                 for b in 0..this.len() {
+                    if let Some((pose, (lo, hi))) = &this.ends[b] {
+                        let s = this.shaped[b].as_ref().expect("a shaped body");
+                        let mut y = to3(x);
+                        if (0..D).any(|d| y[d] <= lo[d] || y[d] >= hi[d])
+                            || !s.shape.holds(pose, &y)
+                        {
+                            continue;
+                        }
+                        let Some((d, sign)) = s.shape.put_out(pose, geo.h, grid_box, &mut y) else {
+                            continue;
+                        };
+                        *x = from3(&y);
+                        let body = pose.velocity_at(&y)[d];
+                        if (v[d] - body) * sign < 0.0 {
+                            *impulse = Vector::<D>::zeros();
+                            impulse[d] = m * (v[d] - body) / dt;
+                            *hit = b as u32;
+                            v[d] = body;
+                        }
+                        break;
+                    }
                     let (mut lo, mut hi) = this.bounds(b);
                     let shift = this.velocity[b] * dt;
                     lo += shift;
@@ -697,9 +992,13 @@ impl<const D: usize> RigidBodies<D> {
                 }
             });
         // the impulses summed in particle order: the same bits on any number of threads
-        for (&b, i) in hits.iter().zip(&impulses) {
+        for ((&b, i), x) in hits.iter().zip(&impulses).zip(x.iter()) {
             if b != u32::MAX {
-                self.force[b as usize] += *i;
+                let b = b as usize;
+                self.force[b] += *i;
+                if let Some((pose, _)) = &self.ends[b] {
+                    self.torque[b] += (to3(x) - pose.centre).cross(&to3(i));
+                }
             }
         }
         (self.hit, self.impulse) = (hits, impulses);
@@ -709,7 +1008,13 @@ impl<const D: usize> RigidBodies<D> {
     /// free-surface detection reads a body as it reads a wall: the material against it is
     /// not at a free surface.
     pub fn cover(&self, geo: &GridGeometry<D>, fraction: &mut [f64]) {
+        for &(c, share) in &self.shaped_cover {
+            fraction[c] += share;
+        }
         for b in 0..self.len() {
+            if self.shaped[b].is_some() {
+                continue;
+            }
             let (lo, hi) = self.bounds(b);
             let cl = geo.to_cells(&lo);
             let ch = geo.to_cells(&hi);
@@ -746,40 +1051,99 @@ impl<const D: usize> RigidBodies<D> {
     /// damping: damping is not a force the body feels).
     pub fn begin_step(&mut self, grid: &Grid<D>, dt: f64) {
         self.free_momentum.fill(Vector::<D>::zeros());
+        self.free_torque.fill(Vector3::zeros());
         for &(i, b, h) in &self.nodes {
-            let p = grid.velocity[i] * grid.mass[i] + grid.force[i] * dt;
-            self.free_momentum[b] += masked(p, h);
+            let p = masked(grid.velocity[i] * grid.mass[i] + grid.force[i] * dt, h);
+            self.free_momentum[b] += p;
+            if self.shaped[b].is_some() {
+                let m = self.arm(b, i, &grid.geo).cross(&to3(&p));
+                self.free_torque[b] += m;
+            }
+        }
+    }
+
+    /// The arm from shaped body `b`'s reference point to node `i`.
+    fn arm(&self, b: usize, i: usize, geo: &GridGeometry<D>) -> Vector3<f64> {
+        to3(&geo.node_position(&geo.multi(i))) - self.pose[b].centre
+    }
+
+    /// After the step's pressure: the force and torque on each body, and the free bodies
+    /// moved by them over the step.
+    pub fn end_step(&mut self, grid: &Grid<D>, dt: f64, pressure: PressureForce<'_, D>) {
+        if self.is_empty() {
+            return;
+        }
+        self.measure(grid, dt, pressure);
+        for b in 0..self.len() {
+            if let Some(free) = &self.free_box[b] {
+                // the box's own velocity moves it from the next set_time on
+                let mut pose = Pose::at(Vector3::zeros());
+                pose.velocity = to3(&self.velocity[b]);
+                free.advance(
+                    &mut pose,
+                    &mut self.last[b],
+                    to3(&self.force[b]),
+                    Vector3::zeros(),
+                    dt,
+                );
+                self.velocity[b] = from3(&pose.velocity);
+            }
+            if let Some(ShapedBody {
+                motion: Motion::Free(free),
+                ..
+            }) = &self.shaped[b]
+            {
+                free.advance(
+                    &mut self.pose[b],
+                    &mut self.last[b],
+                    to3(&self.force[b]),
+                    self.torque[b],
+                    dt,
+                );
+            }
         }
     }
 
     /// Before the last wall conditions of the step: the force on each body. With the
     /// projection the pressure's force on the bodies' nodes is added in the weak form (see
     /// [`PressureForce`]).
-    pub fn end_step(&mut self, grid: &Grid<D>, dt: f64, pressure: PressureForce<'_, D>) {
-        if self.is_empty() {
-            return;
-        }
+    fn measure(&mut self, grid: &Grid<D>, dt: f64, pressure: PressureForce<'_, D>) {
         for (b, f) in self.force.iter_mut().enumerate() {
             *f = -self.free_momentum[b];
         }
-        for &(i, b, h) in &self.nodes {
+        for (b, m) in self.torque.iter_mut().enumerate() {
+            *m = -self.free_torque[b];
+        }
+        for (k, &(i, b, h)) in self.nodes.iter().enumerate() {
             // with cut cells the value the node holds (a ghost value on a face's normal), which
             // the projection's last pass has set
-            let set = if self.cut {
+            let set = if self.cut && self.shaped[b].is_none() {
                 grid.velocity_new[i]
             } else {
-                self.velocity[b]
+                self.node_velocity[k]
             };
-            self.force[b] += masked(set * grid.mass[i], h);
+            let p = masked(set * grid.mass[i], h);
+            self.force[b] += p;
+            if self.shaped[b].is_some() {
+                let m = self.arm(b, i, &grid.geo).cross(&to3(&p));
+                self.torque[b] += m;
+            }
         }
         for f in &mut self.force {
             *f /= -dt;
+        }
+        for m in &mut self.torque {
+            *m /= -dt;
         }
         let (ps, shape, node_pressure, phi, kinds) = match pressure {
             PressureForce::None => return,
             PressureForce::Nodal(f) => {
                 for &(i, b, h) in &self.nodes {
                     self.force[b] += masked(f[i], h);
+                    if self.shaped[b].is_some() {
+                        let m = self.arm(b, i, &grid.geo).cross(&to3(&masked(f[i], h)));
+                        self.torque[b] += m;
+                    }
                 }
                 return;
             }
@@ -809,9 +1173,15 @@ impl<const D: usize> RigidBodies<D> {
             stencil.for_each(|nw| grad_p += nw.grad * node_pressure[geo.flat(&nw.node)]);
             let vol = ps.volume0[p];
             stencil.for_each(|nw| {
-                let (b, h) = self.owner[geo.flat(&nw.node)];
+                let i = geo.flat(&nw.node);
+                let (b, h) = self.owner[i];
                 if b != usize::MAX && h != 0 {
-                    self.force[b] -= masked(grad_p * (vol * nw.n), h);
+                    let f = masked(grad_p * (vol * nw.n), h);
+                    self.force[b] -= f;
+                    if self.shaped[b].is_some() {
+                        let arm = to3(&geo.node_position(&geo.multi(i))) - self.pose[b].centre;
+                        self.torque[b] -= arm.cross(&to3(&f));
+                    }
                 }
             });
         }
@@ -840,6 +1210,17 @@ impl<const D: usize> RigidBodies<D> {
                 self.force[f.body][f.axis] += f.sign * p / weight * f.weight;
             }
         }
+        // and on the shaped bodies' wet surfaces, at the rays' crossings
+        for f in &self.surface {
+            if !wet(geo, phi, &f.x) {
+                continue;
+            }
+            if let Some(p) = surface_pressure(geo, node_pressure, kinds, &f.x) {
+                let push = f.push * p;
+                self.force[f.body] += push;
+                self.torque[f.body] += (to3(&f.x) - self.pose[f.body].centre).cross(&to3(&push));
+            }
+        }
     }
 }
 
@@ -853,6 +1234,78 @@ fn wet<const D: usize>(geo: &GridGeometry<D>, phi: Option<&[f64]>, x: &Vector<D>
     let mut value = 0.0;
     st.for_each(|nw| value += nw.n * phi[geo.flat(&nw.node)]);
     value <= 0.0
+}
+
+/// The pressure at `x` on a shaped body's surface, from the nodes less than two cells from
+/// it that carry one (the material's interior and free-surface nodes): the value at `x` of the
+/// plane fitted to them by least squares, weighted by a tent of two cells, or their weighted
+/// mean where they do not span a plane. The fit extrapolates: the nodes that carry a pressure
+/// lie up to a cell from the surface, on the material's side, and their mean would miss the
+/// hydrostatic pressure at the surface by up to rho g h (a floating box's draft by a cell).
+/// None where no node carries a pressure.
+fn surface_pressure<const D: usize>(
+    geo: &GridGeometry<D>,
+    pressure: &[f64],
+    kinds: &[NodeKind],
+    x: &Vector<D>,
+) -> Option<f64> {
+    use nalgebra::{Matrix4, Vector4};
+    let xc = geo.to_cells(x);
+    let base: [isize; D] = std::array::from_fn(|d| xc[d].floor() as isize - 1);
+    let (mut a, mut rhs) = (Matrix4::<f64>::zeros(), Vector4::<f64>::zeros());
+    let (mut wsum, mut psum) = (0.0, 0.0);
+    for k in 0..4usize.pow(D as u32) {
+        let mut rem = k;
+        let mut idx = [0usize; D];
+        let mut basis = Vector4::<f64>::zeros();
+        basis[0] = 1.0;
+        let mut w = 1.0;
+        let mut inside = true;
+        for d in 0..D {
+            let c = base[d] + (rem % 4) as isize;
+            rem /= 4;
+            if c < 0 || c > geo.cells[d] as isize {
+                inside = false;
+                break;
+            }
+            idx[d] = PAD + c as usize;
+            let dx = c as f64 - xc[d];
+            w *= (1.0 - dx.abs() / 2.0).max(0.0);
+            basis[1 + d] = dx;
+        }
+        if !inside || w <= 0.0 {
+            continue;
+        }
+        let i = geo.flat(&idx);
+        if !matches!(
+            kinds[geo.canonical(i)],
+            NodeKind::Interior | NodeKind::FreeSurface
+        ) {
+            continue;
+        }
+        a += basis * basis.transpose() * w;
+        rhs += basis * (w * pressure[i]);
+        wsum += w;
+        psum += w * pressure[i];
+    }
+    if wsum <= 0.0 {
+        return None;
+    }
+    for d in D..3 {
+        a[(1 + d, 1 + d)] = 1.0;
+    }
+    // a plane only where the nodes span one well (the smallest eigenvalue of the normalised
+    // moments not far below the largest): else their weighted mean
+    let eig = (a / wsum).symmetric_eigenvalues();
+    let (lo, hi) = eig
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(l, h), &e| (l.min(e), h.max(e)));
+    if lo > 1e-3 * hi {
+        if let Some(c) = a.cholesky() {
+            return Some(c.solve(&rhs)[0]);
+        }
+    }
+    Some(psum / wsum)
 }
 
 /// The components of `v` that `held` names (bit d: component d), the others zero.
@@ -896,26 +1349,18 @@ mod tests {
     }
 
     fn bodies(lo: [f64; 2], hi: [f64; 2], v: [f64; 2]) -> RigidBodies<2> {
-        RigidBodies {
-            lo: vec![Vector::<2>::from(lo)],
-            hi: vec![Vector::<2>::from(hi)],
-            velocity: vec![Vector::<2>::from(v)],
-            motion: vec![None],
-            offset: vec![Vector::<2>::zeros()],
-            smooth: vec![false],
-            time: f64::NAN,
-            nodes: Vec::new(),
-            owner: Vec::new(),
-            reach: vec![(Vector::<2>::zeros(), Vector::<2>::zeros())],
-            free_momentum: vec![Vector::<2>::zeros()],
-            force: vec![Vector::<2>::zeros()],
-            hit: Vec::new(),
-            impulse: Vec::new(),
-            cut: false,
-            faces: Vec::new(),
-            ghosts: Vec::new(),
-            lines: [Vec::new(), Vec::new()],
-        }
+        RigidBodies::new(
+            &[RigidBox {
+                lo: Vector::<2>::from(lo),
+                hi: Vector::<2>::from(hi),
+                velocity: Vector::<2>::from(v),
+                motion: None,
+                sides: RigidSides::Rough,
+                shaped: None,
+                free: None,
+            }],
+            false,
+        )
     }
 
     /// The flat index of the node at (x, y) of [`geo`].

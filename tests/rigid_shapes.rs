@@ -1,0 +1,166 @@
+//! Rigid bodies of any shape, turning bodies and free bodies: an STL column takes the force
+//! of the cylinder it was exported from; a free box floats at its hydrostatic draft.
+
+mod common;
+use common::{drive, in_pool};
+use pmpm::scheme::Simulation;
+
+/// A 3D dam break against a column standing across the tank: water 0.3 x 0.3 x 0.2 m at the
+/// back wall of a 1.0 x 0.3 x 0.4 m tank (h = 0.02 m), the column of radius 0.04 m at
+/// x = 0.5 m given by `column`.
+fn column_break(column: &str) -> pmpm::Deck {
+    let text = format!(
+        r#"
+[simulation]
+dimension = 3
+scheme = "projection"
+end_time = 0.35
+cfl = 0.5
+gravity = [0.0, 0.0, -9.81]
+transfer = "apic"
+shape_function = "linear"
+
+[grid]
+origin = [0.0, 0.0, 0.0]
+size = [1.0, 0.3, 0.4]
+cell_size = 0.02
+
+[grid.boundary]
+x_min = "slip"
+x_max = "slip"
+y_min = "slip"
+y_max = "slip"
+z_min = "slip"
+z_max = "slip"
+
+[[materials]]
+name = "water"
+model = "newtonian"
+density = 1000.0
+viscosity = 1.0e-3
+
+[[bodies]]
+material = "water"
+shape = {{ type = "box", min = [0.0, 0.0, 0.0], max = [0.3, 0.3, 0.2] }}
+particles_per_cell = 2
+
+[[rigid_bodies]]
+name = "column"
+shape = {column}
+
+[output]
+interval = 0.05
+formats = ["csv"]
+"#
+    );
+    // the deck as if it lay in examples/, where the mesh's path is relative to it
+    let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("examples")
+        .join("test.toml");
+    let file = file.to_str().unwrap();
+    let mut d = pmpm::Deck::parse(&text, file).expect("the deck parses");
+    d.validate(file).expect("the deck is valid");
+    d
+}
+
+/// The column's force along x, as means over 0.05 s windows from t = 0.15 s (the surge
+/// reaches the column at about 0.15 s).
+fn window_forces(d: &pmpm::Deck) -> Vec<f64> {
+    let mut windows = [(0.0, 0.0); 4];
+    in_pool(2, || {
+        let mut sim = Simulation::<3>::new(d).unwrap();
+        drive(d, &mut sim, |sim, step| {
+            let k = ((sim.time - 0.15) / 0.05).floor();
+            if k >= 0.0 && (k as usize) < windows.len() {
+                let w = &mut windows[k as usize];
+                w.0 += sim.boundary.rigid.force(0)[0] * step.dt;
+                w.1 += step.dt;
+            }
+            true
+        });
+    });
+    windows.iter().map(|(f, t)| f / t).collect()
+}
+
+/// examples/meshes/column.stl (a 64-sided prism, moved into place) and `type = "cylinder"`
+/// take the same force from the surge: the issue asks for 5 %; the prism's volume is 0.16 %
+/// less than the cylinder's, and the two hold different node sets only where the 64-gon's
+/// sagitta (0.05 mm) decides.
+#[test]
+fn an_stl_column_takes_the_force_of_its_cylinder() {
+    let mesh = window_forces(&column_break(
+        r#"{ type = "mesh", file = "meshes/column.stl", translate = [0.5, 0.15, 0.0] }"#,
+    ));
+    let cylinder = window_forces(&column_break(
+        r#"{ type = "cylinder", from = [0.5, 0.15, 0.0], to = [0.5, 0.15, 1.0], radius = 0.04 }"#,
+    ));
+    println!("column force, 0.05 s means from t = 0.15 s: mesh {mesh:?}, cylinder {cylinder:?}");
+    let peak = cylinder.iter().copied().fold(0.0, f64::max);
+    assert!(peak > 1.0, "the surge reaches the column: {cylinder:?}");
+    for (m, c) in mesh.iter().zip(&cylinder) {
+        assert!((m - c).abs() < 0.05 * peak, "{m} against {c} (peak {peak})");
+    }
+}
+
+/// A box 0.3 x 0.1 m of density 500 kg/m^3, free to heave (held along x and against turning),
+/// released with its base at 0.26 m in water 0.3 m deep in a tank 1 m wide: Archimedes puts its
+/// base 0.05 m under the surface, and the surface at 0.3 - 0.3 * 0.04 + 0.015 = 0.303 m (the
+/// water left out under the box at the start, plus the volume it displaces afloat), so its
+/// centre at 0.303 m. The box heaves about it without settling (the coupling's force is noisy
+/// as its faces cross node rows: docs/method.md); its mean over 1 to 4 s gives the draft.
+#[test]
+fn a_free_box_floats_at_its_hydrostatic_draft() {
+    let text = r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 4.0
+cfl = 0.5
+gravity = [0.0, -9.81]
+transfer = "apic"
+shape_function = "linear"
+
+[grid]
+origin = [0.0, 0.0]
+size = [1.0, 0.5]
+cell_size = 0.01
+
+[[materials]]
+name = "water"
+model = "newtonian"
+density = 1000.0
+viscosity = 1.0e-3
+
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [1.0, 0.3] }
+particles_per_cell = 2
+
+[[rigid_bodies]]
+name = "box"
+shape = { type = "box", min = [0.35, 0.26], max = [0.65, 0.36] }
+motion = "free"
+density = 500.0
+fixed = ["x", "rotation"]
+
+[output]
+interval = 0.1
+formats = ["csv"]
+"#;
+    let d = common::deck(text);
+    let (mut sum, mut span) = (0.0, 0.0);
+    in_pool(2, || {
+        let mut sim = Simulation::<2>::new(&d).unwrap();
+        drive(&d, &mut sim, |sim, step| {
+            if sim.time > 1.0 {
+                sum += sim.boundary.rigid.centre(0, sim.time)[1] * step.dt;
+                span += step.dt;
+            }
+            true
+        });
+    });
+    let centre = sum / span;
+    let draft = 0.303 - (centre - 0.05);
+    println!("mean centre {centre:.5} m, draft {draft:.5} m against 0.05 m");
+    assert!((draft / 0.05 - 1.0).abs() < 0.02, "draft {draft}");
+}
