@@ -1636,19 +1636,7 @@ impl Deck {
                     format!("must exceed min along {}: {} <= {}", AXES[d], mx[d], mn[d]),
                 ));
             }
-            if let Some(v) = &r.velocity {
-                let key = format!("{k}.velocity");
-                c.field(&key, v, dim)?;
-                // a rigid body moves as a whole: its velocity is a function of time only
-                let f = v.compile().expect("checked above");
-                let at = |x: f64, t: f64| f.eval_at(&vec![x; dim], t);
-                if at(0.0, 0.0) != at(1.0, 0.0) || at(0.0, 1.0) != at(1.0, 1.0) {
-                    return Err(c.err(
-                        key,
-                        "may depend on t only (a rigid body moves as a whole): remove x, y and z from the expressions",
-                    ));
-                }
-            }
+            rigid_velocity(r, &k, dim, c)?;
         }
         Ok(())
     }
@@ -1688,26 +1676,9 @@ impl Deck {
                 ));
             }
             let g = f.compile().map_err(|e| c.err(key.clone(), e))?;
-            let at = |x: f64, t: f64| g.eval_at(&[x, x, x], t);
-            if at(0.0, 0.0) != at(1.0, 0.0) || at(0.0, 1.0) != at(1.0, 1.0) {
-                return Err(c.err(
-                    key,
-                    "may depend on t only (a rigid body turns as a whole): remove x, y and z from the expressions",
-                ));
-            }
+            time_only(&g, &key, "turns", c)?;
         }
-        if let Some(v) = &r.velocity {
-            let key = format!("{k}.velocity");
-            c.field(&key, v, dim)?;
-            let f = v.compile().expect("checked above");
-            let at = |x: f64, t: f64| f.eval_at(&vec![x; dim], t);
-            if at(0.0, 0.0) != at(1.0, 0.0) || at(0.0, 1.0) != at(1.0, 1.0) {
-                return Err(c.err(
-                    key,
-                    "may depend on t only (a rigid body moves as a whole): remove x, y and z from the expressions",
-                ));
-            }
-        }
+        rigid_velocity(r, k, dim, c)?;
         if let Some(x) = &r.centre {
             c.vector(&format!("{k}.centre"), x, dim)?;
         }
@@ -2133,6 +2104,33 @@ fn check_body_material(
                 .join(", ")
         );
         return Err(c.err(format!("{k}.material"), msg));
+    }
+    Ok(())
+}
+
+/// A rigid body's `velocity`: `dim` components, numbers or expressions of t only.
+fn rigid_velocity(r: &RigidBodyDeck, k: &str, dim: usize, c: &Check) -> Result<(), DeckError> {
+    let Some(v) = &r.velocity else {
+        return Ok(());
+    };
+    let key = format!("{k}.velocity");
+    c.field(&key, v, dim)?;
+    time_only(&v.compile().expect("checked above"), &key, "moves", c)
+}
+
+/// A rigid body moves and turns as a whole: the field `f` of `key` may depend on t only.
+fn time_only(
+    f: &crate::field::CompiledField,
+    key: &str,
+    verb: &str,
+    c: &Check,
+) -> Result<(), DeckError> {
+    let at = |x: f64, t: f64| f.eval_at(&[x, x, x], t);
+    if at(0.0, 0.0) != at(1.0, 0.0) || at(0.0, 1.0) != at(1.0, 1.0) {
+        return Err(c.err(
+            key,
+            format!("may depend on t only (a rigid body {verb} as a whole): remove x, y and z from the expressions"),
+        ));
     }
     Ok(())
 }

@@ -386,53 +386,32 @@ impl Shaped {
         let Some((first, last)) = node_range(geo, self.world_bounds(pose), 1.0) else {
             return;
         };
-        let found: Vec<Vec<(usize, u8, Vector<D>)>> = (first[0]..=last[0])
-            .into_par_iter()
-            .map(|i0| {
-                let mut found = Vec::new();
-                let mut idx = first;
-                idx[0] = i0;
-                'nodes: loop {
-                    let xn = geo.node_position(&idx);
-                    let x = to3(&xn);
-                    let v = pose.velocity_at(&x);
-                    let near = |d: usize, s: f64| {
-                        let mut y = x;
-                        y[d] += s * super::SNAP * geo.h;
-                        self.holds(pose, &y)
-                    };
-                    let held =
-                        if self.holds(pose, &x) || (0..D).any(|d| near(d, -1.0) || near(d, 1.0)) {
-                            all
-                        } else {
-                            let mut held = 0u8;
-                            for d in 0..D {
-                                if v[d] != 0.0 {
-                                    let mut back = x;
-                                    back[d] -= v[d].signum() * (1.0 - 2.0 * eps) * geo.h;
-                                    if self.holds(pose, &back) {
-                                        held |= 1 << d;
-                                    }
-                                }
-                            }
-                            held
-                        };
-                    if held != 0 {
-                        found.push((geo.flat(&idx), held, from3(&v)));
-                    }
-                    for d in 1..D {
-                        if idx[d] < last[d] {
-                            idx[d] += 1;
-                            continue 'nodes;
+        for_each_index(first, last, out, |idx| {
+            let xn = geo.node_position(idx);
+            let x = to3(&xn);
+            let v = pose.velocity_at(&x);
+            let near = |d: usize, s: f64| {
+                let mut y = x;
+                y[d] += s * super::SNAP * geo.h;
+                self.holds(pose, &y)
+            };
+            let held = if self.holds(pose, &x) || (0..D).any(|d| near(d, -1.0) || near(d, 1.0)) {
+                all
+            } else {
+                let mut held = 0u8;
+                for d in 0..D {
+                    if v[d] != 0.0 {
+                        let mut back = x;
+                        back[d] -= v[d].signum() * (1.0 - 2.0 * eps) * geo.h;
+                        if self.holds(pose, &back) {
+                            held |= 1 << d;
                         }
-                        idx[d] = first[d];
                     }
-                    break;
                 }
-                found
-            })
-            .collect();
-        out.extend(found.into_iter().flatten());
+                held
+            };
+            (held != 0).then(|| (geo.flat(idx), held, from3(&v)))
+        });
     }
 
     /// The share of each cell the body at `pose` covers, appended to `out` as (cell, share),
@@ -454,40 +433,20 @@ impl Shaped {
             return;
         }
         let per_cell = SUB.pow(D as u32);
-        let found: Vec<Vec<(usize, f64)>> = (first[0]..=last[0])
-            .into_par_iter()
-            .map(|i0| {
-                let mut found = Vec::new();
-                let mut idx = first;
-                idx[0] = i0;
-                'cells: loop {
-                    let x0 = geo.node_position(&idx);
-                    let mut inside = 0usize;
-                    for s in 0..per_cell {
-                        let mut x = to3(&x0);
-                        let mut rem = s;
-                        for d in 0..D {
-                            x[d] += ((rem % SUB) as f64 + 0.5) / SUB as f64 * geo.h;
-                            rem /= SUB;
-                        }
-                        inside += usize::from(self.holds(pose, &x));
-                    }
-                    if inside > 0 {
-                        found.push((geo.flat(&idx), inside as f64 / per_cell as f64));
-                    }
-                    for d in 1..D {
-                        if idx[d] < last[d] {
-                            idx[d] += 1;
-                            continue 'cells;
-                        }
-                        idx[d] = first[d];
-                    }
-                    break;
+        for_each_index(first, last, out, |idx| {
+            let x0 = to3(&geo.node_position(idx));
+            let mut inside = 0usize;
+            for s in 0..per_cell {
+                let mut x = x0;
+                let mut rem = s;
+                for d in 0..D {
+                    x[d] += ((rem % SUB) as f64 + 0.5) / SUB as f64 * geo.h;
+                    rem /= SUB;
                 }
-                found
-            })
-            .collect();
-        out.extend(found.into_iter().flatten());
+                inside += usize::from(self.holds(pose, &x));
+            }
+            (inside > 0).then(|| (geo.flat(idx), inside as f64 / per_cell as f64))
+        });
     }
 
     /// The surface points of body `body` at `pose`, appended to `out`.
@@ -572,6 +531,38 @@ impl Shaped {
         *x = out;
         Some((d, sign))
     }
+}
+
+/// Calls `f` on every index of the box `first..=last` (with the padding), in parallel over
+/// the first axis, and appends what it returns to `out` in index order (the same order on any
+/// number of threads).
+fn for_each_index<const D: usize, T: Send>(
+    first: [usize; D],
+    last: [usize; D],
+    out: &mut Vec<T>,
+    f: impl Fn(&[usize; D]) -> Option<T> + Sync,
+) {
+    let found: Vec<Vec<T>> = (first[0]..=last[0])
+        .into_par_iter()
+        .map(|i0| {
+            let mut found = Vec::new();
+            let mut idx = first;
+            idx[0] = i0;
+            'all: loop {
+                found.extend(f(&idx));
+                for d in 1..D {
+                    if idx[d] < last[d] {
+                        idx[d] += 1;
+                        continue 'all;
+                    }
+                    idx[d] = first[d];
+                }
+                break;
+            }
+            found
+        })
+        .collect();
+    out.extend(found.into_iter().flatten());
 }
 
 /// The node index range, with the padding, of the nodes in the world box `b` grown by `grow`
