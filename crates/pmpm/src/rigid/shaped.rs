@@ -332,20 +332,26 @@ impl Shaped {
         self.contains(&self.to_body(pose, x))
     }
 
+    /// The eight corners of the shape's bounding box in the deck's frame.
+    fn corners(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
+        (0..8usize).map(|corner| {
+            Vector3::from_fn(|d, _| {
+                if corner & (1 << d) != 0 {
+                    self.hi[d]
+                } else {
+                    self.lo[d]
+                }
+            })
+        })
+    }
+
     /// The world box that holds the body at `pose`.
     pub fn world_bounds(&self, pose: &Pose) -> (Vector3<f64>, Vector3<f64>) {
         let (mut lo, mut hi) = (
             Vector3::repeat(f64::INFINITY),
             Vector3::repeat(f64::NEG_INFINITY),
         );
-        for corner in 0..8usize {
-            let y = Vector3::from_fn(|d, _| {
-                if corner & (1 << d) != 0 {
-                    self.hi[d]
-                } else {
-                    self.lo[d]
-                }
-            });
+        for y in self.corners() {
             let x = self.to_world(pose, &y);
             lo = lo.inf(&x);
             hi = hi.sup(&x);
@@ -359,14 +365,7 @@ impl Shaped {
     /// The farthest the body reaches from its reference point (for its fastest point's speed).
     pub fn radius(&self) -> f64 {
         let mut r: f64 = 0.0;
-        for corner in 0..8usize {
-            let y = Vector3::from_fn(|d, _| {
-                if corner & (1 << d) != 0 {
-                    self.hi[d]
-                } else {
-                    self.lo[d]
-                }
-            });
+        for y in self.corners() {
             r = r.max((y - self.reference).norm());
         }
         r
