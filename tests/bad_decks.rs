@@ -493,6 +493,21 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "bad.toml: rigid_bodies[0].sides: \"smooth\" is for a box that does not turn (an axis-aligned box moved by velocity alone); this body is held rough",
         ),
         (
+            "a turning centre for a box that does not turn",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"b\"\nshape = {{ type = \"box\", min = [0.2, 0.12], max = [0.26, 0.16] }}\ncentre = [0.2, 0.12]\n"),
+            "bad.toml: rigid_bodies[0].centre: is the point a turning body turns about: give angular_velocity, or remove centre",
+        ),
+        (
+            "a spin for a free body held from turning",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"b\"\nshape = {{ type = \"box\", min = [0.2, 0.12], max = [0.26, 0.16] }}\nmotion = \"free\"\ndensity = 500.0\nfixed = [\"rotation\"]\nangular_velocity = 1.0\n"),
+            "bad.toml: rigid_bodies[0].angular_velocity: is given for a body held from turning (fixed holds \"rotation\"): remove one of them",
+        ),
+        (
+            "a free body across a wall",
+            format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"b\"\nshape = {{ type = \"sphere\", center = [0.2, 0.19], radius = 0.02 }}\nmotion = \"free\"\ndensity = 500.0\n"),
+            "bad.toml: rigid_bodies[0].shape: of a free body must lie inside the grid: it reaches y = [0.1701, 0.2099] against the grid's [0, 0.2]",
+        ),
+        (
             "a moving half-space",
             format!("{SMALL_2D}\n[[rigid_bodies]]\nname = \"floor\"\nshape = {{ type = \"half_space\", point = [0.0, 0.02], normal = [0.0, 1.0] }}\nvelocity = [0.1, 0.0]\n"),
             "bad.toml: rigid_bodies[0].shape: is unbounded (a half-space): only a body at rest may be, cut off at the grid",

@@ -164,3 +164,128 @@ formats = ["csv"]
     println!("mean centre {centre:.5} m, draft {draft:.5} m against 0.05 m");
     assert!((draft / 0.05 - 1.0).abs() < 0.02, "draft {draft}");
 }
+
+/// The walls hold a free body: a disc and a box three times denser than water, dropped into a
+/// tank, sink and come to rest on the floor (the disc free to turn, the box held from it),
+/// neither passing it, and the run goes on to its end.
+#[test]
+fn free_bodies_denser_than_water_sink_and_rest_on_the_floor() {
+    let text = r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 1.2
+cfl = 0.5
+gravity = [0.0, -9.81]
+transfer = "apic"
+shape_function = "linear"
+
+[grid]
+origin = [0.0, 0.0]
+size = [0.5, 0.4]
+cell_size = 0.0125
+
+[grid.boundary]
+x_min = "slip"
+x_max = "slip"
+y_min = "slip"
+y_max = "slip"
+
+[[materials]]
+name = "water"
+model = "newtonian"
+density = 1000.0
+viscosity = 1.0e-3
+
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [0.5, 0.2] }
+particles_per_cell = 2
+
+[[rigid_bodies]]
+name = "disc"
+shape = { type = "sphere", center = [0.15, 0.3], radius = 0.05 }
+motion = "free"
+density = 3000.0
+
+[[rigid_bodies]]
+name = "box"
+shape = { type = "box", min = [0.32, 0.27], max = [0.38, 0.33] }
+motion = "free"
+density = 3000.0
+fixed = ["rotation"]
+
+[output]
+interval = 0.1
+formats = ["csv"]
+"#;
+    let d = common::deck(text);
+    let (mut lowest, mut end) = ([f64::INFINITY; 2], [[0.0; 2]; 2]);
+    in_pool(2, || {
+        let mut sim = Simulation::<2>::new(&d).unwrap();
+        drive(&d, &mut sim, |sim, _| {
+            let r = &sim.boundary.rigid;
+            for b in 0..2 {
+                lowest[b] = lowest[b].min(r.centre(b, sim.time)[1]);
+                end[b] = [r.centre(b, sim.time)[1], r.velocity(b)[1]];
+            }
+            true
+        });
+        assert!((sim.time - 1.2).abs() < 1e-9, "stopped at t = {}", sim.time);
+    });
+    println!("lowest centres {lowest:?}, at the end (y, v) {end:?}");
+    // the box's lower face reaches the floor and no further
+    assert!((lowest[1] - 0.03).abs() < 1e-12, "box {}", lowest[1]);
+    assert!((end[1][0] - 0.03).abs() < 1e-12 && end[1][1].abs() < 1e-12);
+    // the disc's lowest ray crossing (a few hundredths of a cell above its bottom) rests on
+    // the floor: its centre within 2% of r above r, never below
+    assert!(lowest[0] >= 0.05 * 0.98 - 1e-12, "disc {}", lowest[0]);
+    assert!((end[0][0] / 0.05 - 1.0).abs() < 0.02, "disc {:?}", end[0]);
+}
+
+/// A rigid body may reach past the grid: a disc standing on the tank's top, most of it
+/// above, with water rising against it, runs to its end (its surface outside the grid meets
+/// no material and takes no pressure).
+#[test]
+fn a_body_reaching_far_past_the_grid_runs() {
+    let text = r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 0.3
+cfl = 0.5
+gravity = [0.0, -9.81]
+shape_function = "linear"
+
+[grid]
+origin = [0.0, 0.0]
+size = [0.4, 0.2]
+cell_size = 0.02
+
+[[materials]]
+name = "water"
+model = "newtonian"
+density = 1000.0
+viscosity = 1.0e-3
+
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [0.4, 0.16] }
+particles_per_cell = 2
+
+[[rigid_bodies]]
+name = "lid"
+shape = { type = "sphere", center = [0.2, 0.35], radius = 0.2 }
+velocity = [0.0, -0.1]
+
+[output]
+interval = 0.1
+formats = ["csv"]
+"#;
+    let d = common::deck(text);
+    in_pool(2, || {
+        let mut sim = Simulation::<2>::new(&d).unwrap();
+        drive(&d, &mut sim, |_, _| true);
+        assert!((sim.time - 0.3).abs() < 1e-9, "stopped at t = {}", sim.time);
+    });
+}

@@ -340,6 +340,7 @@ pub fn read<const D: usize>(
                         .chain(&s.rotation)
                         .chain(&s.velocity)
                         .chain(&s.omega)
+                        .chain([&s.turned])
                         .any(|x| !x.is_finite())
                         || s.last_velocity.iter().chain(&s.last_omega).any(|x| x.is_infinite())
                 }) =>

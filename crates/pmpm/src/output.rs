@@ -432,8 +432,13 @@ impl OutputWriter {
                     }
                     if r.turns(b) {
                         let pose = r.pose_now(b, sim.time);
-                        let (angle, omega, torque) =
-                            (pose.rotation_vector(), pose.omega, r.torque(b));
+                        // in 2D the angle turned, unwrapped; in 3D the rotation vector
+                        let angle = if D == 2 {
+                            nalgebra::Vector3::new(0.0, 0.0, pose.turned)
+                        } else {
+                            pose.rotation_vector()
+                        };
+                        let (omega, torque) = (pose.omega, r.torque(b));
                         let from = if D == 2 { 2 } else { 0 };
                         for v in [angle, omega, torque] {
                             for x in &v.as_slice()[from..] {

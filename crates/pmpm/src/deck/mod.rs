@@ -623,17 +623,17 @@ impl Spin {
 impl RigidBodyDeck {
     /// Whether it turns: its angle, angular velocity and torque are written.
     pub fn turns(&self) -> bool {
-        self.angular_velocity.is_some()
-            || (self.motion == RigidMotion::Free && !self.fixed.iter().any(|f| f == "rotation"))
+        match self.motion {
+            RigidMotion::Free => !self.fixed.iter().any(|f| f == "rotation"),
+            RigidMotion::Prescribed => self.angular_velocity.is_some(),
+        }
     }
 
     /// Whether it takes the general path of [`crate::rigid`] (any shape, turning, or free to
     /// turn) rather than the axis-aligned box's, whose faces cut the cells where they lie (a
     /// box that moves freely without turning keeps the box's path).
     pub fn is_shaped(&self) -> bool {
-        !self.shape.is_plain_box()
-            || self.angular_velocity.is_some()
-            || (self.motion == RigidMotion::Free && !self.fixed.iter().any(|f| f == "rotation"))
+        !self.shape.is_plain_box() || self.turns()
     }
 }
 
@@ -1619,6 +1619,7 @@ impl Deck {
                 || r.motion == RigidMotion::Free
                 || r.density.is_some()
                 || !r.fixed.is_empty()
+                || r.centre.is_some()
             {
                 self.check_shaped_rigid(r, &k, &solid, c)?;
                 if r.is_shaped() {
@@ -1679,10 +1680,16 @@ impl Deck {
             time_only(&g, &key, "turns", c)?;
         }
         rigid_velocity(r, k, dim, c)?;
+        let free = r.motion == RigidMotion::Free;
         if let Some(x) = &r.centre {
             c.vector(&format!("{k}.centre"), x, dim)?;
+            if !free && r.angular_velocity.is_none() {
+                return Err(c.err(
+                    format!("{k}.centre"),
+                    "is the point a turning body turns about: give angular_velocity, or remove centre",
+                ));
+            }
         }
-        let free = r.motion == RigidMotion::Free;
         if free {
             match r.density {
                 None => {
@@ -1731,6 +1738,12 @@ impl Deck {
                     ));
                 }
             }
+            if !r.turns() && r.angular_velocity.is_some() {
+                return Err(c.err(
+                    format!("{k}.angular_velocity"),
+                    "is given for a body held from turning (fixed holds \"rotation\"): remove one of them",
+                ));
+            }
         } else {
             if r.density.is_some() {
                 return Err(c.err(
@@ -1742,12 +1755,12 @@ impl Deck {
                 return Err(c.err(format!("{k}.fixed"), "is for motion = \"free\""));
             }
         }
-        if crate::build::rigid_shape(self, r).is_none() {
+        let Some(shape) = crate::build::rigid_shape(self, r) else {
             return Err(c.err(
                 format!("{k}.shape"),
                 "holds no volume inside the grid (a shape thinner than a quarter cell, or one wholly outside)",
             ));
-        }
+        };
         let (mn, mx) = solid.bounds();
         let moves = free || r.velocity.is_some() || r.angular_velocity.is_some();
         if moves && (0..dim).any(|d| !mn[d].is_finite() || !mx[d].is_finite()) {
@@ -1755,6 +1768,22 @@ impl Deck {
                 format!("{k}.shape"),
                 "is unbounded (a half-space): only a body at rest may be, cut off at the grid",
             ));
+        }
+        if free {
+            // the walls hold a free body inside the grid; one that starts across a wall
+            // would be thrown in at the first step
+            let (lo, hi) = self.domain();
+            let (a, z) = shape.extent(&crate::rigid::Pose::at(shape.reference()));
+            let tol = 1e-9 * self.grid.cell_size;
+            if let Some(d) = (0..dim).find(|&d| a[d] < lo[d] - tol || z[d] > hi[d] + tol) {
+                return Err(c.err(
+                    format!("{k}.shape"),
+                    format!(
+                        "of a free body must lie inside the grid: it reaches {} = [{:.4}, {:.4}] against the grid's [{}, {}]",
+                        AXES[d], a[d], z[d], lo[d], hi[d]
+                    ),
+                ));
+            }
         }
         Ok(())
     }

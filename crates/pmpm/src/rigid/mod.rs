@@ -184,10 +184,12 @@ pub struct RigidBodies<const D: usize> {
     /// Quadrature points on the faces that can meet the material, at the time of
     /// [`RigidBodies::set_time`].
     faces: Vec<FacePoint<D>>,
-    /// Cut cells: (node, body, axis, the node beyond the face along the axis, c) for each node
+    /// Cut cells: (node, V, axis, the node beyond the face along the axis, c) for each node
     /// less than half a cell inside a face, whose normal component takes the ghost value
-    /// V + c (V - v_beyond) that puts the body's velocity V on the face ([`RigidBodies::apply`]).
-    ghosts: Vec<(usize, usize, usize, usize, f64)>,
+    /// V + c (V - v_beyond) that puts the body's velocity V (its component along the axis,
+    /// over the step: a free box's own has moved on at the step's end) on the face
+    /// ([`RigidBodies::apply`]).
+    ghosts: Vec<(usize, f64, usize, usize, f64)>,
     /// Scratch: the Gauss points along each tangential axis of a face, (position, weight).
     lines: [Vec<(f64, f64)>; 2],
     /// Per body, its shape and motion when it is not a box ([`shaped`]).
@@ -668,7 +670,8 @@ impl<const D: usize> RigidBodies<D> {
                     let mut out = *idx;
                     out[d] = beyond;
                     let a = a.max(0.0);
-                    self.ghosts.push((i, b, d, geo.flat(&out), a / (geo.h - a)));
+                    self.ghosts
+                        .push((i, self.velocity[b][d], d, geo.flat(&out), a / (geo.h - a)));
                     h |= 1 << d;
                 }
             }
@@ -850,8 +853,7 @@ impl<const D: usize> RigidBodies<D> {
         // with cut cells, a node less than half a cell inside a face (at a from it) takes the
         // normal velocity that puts the body's on the face between it and the node beyond,
         // ((h - a) v_i + a v_beyond) / h = V
-        for &(i, b, d, beyond, c) in &self.ghosts {
-            let body = self.velocity[b][d];
+        for &(i, body, d, beyond, c) in &self.ghosts {
             v[i][d] = body + c * (body - v[beyond][d]);
         }
     }
@@ -1086,20 +1088,46 @@ impl<const D: usize> RigidBodies<D> {
                     Vector3::zeros(),
                     dt,
                 );
+                // the walls hold it: a step that would take a face past one ends on it
+                let (lo, hi) = self.bounds(b);
+                let (glo, ghi) = (grid.geo.origin, grid.geo.upper());
+                for d in 0..D {
+                    let v = pose.velocity[d];
+                    if lo[d] + v * dt < glo[d] {
+                        pose.velocity[d] = (glo[d] - lo[d]) / dt;
+                    } else if hi[d] + v * dt > ghi[d] {
+                        pose.velocity[d] = (ghi[d] - hi[d]) / dt;
+                    }
+                }
                 self.velocity[b] = from3(&pose.velocity);
             }
             if let Some(ShapedBody {
+                shape,
                 motion: Motion::Free(free),
                 ..
             }) = &self.shaped[b]
             {
+                let pose = &mut self.pose[b];
                 free.advance(
-                    &mut self.pose[b],
+                    pose,
                     &mut self.last[b],
                     to3(&self.force[b]),
                     self.torque[b],
                     dt,
                 );
+                // the walls hold it: a body whose surface passed one is put back on it, its
+                // velocity into it stopped
+                let (lo, hi) = shape.extent(pose);
+                let (glo, ghi) = (to3(&grid.geo.origin), to3(&grid.geo.upper()));
+                for d in 0..D {
+                    if lo[d] < glo[d] {
+                        pose.centre[d] += glo[d] - lo[d];
+                        pose.velocity[d] = pose.velocity[d].max(0.0);
+                    } else if hi[d] > ghi[d] {
+                        pose.centre[d] -= hi[d] - ghi[d];
+                        pose.velocity[d] = pose.velocity[d].min(0.0);
+                    }
+                }
             }
         }
     }
@@ -1211,8 +1239,9 @@ impl<const D: usize> RigidBodies<D> {
             }
         }
         // and on the shaped bodies' wet surfaces, at the rays' crossings
+        // (a part of a body outside the domain meets no material)
         for f in &self.surface {
-            if !wet(geo, phi, &f.x) {
+            if !geo.contains(&f.x) || !wet(geo, phi, &f.x) {
                 continue;
             }
             if let Some(p) = surface_pressure(geo, node_pressure, kinds, &f.x) {

@@ -44,6 +44,9 @@ pub struct Pose {
     pub velocity: Vector3<f64>,
     /// Angular velocity (rad/s).
     pub omega: Vector3<f64>,
+    /// In 2D, the angle turned since the start (rad, counter-clockwise), not wrapped to
+    /// (-pi, pi] as the rotation's would be: a wheel's angle grows turn after turn.
+    pub turned: f64,
 }
 
 impl Pose {
@@ -54,6 +57,7 @@ impl Pose {
             rotation: Matrix3::identity(),
             velocity: Vector3::zeros(),
             omega: Vector3::zeros(),
+            turned: 0.0,
         }
     }
 
@@ -130,8 +134,10 @@ impl Shaped {
         let mut blo = Vector3::zeros();
         let mut bhi = Vector3::zeros();
         for d in 0..dim {
-            blo[d] = lo[d].max(clip.0[d]);
-            bhi[d] = hi[d].min(clip.1[d]);
+            // a finite side is kept where it lies, outside the grid too (a body across a
+            // wall keeps its whole mass and centroid, and a moving one its surface)
+            blo[d] = if lo[d].is_finite() { lo[d] } else { clip.0[d] };
+            bhi[d] = if hi[d].is_finite() { hi[d] } else { clip.1[d] };
             if bhi[d].partial_cmp(&blo[d]) != Some(std::cmp::Ordering::Greater) {
                 return None;
             }
@@ -353,6 +359,25 @@ impl Shaped {
         );
         for y in self.corners() {
             let x = self.to_world(pose, &y);
+            lo = lo.inf(&x);
+            hi = hi.sup(&x);
+        }
+        for d in self.dim..3 {
+            (lo[d], hi[d]) = (0.0, 0.0);
+        }
+        (lo, hi)
+    }
+
+    /// The box that just holds the body's surface at `pose` (its rays' crossings: tighter
+    /// than [`Shaped::world_bounds`] for a turned body, to a ray's spacing), for the walls'
+    /// hold on a free body.
+    pub fn extent(&self, pose: &Pose) -> (Vector3<f64>, Vector3<f64>) {
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
+        for r in &self.surface {
+            let x = self.to_world(pose, &r.y);
             lo = lo.inf(&x);
             hi = hi.sup(&x);
         }
@@ -624,6 +649,25 @@ mod tests {
             "{}",
             s.inertia
         );
+    }
+
+    /// A body across the grid's edge keeps its whole area and centroid: only an unbounded
+    /// shape is cut to the grid.
+    #[test]
+    fn a_body_across_the_grid_edge_keeps_its_whole_area() {
+        let deck = ShapeDeck {
+            center: Some(vec![0.0, 0.5]),
+            radius: Some(0.1),
+            ..ShapeDeck::empty(ShapeKind::Sphere)
+        };
+        let grid = (
+            Vector3::new(-0.01, -0.01, 0.0),
+            Vector3::new(1.01, 1.01, 0.0),
+        );
+        let s = Shaped::new(deck.solid(2).unwrap(), 2, grid, None, 0.01).unwrap();
+        let pi = std::f64::consts::PI;
+        assert!((s.volume / (pi * 0.01) - 1.0).abs() < 2e-4, "{}", s.volume);
+        assert!((s.centroid - Vector3::new(0.0, 0.5, 0.0)).norm() < 1e-9);
     }
 
     /// The rays' crossings integrate the surface exactly as the divergence theorem does: the
