@@ -731,12 +731,18 @@ fn output_and_memory<const D: usize>(
     // bytes per particle: a CSV row (about 17 characters per number), the .vtu's raw arrays,
     // the checkpoint's particle state
     let csv = 17.0 * (2 * D + 5) as f64;
-    let vtu = 8.0 * 3.0 * 2.0 + 8.0 * 4.0 + 4.0 + 17.0;
+    // (position, velocity, id, pressure, mass, volume, J, shear rate, yielded, material,
+    // stress and strain rate, cells)
+    let vtu = 8.0 * 3.0 * 2.0 + 8.0 * 7.0 + 4.0 + 8.0 * 18.0 + 17.0;
+    // the grid's .vti: 27 numbers a node (mass, velocity, pressure, volume fraction, density,
+    // strain rate, shear rate, stress, yielded)
+    let nodes: f64 = geo.cells.iter().map(|&c| (c + 1) as f64).product();
+    let vti = 8.0 * 27.0 * nodes;
     let checkpoint = 8.0 * (2 * D + 5 + 4 * D * D) as f64 + 6.0;
     let formats = &deck.output.formats;
     let has = |f: pmpm::deck::Format| formats.contains(&f);
-    let per_frame = n
-        * (if has(pmpm::deck::Format::Csv) {
+    let per_frame =
+        n * (if has(pmpm::deck::Format::Csv) {
             csv
         } else {
             0.0
@@ -744,7 +750,11 @@ fn output_and_memory<const D: usize>(
             vtu
         } else {
             0.0
-        });
+        }) + if has(pmpm::deck::Format::Grid) {
+            vti
+        } else {
+            0.0
+        };
     *out += &format!(
         "  output           {} every {} s into {}: {frames} frames of about {}, {} in all, \
          and a checkpoint of {}\n",

@@ -71,6 +71,21 @@ enum Command {
         #[arg(long, short)]
         output: Option<PathBuf>,
     },
+    /// Write a commented starter deck (a dam break) to begin a case from.
+    ///
+    /// Every key it sets has a comment; docs/deck.md has them all. The file is not replaced
+    /// unless --force is given.
+    Init {
+        /// Where to write it.
+        #[arg(default_value = "deck.toml")]
+        deck: PathBuf,
+        /// 2 or 3.
+        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(2..=3))]
+        dimension: u8,
+        /// Replace the file if it exists.
+        #[arg(long)]
+        force: bool,
+    },
     /// Validate a deck and print what it sets up, what it will cost, and warnings.
     ///
     /// Runs nothing: prints the grid, particles per body, materials, time step and estimated
@@ -126,9 +141,21 @@ enum Command {
         /// Plot series.csv (kinetic energy, max speed, pressure iterations, dt) and the probes.
         #[arg(long)]
         series: bool,
-        /// 3D runs: the plane the particles are projected onto.
-        #[arg(long, default_value = "xy", value_parser = ["xy", "xz", "yz"])]
-        plane: String,
+        /// 3D runs: the plane the particles are projected onto [default: the vertical plane
+        /// along x that holds gravity: xz with gravity along z].
+        #[arg(long, value_parser = ["xy", "xz", "yz"])]
+        plane: Option<String>,
+        /// 3D runs: only the particles in a slab across an axis, AXIS=VALUE (m), seen along
+        /// that axis (y=0.15: the slab about y = 0.15 m, in the xz plane).
+        #[arg(long, value_name = "AXIS=VALUE", conflicts_with = "series")]
+        slice: Option<String>,
+        /// The slice's thickness (m) [default: one grid cell].
+        #[arg(long, requires = "slice")]
+        thickness: Option<f64>,
+        /// Every frame into one animated GIF (OUTDIR/plot_<field>.gif, or --out), with one
+        /// colour range over all frames.
+        #[arg(long, conflicts_with_all = ["series", "all", "frame"])]
+        movie: bool,
         /// Lower end of the colour range [default: the data's].
         #[arg(long, allow_negative_numbers = true)]
         min: Option<f64>,
@@ -271,6 +298,30 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             steps,
             output,
         } => bench_command(&deck, steps, output, allow_large),
+        Command::Init {
+            deck,
+            dimension,
+            force,
+        } => {
+            let text = if dimension == 2 {
+                include_str!("init/starter_2d.toml")
+            } else {
+                include_str!("init/starter_3d.toml")
+            };
+            if deck.exists() && !force {
+                return Err(Error::Usage(format!(
+                    "{}: exists; give another path, or --force to replace it",
+                    deck.display()
+                )));
+            }
+            pmpm::atomic::write_atomic(&deck, |w| std::io::Write::write_all(w, text.as_bytes()))
+                .map_err(|e| Error::io(&deck, e))?;
+            println!(
+                "wrote {}: a {dimension}D dam break to start from; next: pmpm check {0}",
+                deck.display()
+            );
+            Ok(0)
+        }
         Command::Check { deck } => {
             let d = run::load(&deck)?;
             pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
@@ -308,6 +359,9 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             all,
             series,
             plane,
+            slice,
+            thickness,
+            movie,
             min,
             max,
         } => {
@@ -317,7 +371,10 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
                 out,
                 all,
                 series,
-                plane: pmpm_cli::plot::Plane::from_name(&plane).unwrap_or_default(),
+                plane: plane.as_deref().and_then(pmpm_cli::plot::Plane::from_name),
+                slice,
+                thickness,
+                movie,
                 min,
                 max,
             };

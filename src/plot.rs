@@ -92,6 +92,15 @@ impl Plane {
         }
     }
 
+    /// Its command-line name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Plane::Xy => "xy",
+            Plane::Xz => "xz",
+            Plane::Yz => "yz",
+        }
+    }
+
     fn describe(self) -> &'static str {
         match self {
             Plane::Xy => {
@@ -120,8 +129,15 @@ pub struct PlotOptions {
     pub all: bool,
     /// Plot series.csv (and probes.csv) instead of a frame.
     pub series: bool,
-    /// Projection plane of a 3D run.
-    pub plane: Plane,
+    /// Projection plane of a 3D run (default: the vertical plane along x, from gravity in
+    /// run.toml).
+    pub plane: Option<Plane>,
+    /// A 3D run's slab, "AXIS=VALUE": only the particles within `thickness` / 2 of it.
+    pub slice: Option<String>,
+    /// The slab's thickness (default: one cell).
+    pub thickness: Option<f64>,
+    /// Every frame into one animated GIF.
+    pub movie: bool,
     /// Lower end of the colour range (default: the data's).
     pub min: Option<f64>,
     /// Upper end of the colour range (default: the data's).
@@ -169,33 +185,81 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
     let field = opts.field.unwrap_or(Field::Pressure);
     let frames = list_frames(dir)?;
     let info = RunInfo::read(dir);
+    let view = View::of(opts, &info)?;
     let times = read_times(dir);
+    let bodies = Bodies::read(dir, &info);
     let name = |n: usize| format!("plot_{}_{n:06}.png", field.name());
-    if opts.all {
-        let out_dir = opts.out.clone().unwrap_or_else(|| dir.to_path_buf());
-        std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
+    if opts.all || opts.movie {
         // first pass: the colour range and the extent over every frame
         let stats = frames
             .par_iter()
             .map(|(_, path)| {
-                let f = Frame::read(path)?;
-                Ok((f.range(field), f.extent(opts.plane, 0.5)))
+                let f = Frame::read(path, &view)?;
+                Ok((
+                    f.range(field),
+                    f.extent(view.plane, 0.0),
+                    f.extent(view.plane, 0.5),
+                ))
             })
             .collect::<Result<Vec<_>, Error>>()?;
         let mut all = Stats::empty();
-        let mut extent = Extent::empty();
-        for (r, e) in &stats {
+        let (mut raw, mut grown) = (Extent::empty(), Extent::empty());
+        for (r, e, g) in &stats {
             all = all.union(r);
-            extent = extent.union(e);
+            raw = raw.union(e);
+            grown = grown.union(g);
         }
         let range = color_range(field, &all, opts);
+        let extent = picture_extent(&info, &view, raw, grown);
+        let time_of = |n: usize| times.iter().find(|t| t.0 == n).map(|t| t.1);
+        if opts.movie {
+            let out = match &opts.out {
+                Some(o) => o.clone(),
+                None => dir.join(format!("plot_{}.gif", field.name())),
+            };
+            if out.extension().and_then(|e| e.to_str()) != Some("gif") {
+                return Err(Error::Usage(format!(
+                    "--out {}: a movie is a .gif file",
+                    out.display()
+                )));
+            }
+            let shot = |(n, path): &(usize, PathBuf)| -> Result<Vec<u8>, Error> {
+                let f = Frame::read(path, &view)?;
+                let sketch = Sketch {
+                    f: &f,
+                    n: *n,
+                    time: time_of(*n),
+                    field,
+                    range,
+                    info: &info,
+                    extent,
+                    view: &view,
+                    bodies: &bodies,
+                };
+                sketch.pixels(&out)
+            };
+            write_movie(&out, &frames, extent, view.three_d(&info), shot)?;
+            return Ok(vec![out]);
+        }
+        let out_dir = opts.out.clone().unwrap_or_else(|| dir.to_path_buf());
+        std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
         return frames
             .par_iter()
             .map(|(n, path)| {
-                let f = Frame::read(path)?;
+                let f = Frame::read(path, &view)?;
                 let out = out_dir.join(name(*n));
-                let time = times.iter().find(|t| t.0 == *n).map(|t| t.1);
-                draw_frame(&f, *n, time, field, range, &info, extent, opts.plane, &out)?;
+                let sketch = Sketch {
+                    f: &f,
+                    n: *n,
+                    time: time_of(*n),
+                    field,
+                    range,
+                    info: &info,
+                    extent,
+                    view: &view,
+                    bodies: &bodies,
+                };
+                sketch.png(&out)?;
                 Ok(out)
             })
             .collect();
@@ -214,13 +278,183 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
             }
         },
     };
-    let f = Frame::read(&path)?;
+    let f = Frame::read(&path, &view)?;
     let range = color_range(field, &f.range(field), opts);
     let out = png_path(opts.out.as_deref(), dir, &name(n))?;
-    let time = times.iter().find(|t| t.0 == n).map(|t| t.1);
-    let extent = f.extent(opts.plane, 0.5);
-    draw_frame(&f, n, time, field, range, &info, extent, opts.plane, &out)?;
+    let extent = picture_extent(
+        &info,
+        &view,
+        f.extent(view.plane, 0.0),
+        f.extent(view.plane, 0.5),
+    );
+    let sketch = Sketch {
+        f: &f,
+        n,
+        time: times.iter().find(|t| t.0 == n).map(|t| t.1),
+        field,
+        range,
+        info: &info,
+        extent,
+        view: &view,
+        bodies: &bodies,
+    };
+    sketch.png(&out)?;
     Ok(vec![out])
+}
+
+/// How the frames are seen: the plane a 3D run is projected onto, and the slab of it kept.
+#[derive(Debug, Clone)]
+struct View {
+    plane: Plane,
+    /// (axis, lower, upper): only the particles with lower <= x[axis] <= upper.
+    slab: Option<(usize, f64, f64)>,
+}
+
+impl View {
+    /// The view `opts` asks for: --slice's axis is seen along (its plane), else --plane, else
+    /// the vertical plane along x that holds gravity (xz with gravity along z, xy along y).
+    fn of(opts: &PlotOptions, info: &RunInfo) -> Result<Self, Error> {
+        let by_depth = |d: usize| match d {
+            0 => Plane::Yz,
+            1 => Plane::Xz,
+            _ => Plane::Xy,
+        };
+        let Some(text) = &opts.slice else {
+            let plane = opts.plane.unwrap_or_else(|| {
+                let g = info.gravity.as_deref().unwrap_or(&[]);
+                let up = (0..g.len())
+                    .max_by(|&a, &b| g[a].abs().total_cmp(&g[b].abs()))
+                    .filter(|&d| g[d] != 0.0)
+                    .unwrap_or(2);
+                if up == 1 {
+                    Plane::Xy
+                } else {
+                    Plane::Xz
+                }
+            });
+            return Ok(Self { plane, slab: None });
+        };
+        let bad = |why: &str| Error::Usage(format!("--slice {text}: {why}"));
+        if info.dim == Some(2) {
+            return Err(bad("a 2D run is a slice already"));
+        }
+        let (axis, value) = text
+            .split_once('=')
+            .ok_or_else(|| bad("give AXIS=VALUE, for example y=0.15"))?;
+        let axis = match axis.trim() {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            other => return Err(bad(&format!("the axis is x, y or z, got \"{other}\""))),
+        };
+        let value: f64 = value
+            .trim()
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite())
+            .ok_or_else(|| bad("the value is a number (m)"))?;
+        let plane = by_depth(axis);
+        if let Some(p) = opts.plane.filter(|&p| p != plane) {
+            return Err(bad(&format!(
+                "a slice across {} is seen in the {} plane, not {}",
+                ["x", "y", "z"][axis],
+                plane.name(),
+                p.name()
+            )));
+        }
+        let thickness = match opts.thickness {
+            Some(t) if t.is_finite() && t > 0.0 => t,
+            Some(t) => {
+                return Err(Error::Usage(format!(
+                    "--thickness: must be a positive number (m), got {t}"
+                )))
+            }
+            None => info.cell_size.unwrap_or(0.0),
+        };
+        Ok(Self {
+            plane,
+            slab: Some((axis, value - 0.5 * thickness, value + 0.5 * thickness)),
+        })
+    }
+
+    /// Whether the pictures are of a 3D run.
+    fn three_d(&self, info: &RunInfo) -> bool {
+        info.dim == Some(3)
+    }
+
+    /// The line under a 3D picture's title.
+    fn describe(&self) -> String {
+        match self.slab {
+            None => self.plane.describe().to_string(),
+            Some((axis, lo, hi)) => format!(
+                "3D run: the particles with {} < {} < {} m, seen along {}",
+                short(lo),
+                ["x", "y", "z"][axis],
+                short(hi),
+                ["x", "y", "z"][axis]
+            ),
+        }
+    }
+}
+
+/// The drawn rectangle: the grid of run.toml and the particles `raw` (should some lie outside
+/// it), else the particles' extent grown by half a particle (`grown`).
+fn picture_extent(info: &RunInfo, view: &View, raw: Extent, grown: Extent) -> Extent {
+    let dim = info.dim.unwrap_or(2);
+    let (a, b) = if dim == 2 {
+        (0, 1)
+    } else {
+        let (a, b, _, _) = view.plane.axes();
+        (a, b)
+    };
+    match &info.grid {
+        Some((o, s)) if o.len() == dim => Extent {
+            x: (o[a], o[a] + s[a]),
+            y: (o[b], o[b] + s[b]),
+        }
+        .union(&raw),
+        _ => grown,
+    }
+    .sane()
+}
+
+/// The frames of a movie as an animated GIF at `out`: each drawn by `shot` (a few at once,
+/// in order), quantised to 256 colours, a tenth of a second each, looping.
+fn write_movie(
+    out: &Path,
+    frames: &[(usize, PathBuf)],
+    extent: Extent,
+    three_d: bool,
+    shot: impl Fn(&(usize, PathBuf)) -> Result<Vec<u8>, Error> + Sync,
+) -> Result<(), Error> {
+    let (w, h) = frame_image_size(extent.width(), extent.height(), three_d);
+    let (w16, h16) = (
+        u16::try_from(w).map_err(|_| Error::Usage("movie too wide".into()))?,
+        u16::try_from(h).map_err(|_| Error::Usage("movie too high".into()))?,
+    );
+    let mut failure = None;
+    pmpm::atomic::write_atomic(out, |file| {
+        let mut enc = gif::Encoder::new(file, w16, h16, &[]).map_err(std::io::Error::other)?;
+        enc.set_repeat(gif::Repeat::Infinite)
+            .map_err(std::io::Error::other)?;
+        for chunk in frames.chunks(rayon::current_num_threads().max(1)) {
+            let shots: Vec<Result<Vec<u8>, Error>> = chunk.par_iter().map(&shot).collect();
+            for s in shots {
+                let rgb = match s {
+                    Ok(rgb) => rgb,
+                    Err(e) => {
+                        failure = Some(e);
+                        return Err(std::io::Error::other("a frame could not be drawn"));
+                    }
+                };
+                let mut frame = gif::Frame::from_rgb_speed(w16, h16, &rgb, 10);
+                frame.delay = 10;
+                enc.write_frame(&frame).map_err(std::io::Error::other)?;
+            }
+        }
+        Ok(())
+    })
+    .map_err(|e| failure.take().unwrap_or_else(|| Error::io(out, e)))
 }
 
 /// Where one picture goes: `--out` when given (into it, under `name`, when it is a folder),
@@ -308,6 +542,12 @@ struct RunInfo {
     materials: Vec<String>,
     /// 2 or 3.
     dim: Option<usize>,
+    /// Gravity (m/s^2).
+    gravity: Option<Vec<f64>>,
+    /// The grid's cell size (m).
+    cell_size: Option<f64>,
+    /// The deck's rigid bodies, as run.toml gives them.
+    rigid: Vec<toml::Value>,
 }
 
 impl RunInfo {
@@ -349,10 +589,20 @@ impl RunInfo {
             .and_then(|d| d.as_integer())
             .map(|d| d as usize)
             .or_else(|| grid.as_ref().map(|g| g.0.len()));
+        let number = |v: Option<&toml::Value>| {
+            v.and_then(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64)))
+        };
         Self {
             grid,
             materials,
             dim,
+            gravity: floats(t.get("simulation").and_then(|s| s.get("gravity"))),
+            cell_size: number(t.get("grid").and_then(|g| g.get("cell_size"))),
+            rigid: t
+                .get("rigid_bodies")
+                .and_then(|r| r.as_array())
+                .cloned()
+                .unwrap_or_default(),
         }
     }
 }
@@ -409,7 +659,24 @@ struct Frame {
 }
 
 impl Frame {
-    fn read(path: &Path) -> Result<Self, Error> {
+    /// The frame at `path`, only the particles in `view`'s slab.
+    fn read(path: &Path, view: &View) -> Result<Self, Error> {
+        let mut f = Self::read_all(path)?;
+        if let Some((axis, lo, hi)) = view.slab {
+            let keep: Vec<bool> = f.x.iter().map(|x| x[axis] >= lo && x[axis] <= hi).collect();
+            let mut k = keep.iter();
+            f.x.retain(|_| *k.next().unwrap());
+            for v in [&mut f.pressure, &mut f.speed, &mut f.size] {
+                let mut k = keep.iter();
+                v.retain(|_| *k.next().unwrap());
+            }
+            let mut k = keep.iter();
+            f.material.retain(|_| *k.next().unwrap());
+        }
+        Ok(f)
+    }
+
+    fn read_all(path: &Path) -> Result<Self, Error> {
         let t = Table::read(path)?;
         let dim = if t.index("z").is_some() { 3 } else { 2 };
         let need = |name: &str| {
@@ -711,80 +978,272 @@ fn plot_area_size(w: f64, h: f64) -> (u32, u32) {
     (pw.round() as u32, ph.clamp(240.0, 800.0).round() as u32)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn draw_frame(
-    f: &Frame,
+/// One frame's picture and what it needs.
+struct Sketch<'a> {
+    f: &'a Frame,
     n: usize,
     time: Option<f64>,
     field: Field,
     range: (f64, f64),
-    info: &RunInfo,
-    particles: Extent,
-    plane: Plane,
-    out: &Path,
-) -> Result<(), Error> {
-    let (a, b) = f.axes(plane);
-    // the grid of run.toml (and the particles if some lie outside it), else the particles'
-    // extent (`particles`: over every frame of a movie)
-    let extent = match &info.grid {
-        Some((o, s)) if o.len() == f.dim => {
-            let grid = Extent {
-                x: (o[a], o[a] + s[a]),
-                y: (o[b], o[b] + s[b]),
-            };
-            grid.union(&f.extent(plane, 0.0))
-        }
-        _ => particles,
+    info: &'a RunInfo,
+    /// The drawn rectangle ([`picture_extent`]).
+    extent: Extent,
+    view: &'a View,
+    bodies: &'a Bodies,
+}
+
+impl Sketch<'_> {
+    fn size(&self) -> (u32, u32) {
+        frame_image_size(
+            self.extent.width(),
+            self.extent.height(),
+            self.view.three_d(self.info) || self.f.dim == 3,
+        )
     }
-    .sane();
-    let three_d = f.dim == 3;
-    let size = frame_image_size(extent.width(), extent.height(), three_d);
-    let err = |e: &dyn std::fmt::Display| Error::io(out, std::io::Error::other(e.to_string()));
-    let root = BitMapBackend::new(out, size).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let title_h = TITLE_H + if three_d { TITLE_3D_H } else { 0 };
-    let (title, body) = root.split_vertically(title_h);
-    let what = match field {
-        Field::Pressure => "Pressure",
-        Field::Speed => "Speed",
-        Field::Material => "Material",
-    };
-    let when = match time {
-        Some(t) => format!("t = {}", fmt_time(t)),
-        None => "time not in series.csv".to_string(),
-    };
-    let (tw, _) = title.dim_in_pixel();
-    title
-        .draw_text(
-            &format!("{what}, frame {n}, {when}"),
+
+    /// Into the PNG file `out`.
+    fn png(&self, out: &Path) -> Result<(), Error> {
+        let err = |e: &dyn std::fmt::Display| Error::io(out, std::io::Error::other(e.to_string()));
+        let root = BitMapBackend::new(out, self.size()).into_drawing_area();
+        self.draw(&root).map_err(|e| err(&*e))?;
+        root.present().map_err(|e| err(&e))
+    }
+
+    /// As RGB pixels, row by row (`out`: the file they are for, in messages).
+    fn pixels(&self, out: &Path) -> Result<Vec<u8>, Error> {
+        let err = |e: &dyn std::fmt::Display| Error::io(out, std::io::Error::other(e.to_string()));
+        let (w, h) = self.size();
+        let mut buf = vec![0u8; 3 * w as usize * h as usize];
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+            self.draw(&root).map_err(|e| err(&*e))?;
+            root.present().map_err(|e| err(&e))?;
+        }
+        Ok(buf)
+    }
+
+    fn draw(&self, root: &Area<'_>) -> DrawResult {
+        let f = self.f;
+        let (a, b) = f.axes(self.view.plane);
+        let extent = self.extent;
+        let three_d = f.dim == 3;
+        root.fill(&WHITE)?;
+        let title_h = TITLE_H + if three_d { TITLE_3D_H } else { 0 };
+        let (title, body) = root.split_vertically(title_h);
+        let what = match self.field {
+            Field::Pressure => "Pressure",
+            Field::Speed => "Speed",
+            Field::Material => "Material",
+        };
+        let when = match self.time {
+            Some(t) => format!("t = {}", fmt_time(t)),
+            None => "time not in series.csv".to_string(),
+        };
+        let (tw, _) = title.dim_in_pixel();
+        title.draw_text(
+            &format!("{what}, frame {}, {when}", self.n),
             &("sans-serif", 24)
                 .into_text_style(&title)
                 .pos(Pos::new(HPos::Center, VPos::Center)),
             (tw as i32 / 2, TITLE_H as i32 / 2 + 4),
-        )
-        .map_err(|e| err(&e))?;
-    if three_d {
-        title
-            .draw_text(
-                plane.describe(),
+        )?;
+        if three_d {
+            title.draw_text(
+                &self.view.describe(),
                 &("sans-serif", 16)
                     .into_text_style(&title)
                     .pos(Pos::new(HPos::Center, VPos::Center)),
                 (tw as i32 / 2, (TITLE_H + TITLE_3D_H / 2) as i32),
-            )
-            .map_err(|e| err(&e))?;
-    }
-    let (bw, _) = body.dim_in_pixel();
-    let (plot_area, bar_area) = body.split_horizontally(bw - BAR_W);
-    draw_particles(f, field, range, extent, a, b, plane, &plot_area).map_err(|e| err(&*e))?;
-    match field {
-        Field::Material => {
-            draw_legend(f, info, &bar_area).map_err(|e| err(&*e))?;
+            )?;
         }
-        _ => draw_bar(field, range, &f.range(field), &bar_area).map_err(|e| err(&*e))?,
+        let (bw, _) = body.dim_in_pixel();
+        let (plot_area, bar_area) = body.split_horizontally(bw - BAR_W);
+        let outlines = self.bodies.outlines(self.time.unwrap_or(0.0), a, b);
+        draw_particles(
+            f,
+            self.field,
+            self.range,
+            extent,
+            a,
+            b,
+            self.view.plane,
+            &outlines,
+            &plot_area,
+        )?;
+        match self.field {
+            Field::Material => draw_legend(f, self.info, &bar_area)?,
+            _ => draw_bar(self.field, self.range, &f.range(self.field), &bar_area)?,
+        }
+        Ok(())
     }
-    root.present().map_err(|e| err(&e))?;
-    Ok(())
+}
+
+/// The rigid bodies of run.toml that a picture can draw (boxes and spheres, 2D or 3D), and
+/// their motion from rigid_bodies.csv.
+#[derive(Debug, Default)]
+struct Bodies {
+    list: Vec<Drawn>,
+    /// Time, then the columns of rigid_bodies.csv, a row per step.
+    table: Vec<Vec<f64>>,
+    time: usize,
+}
+
+/// A body's shape at t = 0, and its columns' indices in rigid_bodies.csv: the
+/// displacement's (u), the reference point's now (x), and in 2D the angle turned.
+type Drawn = (BodyShape, Vec<usize>, Vec<usize>, Option<usize>);
+
+/// A drawable shape: a box's corners (min, max) or a sphere's centre and radius.
+#[derive(Debug, Clone)]
+enum BodyShape {
+    Box([f64; 3], [f64; 3]),
+    Sphere([f64; 3], f64),
+}
+
+impl Bodies {
+    /// What run.toml and rigid_bodies.csv in `dir` give (none where either is missing; a
+    /// shape with a transform, or of another type, is not drawn).
+    fn read(dir: &Path, info: &RunInfo) -> Self {
+        let mut out = Bodies::default();
+        let Ok(t) = Table::read(&dir.join("rigid_bodies.csv")) else {
+            return out;
+        };
+        let Some(time) = t.index("time") else {
+            return out;
+        };
+        let three = |v: Option<&toml::Value>| -> Option<[f64; 3]> {
+            let a = v?.as_array()?;
+            let mut x = [0.0; 3];
+            for (d, e) in a.iter().enumerate().take(3) {
+                x[d] = e.as_float().or_else(|| e.as_integer().map(|i| i as f64))?;
+            }
+            Some(x)
+        };
+        let axes = ["x", "y", "z"];
+        let dim = info.dim.unwrap_or(2);
+        for body in &info.rigid {
+            let (Some(name), Some(shape)) =
+                (body.get("name").and_then(|n| n.as_str()), body.get("shape"))
+            else {
+                continue;
+            };
+            if ["scale", "rotate", "translate"]
+                .iter()
+                .any(|k| shape.get(k).is_some())
+            {
+                continue;
+            }
+            let kind = shape.get("type").and_then(|k| k.as_str()).unwrap_or("box");
+            let drawn = match kind {
+                "box" => match (three(shape.get("min")), three(shape.get("max"))) {
+                    (Some(lo), Some(hi)) => BodyShape::Box(lo, hi),
+                    _ => continue,
+                },
+                "sphere" => match (
+                    three(shape.get("center")),
+                    shape.get("radius").and_then(|r| r.as_float()),
+                ) {
+                    (Some(c), Some(r)) => BodyShape::Sphere(c, r),
+                    _ => continue,
+                },
+                _ => continue,
+            };
+            let cols = |prefix: &str| -> Option<Vec<usize>> {
+                axes[..dim]
+                    .iter()
+                    .map(|a| t.index(&format!("{name}_{prefix}{a}")))
+                    .collect()
+            };
+            let (Some(u), Some(x)) = (cols("u"), cols("")) else {
+                continue;
+            };
+            let angle = t.index(&format!("{name}_angle"));
+            // a 3D body that turns is not drawn (its rotation is not in the picture's terms)
+            if dim == 3 && t.index(&format!("{name}_rx")).is_some() {
+                continue;
+            }
+            out.list.push((drawn, u, x, angle));
+        }
+        out.table = t.rows;
+        out.time = time;
+        out
+    }
+
+    /// Each body's outline at time `t` in the plane of axes (a, b), as closed polylines:
+    /// its row is the last step that ended by `t` (none before the first step: at rest).
+    fn outlines(&self, t: f64, a: usize, b: usize) -> Vec<Vec<(f64, f64)>> {
+        let row = self
+            .table
+            .iter()
+            .take_while(|r| r[self.time] <= t * (1.0 + 1e-9) + 1e-12)
+            .last();
+        let mut out = Vec::new();
+        for (shape, u, x, angle) in &self.list {
+            let at = |cols: &Vec<usize>| -> [f64; 3] {
+                let mut v = [0.0; 3];
+                if let Some(r) = row {
+                    for (d, &i) in cols.iter().enumerate() {
+                        v[d] = r[i];
+                    }
+                }
+                v
+            };
+            let (du, now) = (at(u), at(x));
+            let turn = match (angle, row) {
+                (Some(i), Some(r)) => r[*i],
+                _ => 0.0,
+            };
+            // a point of the shape at t = 0, moved and turned (about the reference point)
+            let moved = |p: [f64; 3]| -> (f64, f64) {
+                if row.is_none() {
+                    return (p[a], p[b]);
+                }
+                let r0 = [now[0] - du[0], now[1] - du[1], now[2] - du[2]];
+                let (dx, dy) = (p[0] - r0[0], p[1] - r0[1]);
+                let (c, s) = (turn.cos(), turn.sin());
+                let q = [
+                    now[0] + c * dx - s * dy,
+                    now[1] + s * dx + c * dy,
+                    p[2] + du[2],
+                ];
+                (q[a], q[b])
+            };
+            match shape {
+                BodyShape::Box(lo, hi) => {
+                    let corner = |i: bool, j: bool| {
+                        let mut p = *lo;
+                        p[a] = if i { hi[a] } else { lo[a] };
+                        p[b] = if j { hi[b] } else { lo[b] };
+                        // the depth axis at the box's middle
+                        for d in 0..3 {
+                            if d != a && d != b {
+                                p[d] = 0.5 * (lo[d] + hi[d]);
+                            }
+                        }
+                        moved(p)
+                    };
+                    out.push(vec![
+                        corner(false, false),
+                        corner(true, false),
+                        corner(true, true),
+                        corner(false, true),
+                        corner(false, false),
+                    ]);
+                }
+                BodyShape::Sphere(c, r) => {
+                    let centre = moved(*c);
+                    out.push(
+                        (0..=64)
+                            .map(|k| {
+                                let th = k as f64 / 64.0 * std::f64::consts::TAU;
+                                (centre.0 + r * th.cos(), centre.1 + r * th.sin())
+                            })
+                            .collect(),
+                    );
+                }
+            }
+        }
+        out
+    }
 }
 
 type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
@@ -799,6 +1258,7 @@ fn draw_particles(
     a: usize,
     b: usize,
     plane: Plane,
+    outlines: &[Vec<(f64, f64)>],
     area: &Area<'_>,
 ) -> DrawResult {
     let build = |x: (f64, f64), y: (f64, f64)| {
@@ -885,6 +1345,12 @@ fn draw_particles(
         [(extent.x.0, extent.y.0), (extent.x.1, extent.y.1)],
         RGBColor(90, 90, 90).stroke_width(1),
     )))?;
+    // the rigid bodies' outlines
+    chart.draw_series(
+        outlines
+            .iter()
+            .map(|o| PathElement::new(o.clone(), RGBColor(200, 30, 30).stroke_width(2))),
+    )?;
     Ok(())
 }
 
@@ -1096,6 +1562,8 @@ fn plot_series(dir: &Path, out: &Path) -> Result<(), Error> {
         )?,
     ];
     panels.extend(probe_panels(dir)?);
+    panels.extend(column_panels(dir, "rigid_bodies.csv", "Rigid bodies")?);
+    panels.extend(column_panels(dir, "gauges.csv", "Gauges")?);
     vplot::save(out, &panels, 2, 640, 400).map_err(|e| Error::io(out, std::io::Error::other(e)))
 }
 
@@ -1204,6 +1672,86 @@ fn probe_panels(dir: &Path) -> Result<Vec<Panel>, Error> {
     pressure.x_range = Some(time_range(&times));
     speed.x_range = pressure.x_range;
     Ok(vec![pressure, speed])
+}
+
+/// What a column NAME_SUFFIX of rigid_bodies.csv or gauges.csv holds, by its suffix: the
+/// quantity it belongs to (its panel), and the panel's title and unit.
+fn quantity(suffix: &str) -> Option<(&'static str, &'static str)> {
+    Some(match suffix {
+        "ux" | "uy" | "uz" => ("displacement", "m"),
+        "x" | "y" | "z" => ("position", "m"),
+        "vx" | "vy" | "vz" => ("velocity", "m/s"),
+        "fx" | "fy" | "fz" => ("force", "N"),
+        "angle" | "rx" | "ry" | "rz" => ("angle turned", "rad"),
+        "omega" | "wx" | "wy" | "wz" => ("angular velocity", "rad/s"),
+        "torque" | "mx" | "my" | "mz" => ("torque", "N m"),
+        "height" => ("surface height", "m"),
+        "pressure" => ("pressure", "Pa"),
+        _ => return None,
+    })
+}
+
+/// One panel per quantity of `file` (rigid_bodies.csv, gauges.csv), a line per column;
+/// none without the file or rows in it.
+fn column_panels(dir: &Path, file: &str, what: &str) -> Result<Vec<Panel>, Error> {
+    let path = dir.join(file);
+    if !path.is_file() {
+        return Ok(Vec::new());
+    }
+    let t = Table::read(&path)?;
+    let Some(ti) = t.index("time") else {
+        return Ok(Vec::new());
+    };
+    if t.rows.is_empty() {
+        return Ok(Vec::new());
+    }
+    let palette = [
+        colors::PROJ,
+        colors::EXPL,
+        colors::GREEN,
+        colors::ORANGE,
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        colors::REF,
+    ];
+    let per_m = dimension(dir) == Some(2);
+    let times: Vec<f64> = t.rows.iter().map(|r| r[ti]).collect();
+    let mut panels: Vec<(&str, Panel)> = Vec::new();
+    for (i, h) in t.header.iter().enumerate() {
+        let Some((_, suffix)) = h.rsplit_once('_') else {
+            continue;
+        };
+        let Some((title, unit)) = quantity(suffix) else {
+            continue;
+        };
+        let k = match panels.iter().position(|(q, _)| *q == title) {
+            Some(k) => k,
+            None => {
+                let unit = if per_m && matches!(unit, "N" | "N m") {
+                    format!("{unit} per m")
+                } else {
+                    unit.to_string()
+                };
+                panels.push((
+                    title,
+                    Panel {
+                        title: format!("{what}: {title}"),
+                        x_label: "time (s)".into(),
+                        y_label: format!("{title} ({unit})"),
+                        x_range: Some(time_range(&times)),
+                        ..Default::default()
+                    },
+                ));
+                panels.len() - 1
+            }
+        };
+        let panel = &mut panels[k].1;
+        let c = palette[panel.series.len() % palette.len()];
+        panel
+            .series
+            .push(thin(h, t.rows.iter().map(|r| (r[ti], r[i])).collect(), c));
+    }
+    Ok(panels.into_iter().map(|(_, p)| p).collect())
 }
 
 /// A thin line (probes are sampled every step), or markers for very few points.

@@ -111,7 +111,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown output format",
             edit(&[("formats = [\"vtk\", \"csv\"]", "formats = [\"vtu\", \"csv\"]")]),
-            "bad.toml:34:12: output.formats[0]: unknown value \"vtu\"; did you mean \"vtk\"? (allowed: \"vtk\", \"csv\")",
+            "bad.toml:34:12: output.formats[0]: unknown value \"vtu\"; did you mean \"vtk\"? (allowed: \"vtk\", \"csv\", \"grid\")",
         ),
         (
             "unknown pressure.solver",

@@ -264,3 +264,84 @@ fn errors_name_the_problem() {
     let o = plot(&[s(&out), "--series", "--frame", "1"]);
     assert_eq!(o.status.code(), Some(2));
 }
+
+/// A 3D run is seen from the side by default (the plane that holds gravity, here x-z), with
+/// its rigid body drawn; `--slice` keeps a slab of it; `--movie` writes an animated GIF of
+/// every frame; a slice across an axis the plane does not look along is refused.
+#[test]
+fn a_3d_run_from_the_side_in_slices_and_a_movie() {
+    let deck = r#"
+[simulation]
+dimension = 3
+scheme = "explicit"
+end_time = 0.02
+cfl = 0.4
+gravity = [0.0, 0.0, -9.81]
+
+[grid]
+size = [0.2, 0.1, 0.3]
+cell_size = 0.025
+
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+bulk_modulus = 4.0e4
+
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0, 0.0], max = [0.05, 0.1, 0.05] }
+particles_per_cell = 2
+
+[[rigid_bodies]]
+name = "block"
+shape = { type = "box", min = [0.1375, 0.0, 0.0], max = [0.1625, 0.1, 0.05] }
+
+[output]
+interval = 0.01
+formats = ["csv"]
+"#;
+    let out = run_deck("plot-3d-side", deck);
+    // x-z: 0.2 x 0.3 m (x-y would be 0.2 x 0.1)
+    let side = pmpm_cli::plot::frame_image_size(0.2, 0.3, true);
+    ok(&plot(&[s(&out)]));
+    assert_eq!(png_size(&out.join("plot_pressure_000002.png")), side);
+    let file = out.join("slice.png");
+    ok(&plot(&[s(&out), "--slice", "y=0.05", "--out", s(&file)]));
+    assert_eq!(png_size(&file), side);
+    let top = out.join("top.png");
+    ok(&plot(&[
+        s(&out),
+        "--slice",
+        "z=0.01",
+        "--thickness",
+        "0.02",
+        "--out",
+        s(&top),
+    ]));
+    assert_eq!(
+        png_size(&top),
+        pmpm_cli::plot::frame_image_size(0.2, 0.1, true)
+    );
+    fails_with(
+        &plot(&[s(&out), "--slice", "y=0.05", "--plane", "xy"]),
+        "--slice y=0.05: a slice across y is seen in the xz plane, not xy",
+    );
+    fails_with(
+        &plot(&[s(&out), "--slice", "w=1"]),
+        "--slice w=1: the axis is x, y or z, got \"w\"",
+    );
+    let o = plot(&[s(&out), "--movie", "--field", "speed"]);
+    ok(&o);
+    let gif = std::fs::read(out.join("plot_speed.gif")).unwrap();
+    assert_eq!(&gif[..6], b"GIF89a");
+    let (w, h) = (
+        u16::from_le_bytes([gif[6], gif[7]]) as u32,
+        u16::from_le_bytes([gif[8], gif[9]]) as u32,
+    );
+    assert_eq!((w, h), side);
+    // three frames: three image descriptors (0x2C after a graphic control extension)
+    let frames = gif.windows(2).filter(|w| w == &[0x00, 0x2C]).count();
+    assert!(frames >= 3, "{frames} frames");
+    assert_eq!(gif.last(), Some(&0x3B));
+}

@@ -595,3 +595,37 @@ fn check_warns_of_a_rigid_body_thinner_than_two_cells() {
     let apart = check("examples/dam_break_obstacle_2d.toml");
     assert!(!apart.contains("cells thick"), "{apart}");
 }
+
+/// `pmpm init` writes a starter deck (2D, and 3D) that `check` accepts and that runs, with
+/// its gauges; it does not replace a file without --force.
+#[test]
+fn init_writes_a_starter_deck_that_checks_and_runs() {
+    let dir = scratch_dir("init");
+    for dim in ["2", "3"] {
+        let deck = dir.join(format!("starter_{dim}d.toml"));
+        let d = deck.to_str().unwrap();
+        let o = pmpm(&["init", d, "--dimension", dim]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let o = pmpm(&["check", d]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let out = dir.join(format!("out{dim}"));
+        let o = pmpm(&[
+            "bench",
+            d,
+            "--steps",
+            "3",
+            "--output",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let gauges = std::fs::read_to_string(out.join("gauges.csv")).unwrap();
+        assert!(gauges.starts_with("time,middle_height"), "{gauges}");
+        assert_eq!(gauges.lines().count(), 4, "{gauges}");
+        // a second init leaves the file alone
+        std::fs::write(&deck, "mine").unwrap();
+        let o = pmpm(&["init", d, "--dimension", dim]);
+        assert_eq!(o.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&o.stderr).contains("--force"));
+        assert_eq!(std::fs::read_to_string(&deck).unwrap(), "mine");
+    }
+}

@@ -1,11 +1,14 @@
-//! Output files of docs/deck.md: particle frames (CSV, VTK .vtu + .pvd), series.csv, probes.csv and
-//! run.toml.
+//! Output files of docs/deck.md: particle frames (CSV, VTK .vtu + .pvd), grid frames (VTK .vti
+//! + grid.pvd), series.csv, probes.csv and run.toml.
 //!
 //! The .vtu files are written by hand with raw appended binary data: the smallest and fastest
 //! form for ParaView to read, and a few dozen lines (vtkio writes inline base64 only).
 
 use crate::deck::{Deck, Format};
 use crate::error::Error;
+use crate::grid_fields::{
+    particle_shear_rate, particle_strain_rate, particle_stress, particle_yielded, NodeFields,
+};
 use crate::scheme::Simulation;
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -16,12 +19,21 @@ pub struct OutputWriter {
     dir: PathBuf,
     csv: bool,
     vtk: bool,
-    /// (time, file name) of each .vtu frame, for particles.pvd.
+    /// Whether frames of the grid's nodes are written (.vti, grid.pvd).
+    grid: bool,
+    /// (time, file name) of each .vtu frame, for particles.pvd (kept for the grid's frames
+    /// too, which are numbered alike, when only they are written).
     pub pvd: Vec<(f64, String)>,
     series: BufWriter<File>,
     probes: Option<BufWriter<File>>,
     /// rigid_bodies.csv, when the deck has rigid bodies.
     rigid: Option<BufWriter<File>>,
+    /// gauges.csv and the gauges, when the deck has gauges; the rows' interval (None: every
+    /// step), and a buffer for a row.
+    gauges: Option<BufWriter<File>>,
+    gauge_list: Vec<crate::gauges::Gauge>,
+    gauge_interval: Option<f64>,
+    gauge_row: Vec<f64>,
     /// Whether series.csv has the open boundaries' columns.
     flow: bool,
     /// Frames written so far.
@@ -43,7 +55,9 @@ fn run_file(name: &str) -> bool {
             | "series.csv"
             | "probes.csv"
             | "rigid_bodies.csv"
+            | "gauges.csv"
             | "particles.pvd"
+            | "grid.pvd"
             | "checkpoint.bin"
     )
 }
@@ -51,10 +65,12 @@ fn run_file(name: &str) -> bool {
 /// Whether `name`, a file in a run's `frames/`, is a frame pmpm writes; its number if so.
 fn frame_number(name: &str) -> Option<usize> {
     let name = name.strip_suffix(".partial").unwrap_or(name);
-    let rest = name.strip_prefix("particles_")?;
-    let num = rest
-        .strip_suffix(".csv")
-        .or_else(|| rest.strip_suffix(".vtu"))?;
+    let num = match name.strip_prefix("particles_") {
+        Some(rest) => rest
+            .strip_suffix(".csv")
+            .or_else(|| rest.strip_suffix(".vtu"))?,
+        None => name.strip_prefix("grid_")?.strip_suffix(".vti")?,
+    };
     (num.len() == 6).then(|| num.parse().ok()).flatten()
 }
 
@@ -282,6 +298,17 @@ fn rigid_header(deck: &Deck, dim: usize) -> String {
     head
 }
 
+/// The header of gauges.csv: time, then per gauge its columns ([`crate::gauges::Gauge::columns`]).
+fn gauges_header(deck: &Deck, gauges: &[crate::gauges::Gauge]) -> String {
+    let mut head = String::from("time");
+    for (q, g) in deck.output.gauges.iter().zip(gauges) {
+        for c in g.columns(deck.simulation.dimension) {
+            head += &format!(",{}_{c}", q.name);
+        }
+    }
+    head
+}
+
 /// A new CSV file at `path` holding only `header`.
 fn fresh(path: &Path, header: &str) -> Result<BufWriter<File>, Error> {
     let mut w = create(path)?;
@@ -335,27 +362,47 @@ impl OutputWriter {
                 &rigid_header(deck, dim),
             )?)
         };
-        Ok(Self::with(dir, deck, series, probes, rigid, Vec::new(), 0))
+        let gauge_list = crate::gauges::Gauge::from_deck(deck);
+        let gauges = if gauge_list.is_empty() {
+            None
+        } else {
+            Some(fresh(
+                &dir.join("gauges.csv"),
+                &gauges_header(deck, &gauge_list),
+            )?)
+        };
+        Ok(Self::with(
+            dir,
+            deck,
+            [Some(series), probes, rigid, gauges],
+            Vec::new(),
+            0,
+        ))
     }
 
     /// The writer over files already opened.
+    /// `files`: series.csv, probes.csv, rigid_bodies.csv and gauges.csv.
     fn with(
         dir: &Path,
         deck: &Deck,
-        series: BufWriter<File>,
-        probes: Option<BufWriter<File>>,
-        rigid: Option<BufWriter<File>>,
+        files: [Option<BufWriter<File>>; 4],
         pvd: Vec<(f64, String)>,
         frames: usize,
     ) -> Self {
         let formats = &deck.output.formats;
+        let [series, probes, rigid, gauges] = files;
         Self {
+            series: series.expect("series.csv is always written"),
+            gauges,
+            gauge_list: crate::gauges::Gauge::from_deck(deck),
+            gauge_interval: deck.output.gauge_interval,
+            gauge_row: Vec::new(),
             dir: dir.to_path_buf(),
             csv: formats.contains(&Format::Csv),
             flow: deck.has_open_flow(),
             vtk: formats.contains(&Format::Vtk),
+            grid: formats.contains(&Format::Grid),
             pvd,
-            series,
             probes,
             rigid,
             frames,
@@ -398,12 +445,20 @@ impl OutputWriter {
                 |f| f.parse::<f64>().is_ok_and(|s| s <= t),
             )?)
         };
+        let gauges = if deck.output.gauges.is_empty() {
+            None
+        } else {
+            let list = crate::gauges::Gauge::from_deck(deck);
+            Some(reopen(
+                &dir.join("gauges.csv"),
+                &gauges_header(deck, &list),
+                |f| f.parse::<f64>().is_ok_and(|s| s <= t),
+            )?)
+        };
         Ok(Self::with(
             dir,
             deck,
-            series,
-            probes,
-            rigid,
+            [Some(series), probes, rigid, gauges],
             driver.pvd.clone(),
             frames,
         ))
@@ -454,6 +509,37 @@ impl OutputWriter {
         Ok(())
     }
 
+    /// Appends one row of gauge readings after a step from `before` to `sim.time` (stamped
+    /// with its end time): every step, or with `output.gauge_interval` the steps that reach
+    /// or pass a multiple of it.
+    pub fn gauge_row<const D: usize>(
+        &mut self,
+        before: f64,
+        sim: &Simulation<D>,
+    ) -> Result<(), Error> {
+        let Some(w) = &mut self.gauges else {
+            return Ok(());
+        };
+        if let Some(every) = self.gauge_interval {
+            let eps = 1e-9 * every;
+            if ((sim.time + eps) / every).floor() <= ((before + eps) / every).floor() {
+                return Ok(());
+            }
+        }
+        self.gauge_row.clear();
+        for g in &self.gauge_list {
+            g.read(sim, &mut self.gauge_row);
+        }
+        let r = (|| {
+            write!(w, "{:.9e}", sim.time)?;
+            for v in &self.gauge_row {
+                write!(w, ",{v:.9e}")?;
+            }
+            writeln!(w)
+        })();
+        r.map_err(|e| Error::io(self.dir.join("gauges.csv"), e))
+    }
+
     /// Appends one row of probe samples (taken at time `time`).
     pub fn probe_row<const D: usize>(
         &mut self,
@@ -485,13 +571,26 @@ impl OutputWriter {
             let path = self.dir.join(format!("frames/particles_{n:06}.csv"));
             write_csv(&path, sim).map_err(|e| Error::io(&path, e))?;
         }
+        if self.vtk || self.grid {
+            self.pvd
+                .push((sim.time, format!("frames/particles_{n:06}.vtu")));
+        }
         if self.vtk {
-            let name = format!("frames/particles_{n:06}.vtu");
-            let path = self.dir.join(&name);
+            let path = self.dir.join(format!("frames/particles_{n:06}.vtu"));
             write_vtu(&path, sim).map_err(|e| Error::io(&path, e))?;
-            self.pvd.push((sim.time, name));
             let pvd = self.dir.join("particles.pvd");
             write_pvd(&pvd, &self.pvd).map_err(|e| Error::io(&pvd, e))?;
+        }
+        if self.grid {
+            let path = self.dir.join(format!("frames/grid_{n:06}.vti"));
+            write_vti(&path, sim).map_err(|e| Error::io(&path, e))?;
+            let grid: Vec<(f64, String)> = self
+                .pvd
+                .iter()
+                .map(|(t, f)| (*t, f.replace("particles_", "grid_").replace(".vtu", ".vti")))
+                .collect();
+            let pvd = self.dir.join("grid.pvd");
+            write_pvd(&pvd, &grid).map_err(|e| Error::io(&pvd, e))?;
         }
         let series_path = self.dir.join("series.csv");
         write!(
@@ -531,6 +630,10 @@ impl OutputWriter {
             w.flush()
                 .map_err(|e| Error::io(self.dir.join("rigid_bodies.csv"), e))?;
         }
+        if let Some(w) = &mut self.gauges {
+            w.flush()
+                .map_err(|e| Error::io(self.dir.join("gauges.csv"), e))?;
+        }
         self.frames += 1;
         Ok(())
     }
@@ -552,6 +655,9 @@ impl OutputWriter {
         if let Some(w) = &mut self.rigid {
             sync(w, "rigid_bodies.csv")?;
         }
+        if let Some(w) = &mut self.gauges {
+            sync(w, "gauges.csv")?;
+        }
         Ok(())
     }
 
@@ -567,6 +673,10 @@ impl OutputWriter {
         if let Some(w) = &mut self.rigid {
             w.flush()
                 .map_err(|e| Error::io(self.dir.join("rigid_bodies.csv"), e))?;
+        }
+        if let Some(w) = &mut self.gauges {
+            w.flush()
+                .map_err(|e| Error::io(self.dir.join("gauges.csv"), e))?;
         }
         Ok(())
     }
@@ -666,6 +776,30 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
             bytes: f64s(at.iter().map(|&p| ps.volume(p))),
         },
         Array {
+            name: "J",
+            vtk_type: "Float64",
+            components: 1,
+            bytes: f64s(at.iter().map(|&p| ps.jacobian[p])),
+        },
+        Array {
+            name: "stress",
+            vtk_type: "Float64",
+            components: 9,
+            bytes: f64s(at.iter().flat_map(|&p| particle_stress(ps, p))),
+        },
+        Array {
+            name: "strain_rate",
+            vtk_type: "Float64",
+            components: 9,
+            bytes: f64s(at.iter().flat_map(|&p| particle_strain_rate(ps, p))),
+        },
+        Array {
+            name: "shear_rate",
+            vtk_type: "Float64",
+            components: 1,
+            bytes: f64s(at.iter().map(|&p| particle_shear_rate(ps, p))),
+        },
+        Array {
             name: "material",
             vtk_type: "Int32",
             components: 1,
@@ -675,6 +809,15 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
                 .collect(),
         },
     ];
+    let mut point_data = point_data;
+    if sim.materials.iter().any(|m| m.law.has_yield()) {
+        point_data.push(Array {
+            name: "yielded",
+            vtk_type: "Float64",
+            components: 1,
+            bytes: f64s(at.iter().map(|&p| particle_yielded(sim, p).unwrap_or(0.0))),
+        });
+    }
     let cells = [
         Array {
             name: "connectivity",
@@ -734,6 +877,82 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
             .chain(std::iter::once(&points))
             .chain(&cells)
         {
+            w.write_all(&(a.bytes.len() as u64).to_le_bytes())?;
+            w.write_all(&a.bytes)?;
+        }
+        w.write_all(b"\n  </AppendedData>\n</VTKFile>\n")
+    })
+}
+
+/// The grid's nodes as VTK ImageData (.vti) with the fields of [`NodeFields`], raw appended
+/// binary like the .vtu.
+fn write_vti<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Result<()> {
+    let f = NodeFields::of(sim);
+    let scalar = |name: &'static str, v: &[f64]| Array {
+        name,
+        vtk_type: "Float64",
+        components: 1,
+        bytes: f64s(v.iter().copied()),
+    };
+    let mut arrays = vec![
+        scalar("mass", &f.mass),
+        Array {
+            name: "velocity",
+            vtk_type: "Float64",
+            components: 3,
+            bytes: f64s(f.velocity.iter().flatten().copied()),
+        },
+        scalar("pressure", &f.pressure),
+        scalar("volume_fraction", &f.volume_fraction),
+        scalar("density", &f.density),
+        Array {
+            name: "strain_rate",
+            vtk_type: "Float64",
+            components: 9,
+            bytes: f64s(f.strain_rate.iter().flatten().copied()),
+        },
+        scalar("shear_rate", &f.shear_rate),
+        Array {
+            name: "stress",
+            vtk_type: "Float64",
+            components: 9,
+            bytes: f64s(f.stress.iter().flatten().copied()),
+        },
+    ];
+    if let Some(y) = &f.yielded {
+        arrays.push(scalar("yielded", y));
+    }
+    let extent = format!(
+        "0 {} 0 {} 0 {}",
+        f.nodes[0] - 1,
+        f.nodes[1] - 1,
+        f.nodes[2] - 1
+    );
+    let mut xml = String::new();
+    xml += "<?xml version=\"1.0\"?>\n";
+    xml += "<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
+    xml += &format!(
+        "  <ImageData WholeExtent=\"{extent}\" Origin=\"{:e} {:e} {:e}\" Spacing=\"{:e} {:e} {:e}\">\n",
+        f.origin[0], f.origin[1], f.origin[2], f.h, f.h, f.h
+    );
+    xml += &format!(
+        "    <FieldData>\n      <DataArray type=\"Float64\" Name=\"TimeValue\" NumberOfTuples=\"1\" format=\"ascii\">{:e}</DataArray>\n    </FieldData>\n",
+        sim.time
+    );
+    xml += &format!("    <Piece Extent=\"{extent}\">\n");
+    xml += "      <PointData Scalars=\"pressure\" Vectors=\"velocity\" Tensors=\"stress\">\n";
+    let mut offset = 0usize;
+    for a in &arrays {
+        xml += &format!(
+            "        <DataArray type=\"{}\" Name=\"{}\" NumberOfComponents=\"{}\" format=\"appended\" offset=\"{offset}\"/>\n",
+            a.vtk_type, a.name, a.components
+        );
+        offset += 8 + a.bytes.len();
+    }
+    xml += "      </PointData>\n      <CellData>\n      </CellData>\n    </Piece>\n  </ImageData>\n  <AppendedData encoding=\"raw\">\n_";
+    write_atomic(path, |w| {
+        w.write_all(xml.as_bytes())?;
+        for a in &arrays {
             w.write_all(&(a.bytes.len() as u64).to_le_bytes())?;
             w.write_all(&a.bytes)?;
         }

@@ -195,7 +195,11 @@ fn run_dim<const D: usize>(
             break Err(e);
         }
         if stepped.is_ok() {
-            if let Err(e) = w.out.rigid_row(&sim) {
+            if let Err(e) = w
+                .out
+                .rigid_row(&sim)
+                .and_then(|_| w.out.gauge_row(t0, &sim))
+            {
                 break Err(e);
             }
         }

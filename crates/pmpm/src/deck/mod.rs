@@ -505,6 +505,8 @@ pub enum Format {
     Vtk,
     /// `.csv` frames.
     Csv,
+    /// `.vti` frames of the grid's nodes and `grid.pvd` ([`crate::grid_fields`]).
+    Grid,
 }
 
 /// `[[output.probes]]`
@@ -515,6 +517,38 @@ pub struct ProbeDeck {
     pub name: String,
     /// Where the grid fields are sampled.
     pub position: Vec<f64>,
+}
+
+/// What a gauge reads ([`crate::gauges`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GaugeKind {
+    /// The free surface's height on a vertical line (a wave gauge).
+    Surface,
+    /// Pressure at a point.
+    Pressure,
+    /// Velocity at a point.
+    Velocity,
+    /// The material's force on a wall face.
+    WallForce,
+}
+
+/// `[[output.gauges]]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GaugeDeck {
+    /// Column prefix in gauges.csv.
+    pub name: String,
+    /// What it reads.
+    #[serde(rename = "type")]
+    pub kind: GaugeKind,
+    /// Where: a point (pressure, velocity), or the horizontal coordinates of a vertical line
+    /// (surface).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<Vec<f64>>,
+    /// The face of a wall force: "x_min", "x_max", ...
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub face: Option<String>,
 }
 
 /// `[output]`
@@ -533,6 +567,12 @@ pub struct OutputDeck {
     /// Points sampled every step into probes.csv.
     #[serde(default)]
     pub probes: Vec<ProbeDeck>,
+    /// Gauges read into gauges.csv.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub gauges: Vec<GaugeDeck>,
+    /// Simulated seconds between rows of gauges.csv (default: every step).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gauge_interval: Option<f64>,
     /// Simulated seconds between checkpoints (`checkpoint.bin` in the output directory,
     /// overwritten each time; one is always written at the end). Default: the frame interval.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -787,6 +827,7 @@ fn allowed_values(key: &str) -> Option<Vec<String>> {
         "formats" => variants::<Format>(),
         "stress" => variants::<InitialStress>(),
         "type" if key.contains(".shape.") => variants::<ShapeKind>(),
+        "type" if key.contains("gauges") => variants::<GaugeKind>(),
         "type" => variants::<BoundaryKind>(),
         face if FACE_NAMES.contains(&face) => variants::<BoundaryKind>(),
         _ => return None,
@@ -803,7 +844,14 @@ fn quoted_list<S: AsRef<str>>(names: &[S]) -> String {
 }
 
 /// Keys that hold a list of tables, each entry written `[[key]]`.
-const TABLE_LISTS: [&str; 4] = ["materials", "bodies", "rigid_bodies", "output.probes"];
+const TABLE_LISTS: [&str; 6] = [
+    "materials",
+    "bodies",
+    "rigid_bodies",
+    "inflows",
+    "output.probes",
+    "output.gauges",
+];
 
 /// serde's "invalid type: GOT, expected EXPECTED" in a user's words.
 fn type_message(key: &str, got: &str, expected: &str) -> String {
@@ -1943,8 +1991,111 @@ impl Deck {
         Ok(())
     }
 
+    /// The `[[output.gauges]]`.
+    fn check_gauges(&self, c: &Check) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
+        let (lo, hi) = self.domain();
+        let o = &self.output;
+        if let Some(i) = o.gauge_interval {
+            c.positive("output.gauge_interval", i)?;
+        }
+        let g = self
+            .simulation
+            .gravity
+            .compile()
+            .map(|f| f.eval_t(0.0))
+            .unwrap_or_default();
+        let up = crate::gauges::vertical_axis(g.as_slice(), dim);
+        let faces = self.grid.boundary.faces();
+        for (i, q) in o.gauges.iter().enumerate() {
+            let k = format!("output.gauges[{i}]");
+            if q.name.is_empty() || q.name.contains([',', '"', '\n']) {
+                return Err(c.err(
+                    format!("{k}.name"),
+                    "must be non-empty, without commas or quotes (it heads CSV columns)",
+                ));
+            }
+            if o.gauges[..i].iter().any(|r| r.name == q.name) {
+                return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", q.name)));
+            }
+            if q.kind == GaugeKind::WallForce {
+                if q.position.is_some() {
+                    return Err(c.err(
+                        format!("{k}.position"),
+                        "is not for a wall force, which reads a whole face: give face",
+                    ));
+                }
+                let Some(name) = &q.face else {
+                    return Err(c.err(
+                        format!("{k}.face"),
+                        "a wall force needs the face it reads: \"x_min\", \"x_max\", ...",
+                    ));
+                };
+                let Some(f) = FACE_NAMES[..2 * dim].iter().position(|n| n == name) else {
+                    return Err(c.err(
+                        format!("{k}.face"),
+                        format!(
+                            "must be one of {} (dimension = {dim}), got \"{name}\"",
+                            FACE_NAMES[..2 * dim].join(", ")
+                        ),
+                    ));
+                };
+                let kind = faces[f].as_ref().map_or(BoundaryKind::Slip, |s| s.kind());
+                if !matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip) {
+                    return Err(c.err(
+                        format!("{k}.face"),
+                        format!("grid.boundary.{name} is not a wall (slip or no_slip): nothing holds the material there"),
+                    ));
+                }
+                continue;
+            }
+            if q.face.is_some() {
+                return Err(c.err(format!("{k}.face"), "is only for type = \"wall_force\""));
+            }
+            let key = format!("{k}.position");
+            let Some(p) = &q.position else {
+                return Err(c.err(key, "a gauge needs its position"));
+            };
+            let (want, axes): (usize, Vec<usize>) = if q.kind == GaugeKind::Surface {
+                (dim - 1, (0..dim).filter(|&d| d != up).collect())
+            } else {
+                (dim, (0..dim).collect())
+            };
+            if p.len() != want {
+                return Err(c.err(
+                    key,
+                    if q.kind == GaugeKind::Surface {
+                        format!(
+                            "of a surface gauge is the place of its vertical line, its {} coordinate{} ({} is up, along gravity): {want} number{}, got {}",
+                            axes.iter().map(|&d| AXES[d]).collect::<Vec<_>>().join(" and "),
+                            if want > 1 { "s" } else { "" },
+                            AXES[up],
+                            if want > 1 { "s" } else { "" },
+                            p.len()
+                        )
+                    } else {
+                        format!("must have {dim} components (dimension = {dim}), got {}", p.len())
+                    },
+                ));
+            }
+            for (&d, &x) in axes.iter().zip(p) {
+                if !x.is_finite() || x < lo[d] || x > hi[d] {
+                    return Err(c.err(
+                        key,
+                        format!(
+                            "lies outside the grid along {}: {} = {x}, the grid spans [{}, {}]",
+                            AXES[d], AXES[d], lo[d], hi[d]
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// The `[output]` table: intervals, formats and probes.
     fn check_output(&mut self, c: &Check) -> Result<(), DeckError> {
+        self.check_gauges(c)?;
         let dim = self.simulation.dimension;
         let (lo, hi) = self.domain();
         let o = &mut self.output;

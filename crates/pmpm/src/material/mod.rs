@@ -220,6 +220,32 @@ impl Constitutive for Law {
     }
 }
 
+impl Law {
+    /// Whether a particle of this material, with deviatoric stress `tau` and velocity
+    /// gradient `l`, has yielded; None for a model without a yield stress. A von Mises solid
+    /// has yielded on its yield surface, |tau| = sqrt(2) c_u. A regularised yield-stress fluid
+    /// has no sharp yield surface (below tau_y it creeps); it counts as yielded where its shear
+    /// rate is past the regularisation's knee, m gamma >= ln 100, where the yield part of its
+    /// stress, tau_y (1 - exp(-m gamma)), is within 1 % of tau_y.
+    pub fn yielded<const D: usize>(&self, tau: &Matrix<D>, l: &Matrix<D>) -> Option<bool> {
+        match self {
+            Law::Viscoplastic(m) => {
+                let gamma = (2.0 * deviatoric_strain_rate(l).norm_squared()).sqrt();
+                Some(m.exponent * gamma >= 100f64.ln())
+            }
+            Law::VonMises(m) => {
+                Some(tau.norm() >= std::f64::consts::SQRT_2 * m.strength * (1.0 - 1e-9))
+            }
+            Law::Newtonian(_) | Law::NeoHookean(_) => None,
+        }
+    }
+
+    /// Whether the model has a yield stress ([`Law::yielded`]).
+    pub fn has_yield(&self) -> bool {
+        matches!(self, Law::Viscoplastic(_) | Law::VonMises(_))
+    }
+}
+
 /// Parameters of one material, as the step needs them.
 #[derive(Debug, Clone, Copy)]
 pub struct MaterialParams {
