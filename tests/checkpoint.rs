@@ -249,9 +249,10 @@ fn bad_checkpoints_are_refused_with_a_reason() {
 }
 
 /// SIGINT (Ctrl-C) stops the run at the end of a step with exit status 130, a frame and a
-/// checkpoint, and a message with the command that goes on; going on reaches the same last
-/// state as the run that was never stopped (the interrupted run wrote one frame more, at the
-/// time it stopped, so the frame numbers after it are one higher).
+/// checkpoint, and a message with the command that goes on; going on writes the frames of
+/// the run that was never stopped, the same files under the same numbers (the frame written
+/// at the interruption is off the schedule and the resumed run writes over it), and the
+/// wall time in series.csv goes on from where it stopped.
 #[test]
 fn ctrl_c_stops_cleanly_and_the_run_goes_on_from_there() {
     let dir = scratch_dir("interrupt");
@@ -304,10 +305,27 @@ fn ctrl_c_stops_cleanly_and_the_run_goes_on_from_there() {
         "--resume",
         &checkpoint,
     ]);
-    let last_a = std::fs::read(a.join("frames/particles_000010.csv")).unwrap();
-    let last_b = std::fs::read(b.join("frames/particles_000011.csv")).unwrap();
-    assert!(last_a == last_b, "the last states differ");
-    assert!(!b.join("frames/particles_000012.csv").exists());
+    for n in 0..=10 {
+        let name = format!("frames/particles_{n:06}.csv");
+        let (fa, fb) = (
+            std::fs::read(a.join(&name)).unwrap(),
+            std::fs::read(b.join(&name)).unwrap(),
+        );
+        assert!(fa == fb, "frame {n} differs");
+    }
+    assert!(!b.join("frames/particles_000011.csv").exists());
+    // series.csv: frames 0 to 10 once each, the wall time never going back
+    let series = std::fs::read_to_string(b.join("series.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = series
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    let frames: Vec<&str> = rows.iter().map(|r| r[0]).collect();
+    let want: Vec<String> = (0..=10).map(|n| n.to_string()).collect();
+    assert_eq!(frames, want);
+    let wall: Vec<f64> = rows.iter().map(|r| r[7].parse().unwrap()).collect();
+    assert!(wall.windows(2).all(|w| w[1] >= w[0]), "{wall:?}");
 }
 
 /// A checkpoint that an earlier build wrote (`tests/fixtures/checkpoint_format1`: format 1,

@@ -48,6 +48,10 @@ pub struct DriverState {
     pub pvd: Vec<(f64, String)>,
     /// Pressure iterations summed over the steps, and the most in one step.
     pub iterations: (u64, usize),
+    /// Wall-clock seconds the run has taken so far, over all its resumes (stored after the
+    /// other sections, so that a checkpoint without it still reads: 0 then).
+    #[serde(skip)]
+    pub wall_seconds: f64,
 }
 
 /// The payload.
@@ -230,6 +234,10 @@ pub fn write<const D: usize>(
         if let (Ok(()), Some(f)) = (&encoded, &free) {
             encoded = postcard::to_io(f, &mut payload).map(|_| ());
         }
+        // and last the run's wall time so far
+        if encoded.is_ok() {
+            encoded = postcard::to_io(&driver.wall_seconds, &mut payload).map(|_| ());
+        }
         if let Err(e) = encoded {
             return Err(payload.failed.take().unwrap_or_else(|| {
                 std::io::Error::other(format!("cannot encode the checkpoint: {e}"))
@@ -315,7 +323,13 @@ pub fn read<const D: usize>(
     } else {
         (None, rest)
     };
-    if !rest.is_empty() {
+    // the wall time so far, in the checkpoints that hold it
+    let (wall_seconds, rest) = if rest.is_empty() {
+        (0.0, rest)
+    } else {
+        postcard::take_from_bytes::<f64>(rest).map_err(cannot)?
+    };
+    if !rest.is_empty() || !(wall_seconds.is_finite() && wall_seconds >= 0.0) {
         return Err(refuse(
             path,
             "it holds state of open boundaries or free rigid bodies the deck has none for",
@@ -449,7 +463,10 @@ pub fn read<const D: usize>(
         sim.boundary.rigid.set_free_states(&f);
     }
     sim.fit_particle_arrays();
-    Ok(s.driver)
+    Ok(DriverState {
+        wall_seconds,
+        ..s.driver
+    })
 }
 
 /// Checks a decoded state field by field before any of it is used or any output is touched:
@@ -631,6 +648,7 @@ particles_per_cell = 2
             frames: 1,
             pvd: Vec::new(),
             iterations: (0, 0),
+            wall_seconds: 0.0,
         };
         (Simulation::<2>::new(&deck).unwrap(), deck, driver)
     }

@@ -509,6 +509,15 @@ impl OutputWriter {
         Ok(())
     }
 
+    /// Forgets the last frame written (an interrupted run's, off the schedule): the next frame
+    /// takes its number and its files, and the checkpoint's list of frames leaves it out.
+    pub fn uncount_frame(&mut self) {
+        self.frames -= 1;
+        if self.vtk || self.grid {
+            self.pvd.pop();
+        }
+    }
+
     /// Appends one row of gauge readings after a step from `before` to `sim.time` (stamped
     /// with its end time): every step, or with `output.gauge_interval` the steps that reach
     /// or pass a multiple of it.

@@ -156,6 +156,7 @@ fn run_dim<const D: usize>(
     let checkpoint_interval = deck.output.checkpoint_interval.unwrap_or(interval);
     let checkpoint_path = dir.join("checkpoint.bin");
     let (out, driver) = open_output(deck, &mut sim, file, dir, opts, checkpoint_interval, eps)?;
+    let wall_before = driver.wall_seconds;
     let mut w = Writing {
         out,
         driver,
@@ -164,6 +165,7 @@ fn run_dim<const D: usize>(
         eps,
         end,
         start,
+        wall_before,
         start_steps: sim.steps,
         // a resumed run's last good state is the checkpoint it started from
         last_checkpoint: opts.resume.as_ref().map(|_| sim.time),
@@ -221,8 +223,15 @@ fn run_dim<const D: usize>(
             .as_ref()
             .is_some_and(|f| f.load(Ordering::SeqCst));
         let last = opts.max_steps.is_some_and(|n| sim.steps >= n);
-        let frame = step.frame || last || interrupted;
-        if let Err(e) = w.after_step(deck, &mut sim, step.dt, frame, last, interrupted, observer) {
+        if let Err(e) = w.after_step(
+            deck,
+            &mut sim,
+            step.dt,
+            step.frame,
+            last,
+            interrupted,
+            observer,
+        ) {
             break Err(e);
         }
         sim.timers.lap(Phase::Output);
@@ -274,6 +283,8 @@ struct Writing {
     eps: f64,
     end: f64,
     start: Instant,
+    /// Wall-clock seconds the run took before this process (a resumed run's).
+    wall_before: f64,
     /// Steps taken before this run started (a resumed run).
     start_steps: u64,
     /// The time of the last checkpoint written (a resumed run: the one it started from).
@@ -284,26 +295,35 @@ impl Writing {
     /// After a step of `dt`: the `frame` the driver found due, the final probe row and the
     /// checkpoint that are due. At the end there are all three; at the `last` step asked for
     /// (a benchmark), a frame and the probe row; when `interrupted`, a frame and a checkpoint.
+    /// A frame written only because the run was interrupted is not counted: the resumed run
+    /// writes the next frame of the schedule under its number, so that its frames are those
+    /// of the run never stopped.
     #[allow(clippy::too_many_arguments)]
     fn after_step<const D: usize>(
         &mut self,
         deck: &Deck,
         sim: &mut Simulation<D>,
         dt: f64,
-        frame: bool,
+        scheduled: bool,
         last: bool,
         interrupted: bool,
         observer: &mut dyn Observer,
     ) -> Result<(), Error> {
         let eps = self.eps;
         let at_end = sim.time >= self.end - eps;
-        if frame {
-            self.out
-                .frame(sim, dt, self.start.elapsed().as_secs_f64())?;
+        if scheduled || last || interrupted {
+            self.out.frame(
+                sim,
+                dt,
+                self.wall_before + self.start.elapsed().as_secs_f64(),
+            )?;
             let wall = self.start.elapsed().as_secs_f64();
             let mut s = status(sim, self.end, self.start_steps, dt, self.out.frames, wall);
             s.max_speed = sim.max_speed();
             observer.frame_written(&s);
+            if !(scheduled || last || at_end) {
+                self.out.uncount_frame();
+            }
         }
         if at_end || last {
             // the final state's probe row, before the last checkpoint: a run killed after
@@ -320,6 +340,7 @@ impl Writing {
             );
             self.driver.frames = self.out.frames;
             self.driver.pvd.clone_from(&self.out.pvd);
+            self.driver.wall_seconds = self.wall_before + self.start.elapsed().as_secs_f64();
             // the time series reach the disk before the checkpoint that a resume cuts them
             // back to: a crash after it loses no row
             self.out.sync()?;
@@ -356,6 +377,7 @@ fn open_output<const D: usize>(
                 frames: 0,
                 pvd: Vec::new(),
                 iterations: (0, 0),
+                wall_seconds: 0.0,
             };
             (out, driver)
         }
