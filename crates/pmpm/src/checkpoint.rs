@@ -329,7 +329,7 @@ pub fn read<const D: usize>(
     } else {
         postcard::take_from_bytes::<f64>(rest).map_err(cannot)?
     };
-    if !rest.is_empty() || !(wall_seconds.is_finite() && wall_seconds >= 0.0) {
+    if !(rest.is_empty() && wall_seconds.is_finite() && wall_seconds >= 0.0) {
         return Err(refuse(
             path,
             "it holds state of open boundaries or free rigid bodies the deck has none for",
