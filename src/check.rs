@@ -321,7 +321,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     }
     time_step(deck, &sim, first_dt, &mut out, &mut warn);
     gravity_towards_open_faces(deck, sim.settings.gravity.as_slice(), &mut warn);
-    step_limits(deck, &mut out);
+    step_limits(deck, first_dt, &mut out);
     pressure(deck, &mut out);
     output_and_memory(deck, sim.particles.len() as f64, geo, &mut out);
     for w in warn {
@@ -559,7 +559,6 @@ fn spelling_kind(s: &pmpm::deck::ShapeDeck) -> String {
 
 /// The time step at t = 0 (`dt0`: the fixed one, or the one cfl gives the initial state) and
 /// the steps to the end; a fixed step too large for a fall.
-/// The time step at t = 0 and the steps to the end; a fixed step too large for a fall.
 fn time_step<const D: usize>(
     deck: &Deck,
     sim: &Simulation<D>,
@@ -584,17 +583,36 @@ fn time_step<const D: usize>(
     let g = sim.settings.gravity;
     let gnorm = g.norm();
     let estimate = pmpm::limits::estimate(deck);
-    let steps = (estimate.steps > 0.0 && estimate.steps.is_finite()).then_some(estimate.steps);
-    if let Some(n) = steps {
+    // with cfl: the free fall's estimate (an upper bound on the flow's steps), or, where a
+    // limit of the step sets more, that many at least; without gravity, the speed at t = 0
+    let at_start = if s.dt.is_none() && dt0.is_finite() && dt0 > 0.0 {
+        s.end_time / dt0
+    } else {
+        0.0
+    };
+    let (n, why) = if s.dt.is_some() {
+        (estimate.steps, "")
+    } else if estimate.steps > estimate.flow_steps {
+        (
+            estimate.steps.max(at_start),
+            " (at least: the viscous limit sets the step)",
+        )
+    } else if estimate.flow_steps > 0.0 {
+        (
+            estimate.steps,
+            " (at most: with cfl the step follows the flow)",
+        )
+    } else {
+        (
+            at_start,
+            " (at the speeds of t = 0: with cfl the step follows the flow)",
+        )
+    };
+    if n > 0.0 && n.is_finite() {
         *out += &format!(
-            "  steps            about {} to t = {} s{}\n",
+            "  steps            about {} to t = {} s{why}\n",
             pmpm::limits::short(n.ceil()),
             s.end_time,
-            if s.dt.is_none() {
-                " (at most: with cfl the step follows the flow)"
-            } else {
-                ""
-            }
         );
     }
     if let (Some(dt), Scheme::Projection) = (s.dt, s.scheme) {
@@ -632,9 +650,17 @@ fn gravity_towards_open_faces(deck: &Deck, g: &[f64], warn: &mut Vec<String>) {
 }
 
 /// The wave limit, and the viscous limit where it binds.
-fn step_limits(deck: &Deck, out: &mut String) {
+fn step_limits(deck: &Deck, dt0: f64, out: &mut String) {
     let s = &deck.simulation;
-    let flow = pmpm::limits::estimate(deck).flow_steps;
+    // the flow's steps: the free fall's estimate, or those of the speeds at t = 0 (a lid,
+    // an inflow, an initial velocity), whichever is more
+    let at_start = if dt0.is_finite() && dt0 > 0.0 {
+        s.end_time / dt0
+    } else {
+        0.0
+    };
+    let fall = pmpm::limits::estimate(deck).flow_steps;
+    let flow = fall.max(at_start);
     let (wave, viscous) = deck.dt_limits();
     if wave.is_finite() {
         *out += &format!(
@@ -650,7 +676,7 @@ fn step_limits(deck: &Deck, out: &mut String) {
     }
     // the viscous limit, where it binds: below the wave limit and asking for more steps than
     // the flow does (a yield-stress fluid's regularisation sets it; plain water never does)
-    if viscous.0 < wave && s.end_time / viscous.0 > flow {
+    if viscous.0 < wave && s.end_time / viscous.0 > fall {
         *out += &format!(
             "  viscous limit    h^2 rho / (2 D mu) = {:.3e} s (material \"{}\"): about {:.0} steps or more to t = {}\n",
             viscous.0,
