@@ -211,6 +211,14 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
         }
         let range = color_range(field, &all, opts);
         let extent = picture_extent(&info, &view, raw, grown);
+        let scene = Scene {
+            field,
+            range,
+            info: &info,
+            extent,
+            view: &view,
+            bodies: &bodies,
+        };
         let time_of = |n: usize| times.iter().find(|t| t.0 == n).map(|t| t.1);
         if opts.movie {
             let out = match &opts.out {
@@ -225,18 +233,7 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
             }
             let shot = |(n, path): &(usize, PathBuf)| -> Result<Vec<u8>, Error> {
                 let f = Frame::read(path, &view)?;
-                let sketch = Sketch {
-                    f: &f,
-                    n: *n,
-                    time: time_of(*n),
-                    field,
-                    range,
-                    info: &info,
-                    extent,
-                    view: &view,
-                    bodies: &bodies,
-                };
-                sketch.pixels(&out)
+                scene.sketch(&f, *n, time_of(*n)).pixels(&out)
             };
             write_movie(&out, &frames, extent, view.three_d(&info), shot)?;
             return Ok(vec![out]);
@@ -248,18 +245,7 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
             .map(|(n, path)| {
                 let f = Frame::read(path, &view)?;
                 let out = out_dir.join(name(*n));
-                let sketch = Sketch {
-                    f: &f,
-                    n: *n,
-                    time: time_of(*n),
-                    field,
-                    range,
-                    info: &info,
-                    extent,
-                    view: &view,
-                    bodies: &bodies,
-                };
-                sketch.png(&out)?;
+                scene.sketch(&f, *n, time_of(*n)).png(&out)?;
                 Ok(out)
             })
             .collect();
@@ -287,10 +273,7 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
         f.extent(view.plane, 0.0),
         f.extent(view.plane, 0.5),
     );
-    let sketch = Sketch {
-        f: &f,
-        n,
-        time: times.iter().find(|t| t.0 == n).map(|t| t.1),
+    let scene = Scene {
         field,
         range,
         info: &info,
@@ -298,7 +281,8 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
         view: &view,
         bodies: &bodies,
     };
-    sketch.png(&out)?;
+    let time = times.iter().find(|t| t.0 == n).map(|t| t.1);
+    scene.sketch(&f, n, time).png(&out)?;
     Ok(vec![out])
 }
 
@@ -978,26 +962,43 @@ fn plot_area_size(w: f64, h: f64) -> (u32, u32) {
     (pw.round() as u32, ph.clamp(240.0, 800.0).round() as u32)
 }
 
-/// One frame's picture and what it needs.
-struct Sketch<'a> {
-    f: &'a Frame,
-    n: usize,
-    time: Option<f64>,
+/// What every picture of a run shares: the field and its colour range, the drawn rectangle
+/// ([`picture_extent`]), the view and the rigid bodies.
+struct Scene<'a> {
     field: Field,
     range: (f64, f64),
     info: &'a RunInfo,
-    /// The drawn rectangle ([`picture_extent`]).
     extent: Extent,
     view: &'a View,
     bodies: &'a Bodies,
 }
 
+impl<'a> Scene<'a> {
+    /// The picture of frame `n` (its particles `f`, at `time`).
+    fn sketch(&'a self, f: &'a Frame, n: usize, time: Option<f64>) -> Sketch<'a> {
+        Sketch {
+            f,
+            n,
+            time,
+            scene: self,
+        }
+    }
+}
+
+/// One frame's picture.
+struct Sketch<'a> {
+    f: &'a Frame,
+    n: usize,
+    time: Option<f64>,
+    scene: &'a Scene<'a>,
+}
+
 impl Sketch<'_> {
     fn size(&self) -> (u32, u32) {
         frame_image_size(
-            self.extent.width(),
-            self.extent.height(),
-            self.view.three_d(self.info) || self.f.dim == 3,
+            self.scene.extent.width(),
+            self.scene.extent.height(),
+            self.scene.view.three_d(self.scene.info) || self.f.dim == 3,
         )
     }
 
@@ -1024,13 +1025,13 @@ impl Sketch<'_> {
 
     fn draw(&self, root: &Area<'_>) -> DrawResult {
         let f = self.f;
-        let (a, b) = f.axes(self.view.plane);
-        let extent = self.extent;
+        let (a, b) = f.axes(self.scene.view.plane);
+        let extent = self.scene.extent;
         let three_d = f.dim == 3;
         root.fill(&WHITE)?;
         let title_h = TITLE_H + if three_d { TITLE_3D_H } else { 0 };
         let (title, body) = root.split_vertically(title_h);
-        let what = match self.field {
+        let what = match self.scene.field {
             Field::Pressure => "Pressure",
             Field::Speed => "Speed",
             Field::Material => "Material",
@@ -1049,7 +1050,7 @@ impl Sketch<'_> {
         )?;
         if three_d {
             title.draw_text(
-                &self.view.describe(),
+                &self.scene.view.describe(),
                 &("sans-serif", 16)
                     .into_text_style(&title)
                     .pos(Pos::new(HPos::Center, VPos::Center)),
@@ -1058,21 +1059,26 @@ impl Sketch<'_> {
         }
         let (bw, _) = body.dim_in_pixel();
         let (plot_area, bar_area) = body.split_horizontally(bw - BAR_W);
-        let outlines = self.bodies.outlines(self.time.unwrap_or(0.0), a, b);
+        let outlines = self.scene.bodies.outlines(self.time.unwrap_or(0.0), a, b);
         draw_particles(
             f,
-            self.field,
-            self.range,
+            self.scene.field,
+            self.scene.range,
             extent,
             a,
             b,
-            self.view.plane,
+            self.scene.view.plane,
             &outlines,
             &plot_area,
         )?;
-        match self.field {
-            Field::Material => draw_legend(f, self.info, &bar_area)?,
-            _ => draw_bar(self.field, self.range, &f.range(self.field), &bar_area)?,
+        match self.scene.field {
+            Field::Material => draw_legend(f, self.scene.info, &bar_area)?,
+            _ => draw_bar(
+                self.scene.field,
+                self.scene.range,
+                &f.range(self.scene.field),
+                &bar_area,
+            )?,
         }
         Ok(())
     }

@@ -704,9 +704,11 @@ particles_per_cell = 2
         let _ = std::fs::remove_dir_all(&dir);
     }
 
-    /// The file's bytes for an owned state, as `write` streams them.
+    /// The file's bytes for an owned state, as `write` streams them (a deck without open
+    /// boundaries or free bodies: the state, then the run's wall time so far).
     fn encode<const D: usize>(state: &State<D>) -> Vec<u8> {
-        let payload = postcard::to_stdvec(state).unwrap();
+        let mut payload = postcard::to_stdvec(state).unwrap();
+        payload.extend(postcard::to_stdvec(&state.driver.wall_seconds).unwrap());
         let mut bytes = Vec::with_capacity(payload.len() + 24);
         bytes.extend_from_slice(MAGIC);
         bytes.extend_from_slice(&FORMAT.to_le_bytes());
