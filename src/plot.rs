@@ -303,6 +303,12 @@ impl View {
             1 => Plane::Xz,
             _ => Plane::Xy,
         };
+        if let (Some(2), Some(p)) = (info.dim, opts.plane) {
+            return Err(Error::Usage(format!(
+                "--plane {}: a 2D run has one plane, x-y",
+                p.name()
+            )));
+        }
         let Some(text) = &opts.slice else {
             let plane = opts.plane.unwrap_or_else(|| {
                 let g = info.gravity.as_deref().unwrap_or(&[]);

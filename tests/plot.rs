@@ -333,6 +333,13 @@ formats = ["csv"]
     );
     let o = plot(&[s(&out), "--movie", "--field", "speed"]);
     ok(&o);
+    // and a 2D run has one plane
+    let flat = run_deck("plot-2d-plane", SMALL_2D);
+    fails_with(
+        &plot(&[s(&flat), "--plane", "xz"]),
+        "--plane xz: a 2D run has one plane, x-y",
+    );
+    ok(&o);
     let gif = std::fs::read(out.join("plot_speed.gif")).unwrap();
     assert_eq!(&gif[..6], b"GIF89a");
     let (w, h) = (
