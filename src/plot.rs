@@ -1617,6 +1617,17 @@ fn line(label: &str, pts: Vec<(f64, f64)>, color: RGBColor) -> Series {
     }
 }
 
+/// The lines' colours of the series panels, in turn.
+const PALETTE: [RGBColor; 7] = [
+    colors::PROJ,
+    colors::EXPL,
+    colors::GREEN,
+    colors::ORANGE,
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    colors::REF,
+];
+
 /// Pressure and speed of each probe against time; none without probes.csv or rows in it.
 fn probe_panels(dir: &Path) -> Result<Vec<Panel>, Error> {
     let path = dir.join("probes.csv");
@@ -1638,15 +1649,7 @@ fn probe_panels(dir: &Path) -> Result<Vec<Panel>, Error> {
     if names.is_empty() {
         return Ok(Vec::new());
     }
-    let palette = [
-        colors::PROJ,
-        colors::EXPL,
-        colors::GREEN,
-        colors::ORANGE,
-        RGBColor(148, 103, 189),
-        RGBColor(140, 86, 75),
-        colors::REF,
-    ];
+    let palette = PALETTE;
     let mut pressure = Panel {
         title: "Probe pressure".into(),
         x_label: "time (s)".into(),
@@ -1717,15 +1720,7 @@ fn column_panels(dir: &Path, file: &str, what: &str) -> Result<Vec<Panel>, Error
     if t.rows.is_empty() {
         return Ok(Vec::new());
     }
-    let palette = [
-        colors::PROJ,
-        colors::EXPL,
-        colors::GREEN,
-        colors::ORANGE,
-        RGBColor(148, 103, 189),
-        RGBColor(140, 86, 75),
-        colors::REF,
-    ];
+    let palette = PALETTE;
     let per_m = dimension(dir) == Some(2);
     let times: Vec<f64> = t.rows.iter().map(|r| r[ti]).collect();
     let mut panels: Vec<(&str, Panel)> = Vec::new();
