@@ -119,7 +119,10 @@ impl Gauge {
     pub fn read<const D: usize>(&self, sim: &Simulation<D>, out: &mut Vec<f64>) {
         let point = |at: &[f64; 3]| Vector::<D>::from_fn(|d, _| at[d]);
         match self {
-            Gauge::Surface { at, up } => out.push(surface(sim, &point(at), *up)),
+            Gauge::Surface { at, up } => {
+                let y = surface(sim, &point(at), *up, out);
+                out.push(y);
+            }
             Gauge::Pressure { at } => {
                 let (m, q) = point_mean(sim, &point(at), |p| {
                     Vector::<D>::repeat(sim.particles.pressure[p])
@@ -180,7 +183,15 @@ fn point_mean<const D: usize>(
 /// a cell apart up the line, and from the top down the first place it reaches 1/2, between
 /// the two points about it by linear interpolation. Water at rest reads its level to a small
 /// part of a cell. The floor's height where the line is dry.
-fn surface<const D: usize>(sim: &Simulation<D>, at: &Vector<D>, up: usize) -> f64 {
+///
+/// `scratch` lends room for the line's samples past its end, and is given back as it was (the
+/// row's own buffer: no allocation once it has grown).
+fn surface<const D: usize>(
+    sim: &Simulation<D>,
+    at: &Vector<D>,
+    up: usize,
+    scratch: &mut Vec<f64>,
+) -> f64 {
     let geo = &sim.grid.geo;
     let h = geo.h;
     let (lo, hi) = (geo.origin, geo.upper());
@@ -193,9 +204,10 @@ fn surface<const D: usize>(sim: &Simulation<D>, at: &Vector<D>, up: usize) -> f6
             across *= hat_inside(at[d], lo[d], hi[d], h);
         }
     }
-    // phi at the points of the line, summed into a small buffer (a frame-time allocation
-    // would do; this one is per row and as long as the grid is tall)
-    let mut phi = vec![0.0; n];
+    // phi at the points of the line
+    let base = scratch.len();
+    scratch.resize(base + n, 0.0);
+    let phi = &mut scratch[base..];
     for p in 0..ps.len() {
         let mut w = 1.0;
         for d in 0..D {
@@ -217,16 +229,13 @@ fn surface<const D: usize>(sim: &Simulation<D>, at: &Vector<D>, up: usize) -> f6
         let y = lo[up] + j as f64 * h;
         *value /= across * hat_inside(y, lo[up], hi[up], h);
     }
-    for j in (0..n).rev() {
-        if phi[j] >= 0.5 {
-            let y = lo[up] + j as f64 * h;
-            if j + 1 == n {
-                return y;
-            }
-            return y + h * (phi[j] - 0.5) / (phi[j] - phi[j + 1]);
-        }
-    }
-    lo[up]
+    let height = match (0..n).rev().find(|&j| phi[j] >= 0.5) {
+        Some(j) if j + 1 == n => lo[up] + j as f64 * h,
+        Some(j) => lo[up] + j as f64 * h + h * (phi[j] - 0.5) / (phi[j] - phi[j + 1]),
+        None => lo[up],
+    };
+    scratch.truncate(base);
+    height
 }
 
 /// The force of the material on face `face` (N; N per metre in 2D): what the face's nodes
@@ -318,7 +327,7 @@ shape = {{ type = "box", min = [0.0, 0.0], max = [0.4, {depth}] }}
             let top = sim.particles.x.iter().map(|x| x[1]).fold(0.0, f64::max) + 0.0025;
             for x in [0.0, 0.013, 0.2, 0.4] {
                 let at = Vector::<2>::new(x, 0.0);
-                let y = surface(&sim, &at, 1);
+                let y = surface(&sim, &at, 1, &mut Vec::new());
                 assert!((y - top).abs() < 0.1 * 0.01, "{x}: {y} against {top}");
             }
         }

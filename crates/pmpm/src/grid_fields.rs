@@ -51,18 +51,17 @@ pub fn particle_shear_rate<const D: usize>(ps: &Particles<D>, p: usize) -> f64 {
     (2.0 * dev.norm_squared()).sqrt()
 }
 
-/// Whether particle `p` has yielded (1) or not (0); None when no material of the run has a
-/// yield stress (a material without one reads 0).
-pub fn particle_yielded<const D: usize>(sim: &Simulation<D>, p: usize) -> Option<f64> {
-    if !sim.materials.iter().any(|m| m.law.has_yield()) {
-        return None;
-    }
+/// Whether particle `p` has yielded (1) or not (0, also for a material without a yield
+/// stress). Callers ask only when a material of the run has one ([`Law::has_yield`]).
+///
+/// [`Law::has_yield`]: crate::material::Law::has_yield
+pub fn particle_yielded<const D: usize>(sim: &Simulation<D>, p: usize) -> f64 {
     let ps = &sim.particles;
     let law = &sim.materials[ps.material[p] as usize].law;
-    Some(match law.yielded(&ps.tau[p], &ps.velocity_gradient[p]) {
+    match law.yielded(&ps.tau[p], &ps.velocity_gradient[p]) {
         Some(true) => 1.0,
         _ => 0.0,
-    })
+    }
 }
 
 /// The fields at the grid's nodes, x fastest, then y, then z (VTK ImageData's order).
@@ -135,7 +134,7 @@ impl NodeFields {
             let (v, pr, vol) = (pad3(&ps.v[p]), ps.pressure[p], ps.volume(p));
             let (rate, sigma) = (particle_strain_rate(ps, p), particle_stress(ps, p));
             let shear = particle_shear_rate(ps, p);
-            let yielded = particle_yielded(sim, p);
+            let yielded = yields.then(|| particle_yielded(sim, p));
             for corner in 0..(1usize << D) {
                 let mut idx = [0usize; D];
                 let mut w = 1.0;

@@ -375,17 +375,20 @@ impl OutputWriter {
             dir,
             deck,
             [Some(series), probes, rigid, gauges],
+            gauge_list,
             Vec::new(),
             0,
         ))
     }
 
     /// The writer over files already opened.
-    /// `files`: series.csv, probes.csv, rigid_bodies.csv and gauges.csv.
+    /// `files`: series.csv, probes.csv, rigid_bodies.csv and gauges.csv; `gauge_list`: the
+    /// deck's gauges.
     fn with(
         dir: &Path,
         deck: &Deck,
         files: [Option<BufWriter<File>>; 4],
+        gauge_list: Vec<crate::gauges::Gauge>,
         pvd: Vec<(f64, String)>,
         frames: usize,
     ) -> Self {
@@ -394,7 +397,7 @@ impl OutputWriter {
         Self {
             series: series.expect("series.csv is always written"),
             gauges,
-            gauge_list: crate::gauges::Gauge::from_deck(deck),
+            gauge_list,
             gauge_interval: deck.output.gauge_interval,
             gauge_row: Vec::new(),
             dir: dir.to_path_buf(),
@@ -445,13 +448,13 @@ impl OutputWriter {
                 |f| f.parse::<f64>().is_ok_and(|s| s <= t),
             )?)
         };
-        let gauges = if deck.output.gauges.is_empty() {
+        let gauge_list = crate::gauges::Gauge::from_deck(deck);
+        let gauges = if gauge_list.is_empty() {
             None
         } else {
-            let list = crate::gauges::Gauge::from_deck(deck);
             Some(reopen(
                 &dir.join("gauges.csv"),
-                &gauges_header(deck, &list),
+                &gauges_header(deck, &gauge_list),
                 |f| f.parse::<f64>().is_ok_and(|s| s <= t),
             )?)
         };
@@ -459,6 +462,7 @@ impl OutputWriter {
             dir,
             deck,
             [Some(series), probes, rigid, gauges],
+            gauge_list,
             driver.pvd.clone(),
             frames,
         ))
@@ -824,7 +828,7 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
             name: "yielded",
             vtk_type: "Float64",
             components: 1,
-            bytes: f64s(at.iter().map(|&p| particle_yielded(sim, p).unwrap_or(0.0))),
+            bytes: f64s(at.iter().map(|&p| particle_yielded(sim, p))),
         });
     }
     let cells = [
