@@ -1,0 +1,190 @@
+"""Tests of the Python package: the API against exact solutions, against the run directory
+`pmpm.run` writes, and against VTK's own reader; the README's script and the sweep run.
+
+Run from anywhere after `pip install ./python`: `python -m pytest python/tests`.
+"""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pmpm
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLES = ROOT / "examples"
+
+
+def short(example: str, end_time: float, **changes: object) -> dict:
+    """An example deck as a dict, run to `end_time` with frames at its end only."""
+    deck = pmpm.read_deck(EXAMPLES / example)
+    changes = {"simulation.end_time": end_time, "output.interval": end_time, **changes}
+    return pmpm.with_changes(deck, changes)
+
+
+def test_hydrostatic_pressure_is_exact():
+    # A column at rest under the projection: p = rho g (H - y) at every particle, to
+    # round-off, from the first step (the example's header states it for every frame).
+    sim = pmpm.Simulation(EXAMPLES / "hydrostatic_projection_2d.toml")
+    sim.run(until=0.1)
+    deck = sim.deck
+    rho = deck["materials"][0]["density"]
+    g = -deck["simulation"]["gravity"][1]
+    top = deck["bodies"][0]["shape"]["max"][1]
+    y = sim.particle_field("position")[:, 1]
+    p = sim.particle_field("pressure")
+    # the top particles sit h/4 below the body's top: H is the body's top
+    exact = rho * g * (top - y)
+    assert sim.steps == 20
+    assert np.max(np.abs(p - exact)) < 1e-9 * rho * g * top
+
+
+def test_in_memory_run_matches_the_run_directory(tmp_path):
+    # Stepping in Python and `pmpm run` take the same steps: the last frame's particles
+    # equal the in-memory fields to the CSV's 10 digits.
+    deck = short("dam_break_2d.toml", 0.05)
+    summary = pmpm.run(deck, tmp_path / "out", threads=2)
+    sim = pmpm.Simulation(deck, threads=2)
+    assert sim.run() == summary["steps"]
+    assert sim.time == pytest.approx(0.05, abs=1e-12)
+    with open(tmp_path / "out" / "frames" / "particles_000001.csv") as f:
+        rows = list(csv.DictReader(f))
+    frame = {k: np.array([float(r[k]) for r in rows]) for k in ("id", "x", "y", "vx", "pressure")}
+    np.testing.assert_array_equal(frame["id"], sim.particle_field("id"))
+    x = sim.particle_field("position")
+    np.testing.assert_allclose(frame["x"], x[:, 0], rtol=1e-9)
+    np.testing.assert_allclose(frame["y"], x[:, 1], rtol=1e-9)
+    np.testing.assert_allclose(frame["vx"], sim.particle_field("velocity")[:, 0], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(frame["pressure"], sim.particle_field("pressure"), rtol=1e-9, atol=1e-9)
+
+
+def test_grid_fields_spread_the_particles():
+    # Linear hat weights sum to 1: the nodes hold the particles' mass to round-off, and the
+    # volume fraction of a node deep in the column is 1 within the particles' J.
+    sim = pmpm.Simulation(short("dam_break_2d.toml", 0.02))
+    sim.run()
+    mass = sim.grid_field("mass")
+    xs, ys = sim.grid_coordinates
+    assert mass.shape == (len(xs), len(ys))
+    assert mass.sum() == pytest.approx(sim.particle_field("mass").sum(), rel=1e-12)
+    # node (i, j) is at (xs[i], ys[j]): a node in the column's middle is full, one far
+    # downstream is empty
+    inside = (np.searchsorted(xs, 0.02), np.searchsorted(ys, 0.05))
+    assert sim.grid_field("volume_fraction")[inside] == pytest.approx(1.0, abs=0.01)
+    assert mass[np.searchsorted(xs, 0.4), np.searchsorted(ys, 0.05)] == 0.0
+    assert sim.grid_field("velocity").shape == mass.shape + (2,)
+    assert sim.grid_field("stress").shape == mass.shape + (2, 2)
+    for name in pmpm.Simulation.grid_fields:
+        assert np.all(np.isfinite(sim.grid_field(name)))
+
+
+def test_three_dimensions():
+    sim = pmpm.Simulation(EXAMPLES / "dam_break_3d.toml")
+    assert sim.dimension == 3
+    dt = sim.step()
+    assert dt > 0 and sim.time == pytest.approx(dt) and sim.steps == 1
+    n = sim.particle_count
+    assert sim.particle_field("position").shape == (n, 3)
+    assert sim.particle_field("stress").shape == (n, 3, 3)
+    assert sim.particle_field("material").dtype == np.uint16
+    shape = tuple(len(c) for c in sim.grid_coordinates)
+    assert len(shape) == 3
+    assert sim.grid_field("pressure").shape == shape
+    assert sim.grid_field("velocity").shape == shape + (3,)
+    for name in pmpm.Simulation.particle_fields:
+        assert len(sim.particle_field(name)) == n
+
+
+def test_run_lands_on_the_time_asked_for():
+    sim = pmpm.Simulation(EXAMPLES / "dam_break_2d.toml")
+    sim.run(until=0.0123)
+    assert sim.time == pytest.approx(0.0123, abs=1e-12)
+    steps = sim.steps
+    assert sim.run(until=0.0123) == 0 and sim.steps == steps
+    assert sim.mass_balance() == 0.0
+
+
+def test_errors_name_what_is_wrong():
+    deck = pmpm.read_deck(EXAMPLES / "dam_break_2d.toml")
+    with pytest.raises(pmpm.DeckError, match="grid.cell_size"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"grid.cell_size": -1.0}))
+    with pytest.raises(pmpm.DeckError, match="viscosty"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"materials[0].viscosty": 1.0}))
+    with pytest.raises(pmpm.DeckError):
+        pmpm.Simulation(EXAMPLES / "no_such_deck.toml")
+    with pytest.raises(TypeError, match="simulation.end_time"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"simulation.end_time": object()}))
+    with pytest.raises(TypeError):
+        pmpm.Simulation(3)
+    sim = pmpm.Simulation(deck)
+    with pytest.raises(KeyError, match="position"):
+        sim.particle_field("positions")
+    with pytest.raises(KeyError, match="pressure"):
+        sim.grid_field("presure")
+    with pytest.raises(ValueError):
+        pmpm.Simulation(deck, threads=0)
+    # NumPy numbers are taken as the numbers they are
+    ok = pmpm.with_changes(deck, {"simulation.end_time": np.float64(0.01), "bodies[0].particles_per_cell": np.int64(2)})
+    assert pmpm.Simulation(ok).end_time == 0.01
+
+
+def test_with_changes_copies():
+    deck = pmpm.read_deck(EXAMPLES / "dam_break_2d.toml")
+    changed = pmpm.with_changes(deck, {"materials[0].viscosity": 0.5, "pressure.tolerance": 1e-9})
+    assert changed["materials"][0]["viscosity"] == 0.5
+    assert deck["materials"][0]["viscosity"] != 0.5
+    assert changed["pressure"]["tolerance"] == 1e-9
+    with pytest.raises(KeyError):
+        pmpm.with_changes(deck, {"materials[3].viscosity": 0.5})
+
+
+def test_readme_shows_the_example_script():
+    script = (ROOT / "python" / "examples" / "dam_break_front.py").read_text()
+    assert script in (ROOT / "README.md").read_text()
+
+
+def test_readme_script_plots_the_front(tmp_path):
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "front.png"
+    subprocess.run(
+        [sys.executable, "python/examples/dam_break_front.py", str(png)], cwd=ROOT, check=True
+    )
+    assert png.stat().st_size > 1000
+
+
+def test_sweep_run_out_falls_as_the_yield_stress_rises():
+    out = subprocess.run(
+        [sys.executable, "python/examples/yield_stress_sweep.py", "0.5"],
+        cwd=ROOT, check=True, capture_output=True, text=True,
+    ).stdout
+    run_outs = [float(line.split("run-out ")[1].split(" m")[0]) for line in out.splitlines()]
+    assert len(run_outs) == 3
+    assert run_outs[0] > run_outs[1] > run_outs[2] > 0
+
+
+def test_vtk_reads_the_grid_frame_as_grid_field(tmp_path):
+    # VTK's own reader finds every field docs/deck.md names in a grid frame, and its
+    # pressure is the array grid_field gives (VTK's order: x fastest).
+    vtk = pytest.importorskip("vtk")
+    from vtk.util.numpy_support import vtk_to_numpy  # type: ignore[import-not-found]
+
+    deck = short("yield_block_slump_2d.toml", 0.05, **{"output.formats": ["grid"]})
+    pmpm.run(deck, tmp_path / "out", threads=2)
+    reader = vtk.vtkXMLImageDataReader()
+    reader.SetFileName(str(tmp_path / "out" / "frames" / "grid_000001.vti"))
+    reader.Update()
+    image = reader.GetOutput()
+    data = image.GetPointData()
+    names = {data.GetArrayName(i) for i in range(data.GetNumberOfArrays())}
+    assert set(pmpm.Simulation.grid_fields) <= names
+    sim = pmpm.Simulation(deck, threads=2)
+    sim.run()
+    pressure = sim.grid_field("pressure")
+    assert image.GetDimensions()[:2] == pressure.shape
+    from_vtk = vtk_to_numpy(data.GetArray("pressure"))
+    np.testing.assert_allclose(from_vtk, pressure.ravel(order="F"), rtol=1e-6, atol=1e-6)
