@@ -53,7 +53,7 @@
 //! weights, so a uniform field comes back exactly.
 //!
 //! What it gives, measured on the strip footing and on an isochoric mode of an elastic square
-//! (`tests/locking.rs`), is in docs/materials.md ("Solids with the explicit scheme").
+//! (`tests/suite/locking.rs`), is in docs/materials.md ("Solids with the explicit scheme").
 //!
 //! The key is for the explicit scheme (the deck refuses it with `scheme = "projection"`). The
 //! projection with nodal pressures averages the strain rate's trace the same way, always: its

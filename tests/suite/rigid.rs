@@ -1,7 +1,7 @@
 //! Rigid bodies: the force the material exerts on one, against statics; and the file it is
 //! written to.
 
-mod common;
+use crate::common;
 use common::{deck, drive, in_pool, pmpm, scratch_dir};
 use pmpm::scheme::Simulation;
 

@@ -1,7 +1,7 @@
 //! Bodies from meshes: the shipped STL column fills the lattice as the primitive cylinder it
 //! was exported from; a mesh with a hole is refused before anything runs.
 
-mod common;
+use crate::common;
 
 use common::{pmpm, scratch_dir};
 

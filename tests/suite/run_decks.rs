@@ -1,7 +1,7 @@
 //! Whole runs through the binary: every output file of docs/deck.md, 2D and 3D, repeatability,
 //! the blow-up guard and the protection of an earlier run.
 
-mod common;
+use crate::common;
 use common::{pmpm, scratch_dir, SMALL_2D};
 use std::path::Path;
 

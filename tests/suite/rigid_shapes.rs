@@ -1,7 +1,7 @@
 //! Rigid bodies of any shape, turning bodies and free bodies: an STL column takes the force
 //! of the cylinder it was exported from; a free box floats at its hydrostatic draft.
 
-mod common;
+use crate::common;
 use common::{drive, in_pool};
 use pmpm::scheme::Simulation;
 

@@ -3,7 +3,7 @@
 //! status 2 and a message, before anything is allocated or written; numbers in messages are
 //! short (issue: never lose or mix a user's results, items 8, 10, 11 and 13).
 
-mod common;
+use crate::common;
 
 use common::{pmpm, scratch_dir, SMALL_2D};
 use std::time::{Duration, Instant};

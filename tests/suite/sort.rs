@@ -1,7 +1,7 @@
 //! The periodic sort of the particles by cell: it changes where a particle is stored, not what
 //! happens to it, and the output still lists particles by id.
 
-mod common;
+use crate::common;
 
 use common::{deck, drive, in_pool, pmpm, scratch_dir, SMALL_2D};
 use pmpm::scheme::Simulation;

@@ -1,6 +1,6 @@
 //! Physics checks of the explicit scheme against exact solutions.
 
-mod common;
+use crate::common;
 
 use common::{deck, drive, in_pool};
 use pmpm::scheme::Simulation;

@@ -2,7 +2,7 @@
 //! an earlier pmpm run's (with --force), never over a user's files, and leaves no frame of an
 //! earlier run behind (issue: never lose or mix a user's results).
 
-mod common;
+use crate::common;
 
 use common::{pmpm, scratch_dir, SMALL_2D};
 use std::path::Path;

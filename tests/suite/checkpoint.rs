@@ -2,7 +2,7 @@
 //! bit, as the run that never stopped; Ctrl-C stops cleanly with a checkpoint; a checkpoint
 //! from another deck or a damaged file is refused with a clear message.
 
-mod common;
+use crate::common;
 
 use common::{pmpm, scratch_dir, SMALL_2D};
 use std::path::Path;

@@ -2,7 +2,7 @@
 //! an inflow emits the mass its patch's velocity gives, and series.csv's mass balance closes
 //! to round-off.
 
-mod common;
+use crate::common;
 
 use common::{pmpm, scratch_dir, SMALL_2D};
 use std::path::Path;

@@ -1,7 +1,7 @@
 //! Elastic solids (`neo_hookean_incompressible`), affordable versions of the `elastic`
 //! validation case (`pmpm validate --case elastic` has the full one and its report).
 
-mod common;
+use crate::common;
 
 use common::{drive, in_pool};
 use pmpm::scheme::Simulation;
@@ -37,7 +37,7 @@ fn volume_change(sim: &Simulation<2>) -> f64 {
 #[test]
 fn explicit_column_settles_as_the_small_strain_solution() {
     let d = deck(
-        include_str!("../validation/decks/elastic_column_explicit.toml"),
+        include_str!("../../validation/decks/elastic_column_explicit.toml"),
         |d| {
             d.grid.cell_size = 0.02;
             d.bodies[0].shape.min = Some(vec![0.15, 0.0]);
@@ -154,7 +154,7 @@ fn spin(d: &Deck) -> Spin {
 #[test]
 fn explicit_spinning_block_keeps_its_volume_and_loses_angular_momentum_to_flip() {
     let d = deck(
-        include_str!("../validation/decks/elastic_spin_explicit.toml"),
+        include_str!("../../validation/decks/elastic_spin_explicit.toml"),
         |_| {},
     );
     let s = in_pool(2, || spin(&d));
@@ -194,7 +194,7 @@ fn explicit_spinning_block_keeps_its_volume_and_loses_angular_momentum_to_flip()
 #[test]
 fn apic_keeps_the_spinning_blocks_angular_momentum() {
     let d = deck(
-        include_str!("../validation/decks/elastic_spin_explicit.toml"),
+        include_str!("../../validation/decks/elastic_spin_explicit.toml"),
         |d| {
             d.simulation.transfer = Some(pmpm::deck::Transfer::Apic);
             d.simulation.stress_update = pmpm::deck::StressUpdate::Usl;
@@ -222,7 +222,7 @@ fn apic_keeps_the_spinning_blocks_angular_momentum() {
 #[test]
 fn projection_spinning_block_keeps_its_volume_over_half_a_turn() {
     let d = deck(
-        include_str!("../validation/decks/elastic_spin_projection.toml"),
+        include_str!("../../validation/decks/elastic_spin_projection.toml"),
         |d| d.simulation.end_time = 0.625,
     );
     let s = in_pool(2, || spin(&d));
@@ -281,7 +281,7 @@ fn projection_column_with_cell_pressure_comes_to_rest() {
     let mut rates = Vec::new();
     for unknowns in [PressureUnknowns::Cells, PressureUnknowns::Nodes] {
         let d = deck(
-            include_str!("../validation/decks/elastic_column_projection.toml"),
+            include_str!("../../validation/decks/elastic_column_projection.toml"),
             |d| {
                 d.grid.cell_size = 0.02;
                 d.bodies[0].shape.min = Some(vec![0.15, 0.0]);

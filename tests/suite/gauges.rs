@@ -2,7 +2,7 @@
 //! own surface, wall forces on a tank at rest against rho g H^2 / 2; and the grid's frames
 //! (.vti) hold the fields docs/deck.md names.
 
-mod common;
+use crate::common;
 use common::{drive, in_pool, pmpm, scratch_dir};
 use pmpm::gauges::Gauge;
 use pmpm::scheme::Simulation;

@@ -1,6 +1,6 @@
 //! Yield-stress fluid in a channel against the analytic Bingham solution.
 
-mod common;
+use crate::common;
 
 use common::{deck, drive, in_pool};
 use pmpm::scheme::Simulation;

@@ -1,6 +1,6 @@
 //! Periodic boundaries against exact solutions.
 
-mod common;
+use crate::common;
 
 use common::{deck, drive, in_pool};
 use pmpm::scheme::Simulation;

@@ -2,7 +2,7 @@
 //! (1952) dam break, with the bounds of the projection issue. Figures are printed (run with
 //! `--nocapture` to see them).
 
-mod common;
+use crate::common;
 
 use common::{deck, drive, in_pool};
 use pmpm::scheme::Simulation;

@@ -3,7 +3,7 @@
 //! time series included; a file-size limit stops a run with pmpm's own message (issue: never
 //! lose or mix a user's results).
 
-mod common;
+use crate::common;
 
 use common::{pmpm, scratch_dir, SMALL_2D};
 use std::path::Path;

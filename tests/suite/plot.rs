@@ -1,7 +1,7 @@
 //! `pmpm plot`: PNG pictures of a tiny run's frames and series, and the errors a user can cause
 //! (exit status 2, one message, no panic).
 
-mod common;
+use crate::common;
 use common::{pmpm, scratch_dir, SMALL_2D};
 use std::path::{Path, PathBuf};
 use std::process::Output;

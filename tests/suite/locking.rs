@@ -1,7 +1,7 @@
 //! Volumetric locking of the explicit scheme and the nodal averaging of the volumetric strain
 //! rate (`simulation.volumetric_averaging = "nodal"`, crates/pmpm/src/averaging.rs).
 
-mod common;
+use crate::common;
 
 use common::{drive, in_pool};
 use pmpm::deck::VolumetricAveraging;

@@ -2,7 +2,7 @@
 //! flows at steps far above the explicit limit dt <= rho h^2 / (2 D mu), against exact
 //! solutions.
 
-mod common;
+use crate::common;
 
 use common::{deck, drive, in_pool};
 use pmpm::scheme::Simulation;
@@ -174,7 +174,7 @@ particles_per_cell = 2
 /// total volume within 1% at every frame, and at most 1,000 steps.
 #[test]
 fn a_viscous_current_spreads_as_the_similarity_solution_says() {
-    let d = deck(include_str!("../examples/viscous_current_2d.toml"));
+    let d = deck(include_str!("../../examples/viscous_current_2d.toml"));
     let mut sim = Simulation::<2>::new(&d).unwrap();
     let v0: f64 = sim.particles.volume0.iter().sum();
     let (mu, rho, g) = (100.0, 1000.0, 9.81);

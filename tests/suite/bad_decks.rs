@@ -2,7 +2,7 @@
 //! file, the key (with line and column where TOML gives them) and what is wrong. The whole
 //! message is checked, word for word.
 
-mod common;
+use crate::common;
 use common::{pmpm, scratch_dir, SMALL_2D};
 use std::path::Path;
 use std::process::{Command, Output};
