@@ -130,7 +130,7 @@ enum Command {
         #[arg(long, conflicts_with_all = ["all", "series"])]
         frame: Option<usize>,
         /// Colour the particles by this field.
-        #[arg(long, default_value = "pressure", value_parser = ["pressure", "speed", "material"])]
+        #[arg(long, default_value = "pressure", value_parser = ["pressure", "speed", "material", "vx", "vy", "vz"])]
         field: String,
         /// Output PNG file (with --all: a directory) [default: in OUTDIR].
         #[arg(long)]
@@ -153,7 +153,8 @@ enum Command {
         #[arg(long, requires = "slice")]
         thickness: Option<f64>,
         /// Every frame into one animated GIF (OUTDIR/plot_<field>.gif, or --out), with one
-        /// colour range over all frames.
+        /// colour range over all frames; `--out NAME.mp4` writes an MP4 with ffmpeg from the
+        /// PATH.
         #[arg(long, conflicts_with_all = ["series", "all", "frame"])]
         movie: bool,
         /// Lower end of the colour range [default: the data's].
@@ -162,6 +163,14 @@ enum Command {
         /// Upper end of the colour range [default: the data's].
         #[arg(long, allow_negative_numbers = true)]
         max: Option<f64>,
+        /// An explicit run's pressure as each particle has it; by default it is smoothed
+        /// through the grid (the particles' own values form a checkerboard).
+        #[arg(long)]
+        particle_pressure: bool,
+        /// A profile of --field along the segment from A to B, "X0,Y0:X1,Y1" (with Z in 3D,
+        /// in m), as a PNG and a CSV (plot_line_<field>_NNNNNN.png and .csv).
+        #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["series", "all", "movie"])]
+        line: Option<String>,
     },
 }
 
@@ -364,6 +373,8 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             movie,
             min,
             max,
+            particle_pressure,
+            line,
         } => {
             let opts = pmpm_cli::plot::PlotOptions {
                 frame,
@@ -377,6 +388,8 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
                 movie,
                 min,
                 max,
+                particle_pressure,
+                line,
             };
             for png in pmpm_cli::plot::plot(&outdir, &opts)? {
                 println!("wrote {}", png.display());

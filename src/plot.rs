@@ -14,6 +14,7 @@
 
 use crate::validation::plot::{self as vplot, colors, Panel, Series};
 use plotters::coord::Shift;
+use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use pmpm::error::Error;
@@ -29,6 +30,8 @@ pub enum Field {
     Speed,
     /// Material index, named from `run.toml`.
     Material,
+    /// A velocity component (m/s): 0 for vx, 1 for vy, 2 for vz.
+    Velocity(usize),
 }
 
 impl Field {
@@ -38,6 +41,9 @@ impl Field {
             "pressure" => Some(Field::Pressure),
             "speed" => Some(Field::Speed),
             "material" => Some(Field::Material),
+            "vx" => Some(Field::Velocity(0)),
+            "vy" => Some(Field::Velocity(1)),
+            "vz" => Some(Field::Velocity(2)),
             _ => None,
         }
     }
@@ -48,6 +54,7 @@ impl Field {
             Field::Pressure => "pressure",
             Field::Speed => "speed",
             Field::Material => "material",
+            Field::Velocity(d) => ["vx", "vy", "vz"][d.min(2)],
         }
     }
 
@@ -56,6 +63,7 @@ impl Field {
             Field::Pressure => "pressure (Pa)",
             Field::Speed => "speed (m/s)",
             Field::Material => "material",
+            Field::Velocity(d) => ["vx (m/s)", "vy (m/s)", "vz (m/s)"][d.min(2)],
         }
     }
 }
@@ -142,6 +150,10 @@ pub struct PlotOptions {
     pub min: Option<f64>,
     /// Upper end of the colour range (default: the data's).
     pub max: Option<f64>,
+    /// An explicit run's pressure as each particle has it, not smoothed through the grid.
+    pub particle_pressure: bool,
+    /// A profile of the field along a line, "X0,Y0[,Z0]:X1,Y1[,Z1]" (m).
+    pub line: Option<String>,
 }
 
 /// Draws what `opts` asks for from the output directory `dir`; returns the PNG files written.
@@ -185,7 +197,10 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
     let field = opts.field.unwrap_or(Field::Pressure);
     let frames = list_frames(dir)?;
     let info = RunInfo::read(dir);
-    let view = View::of(opts, &info)?;
+    let mut view = View::of(opts, &info)?;
+    if field == Field::Pressure && info.scheme.as_deref() == Some("explicit") {
+        view.smooth = (!opts.particle_pressure).then(|| Hat::of(&info)).flatten();
+    }
     let times = read_times(dir);
     let bodies = Bodies::read(dir, &info);
     let name = |n: usize| format!("plot_{}_{n:06}.png", field.name());
@@ -225,9 +240,13 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
                 Some(o) => o.clone(),
                 None => dir.join(format!("plot_{}.gif", field.name())),
             };
-            if out.extension().and_then(|e| e.to_str()) != Some("gif") {
+            let ext = out
+                .extension()
+                .and_then(|e| e.to_str())
+                .map(str::to_lowercase);
+            if !matches!(ext.as_deref(), Some("gif" | "mp4")) {
                 return Err(Error::Usage(format!(
-                    "--out {}: a movie is a .gif file",
+                    "--out {}: a movie is a .gif file (or .mp4, with ffmpeg on the PATH)",
                     out.display()
                 )));
             }
@@ -235,7 +254,11 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
                 let f = Frame::read(path, &view)?;
                 scene.sketch(&f, *n, time_of(*n)).pixels(&out)
             };
-            write_movie(&out, &frames, extent, view.three_d(&info), shot)?;
+            if ext.as_deref() == Some("mp4") {
+                write_mp4(&out, &frames, extent, view.three_d(&info), shot)?;
+            } else {
+                write_movie(&out, &frames, extent, view.three_d(&info), shot)?;
+            }
             return Ok(vec![out]);
         }
         let out_dir = opts.out.clone().unwrap_or_else(|| dir.to_path_buf());
@@ -264,6 +287,11 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
             }
         },
     };
+    if let Some(text) = &opts.line {
+        let f = Frame::read_all(&path)?;
+        let time = times.iter().find(|t| t.0 == n).map(|t| t.1);
+        return plot_line(dir, &f, n, time, field, text, &info, opts.out.as_deref());
+    }
     let f = Frame::read(&path, &view)?;
     let range = color_range(field, &f.range(field), opts);
     let out = png_path(opts.out.as_deref(), dir, &name(n))?;
@@ -292,6 +320,8 @@ struct View {
     plane: Plane,
     /// (axis, lower, upper): only the particles with lower <= x[axis] <= upper.
     slab: Option<(usize, f64, f64)>,
+    /// The grid the pressure is smoothed through (an explicit run's pressure pictures).
+    smooth: Option<Hat>,
 }
 
 impl View {
@@ -322,7 +352,11 @@ impl View {
                     Plane::Xz
                 }
             });
-            return Ok(Self { plane, slab: None });
+            return Ok(Self {
+                plane,
+                slab: None,
+                smooth: None,
+            });
         };
         let bad = |why: &str| Error::Usage(format!("--slice {text}: {why}"));
         if info.dim == Some(2) {
@@ -364,6 +398,7 @@ impl View {
         Ok(Self {
             plane,
             slab: Some((axis, value - 0.5 * thickness, value + 0.5 * thickness)),
+            smooth: None,
         })
     }
 
@@ -445,6 +480,90 @@ fn write_movie(
         Ok(())
     })
     .map_err(|e| failure.take().unwrap_or_else(|| Error::io(out, e)))
+}
+
+/// The frames of a movie as an MP4 (H.264) file at `out`, encoded by ffmpeg from the PATH at
+/// 10 frames a second; written to NAME.partial beside `out` and renamed when ffmpeg is done.
+/// No ffmpeg is a usage error (exit status 2).
+fn write_mp4(
+    out: &Path,
+    frames: &[(usize, PathBuf)],
+    extent: Extent,
+    three_d: bool,
+    shot: impl Fn(&(usize, PathBuf)) -> Result<Vec<u8>, Error> + Sync,
+) -> Result<(), Error> {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let (w, h) = frame_image_size(extent.width(), extent.height(), three_d);
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default();
+    let part = out.with_file_name(format!("{name}.partial"));
+    let mut child = Command::new("ffmpeg")
+        .args([
+            "-loglevel",
+            "error",
+            "-y",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "rgb24",
+        ])
+        .args(["-s", &format!("{w}x{h}"), "-r", "10", "-i", "-"])
+        // H.264 in yuv420p wants even sides
+        .args([
+            "-vf",
+            "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+            "-pix_fmt",
+            "yuv420p",
+            "-f",
+            "mp4",
+        ])
+        .arg(&part)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| {
+            Error::Usage(format!(
+                "--out {}: an MP4 movie needs ffmpeg on the PATH ({e}); write a .gif instead",
+                out.display()
+            ))
+        })?;
+    let mut stdin = child.stdin.take().expect("piped");
+    let mut drawn = Ok(());
+    'frames: for chunk in frames.chunks(rayon::current_num_threads().max(1)) {
+        let shots: Vec<Result<Vec<u8>, Error>> = chunk.par_iter().map(&shot).collect();
+        for s in shots {
+            match s.and_then(|rgb| stdin.write_all(&rgb).map_err(|e| Error::io(out, e))) {
+                Ok(()) => {}
+                Err(e) => {
+                    drawn = Err(e);
+                    break 'frames;
+                }
+            }
+        }
+    }
+    drop(stdin);
+    let done = child.wait_with_output().map_err(|e| Error::io(out, e))?;
+    let result = drawn.and_then(|()| {
+        if done.status.success() {
+            std::fs::rename(&part, out).map_err(|e| Error::io(out, e))
+        } else {
+            Err(Error::io(
+                out,
+                std::io::Error::other(format!(
+                    "ffmpeg failed: {}",
+                    String::from_utf8_lossy(&done.stderr).trim()
+                )),
+            ))
+        }
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&part);
+    }
+    result
 }
 
 /// Where one picture goes: `--out` when given (into it, under `name`, when it is a folder),
@@ -538,6 +657,13 @@ struct RunInfo {
     cell_size: Option<f64>,
     /// The deck's rigid bodies, as run.toml gives them.
     rigid: Vec<toml::Value>,
+    /// The scheme ("projection" or "explicit").
+    scheme: Option<String>,
+    /// Each face's kind ("slip", "no_slip", "open", "outflow", "periodic"), in the order
+    /// x_min, x_max, y_min, y_max, z_min, z_max.
+    faces: Vec<Option<String>>,
+    /// The inflow patches: (face index, lower corner, upper corner).
+    inflows: Vec<(usize, Vec<f64>, Vec<f64>)>,
 }
 
 impl RunInfo {
@@ -582,7 +708,35 @@ impl RunInfo {
         let number = |v: Option<&toml::Value>| {
             v.and_then(|x| x.as_float().or_else(|| x.as_integer().map(|i| i as f64)))
         };
+        let faces: Vec<Option<String>> = FACES
+            .iter()
+            .map(|name| {
+                let face = t.get("grid")?.get("boundary")?.get(*name)?;
+                let kind = face.as_str().or_else(|| face.get("type")?.as_str())?;
+                Some(kind.to_string())
+            })
+            .collect();
+        let inflows = t
+            .get("inflows")
+            .and_then(|i| i.as_array())
+            .map(|list| {
+                list.iter()
+                    .filter_map(|i| {
+                        let face = i.get("face")?.as_str()?;
+                        let k = FACES.iter().position(|f| *f == face)?;
+                        Some((k, floats(i.get("min"))?, floats(i.get("max"))?))
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
         Self {
+            scheme: t
+                .get("simulation")
+                .and_then(|s| s.get("scheme"))
+                .and_then(|s| s.as_str())
+                .map(str::to_string),
+            faces,
+            inflows,
             grid,
             materials,
             dim,
@@ -593,6 +747,170 @@ impl RunInfo {
                 .and_then(|r| r.as_array())
                 .cloned()
                 .unwrap_or_default(),
+        }
+    }
+}
+
+/// Points along a profile line.
+const LINE_POINTS: usize = 201;
+
+/// `--line`: the field along the segment from A to B in frame `n`, as a PNG and a CSV
+/// (`plot_line_<field>_NNNNNN.png` and `.csv`; `--out` names the PNG). At each of 201 points
+/// s the value is the particles' mass-weighted mean with the linear hat weights of a cell
+/// around s, sum_p N_p(s) m_p q_p / sum_p N_p(s) m_p: the grid's own spreading, at any point.
+/// A point with no particle within a cell has no value (left out of the picture, empty in
+/// the CSV).
+#[allow(clippy::too_many_arguments)]
+fn plot_line(
+    dir: &Path,
+    f: &Frame,
+    n: usize,
+    time: Option<f64>,
+    field: Field,
+    text: &str,
+    info: &RunInfo,
+    out: Option<&Path>,
+) -> Result<Vec<PathBuf>, Error> {
+    let bad = |why: &str| Error::Usage(format!("--line {text}: {why}"));
+    if field == Field::Material {
+        return Err(bad("a profile is of pressure, speed, vx, vy or vz"));
+    }
+    let point = |p: &str| -> Result<[f64; 3], Error> {
+        let v: Vec<f64> = p
+            .split(',')
+            .map(|c| c.trim().parse::<f64>().ok().filter(|c| c.is_finite()))
+            .collect::<Option<_>>()
+            .ok_or_else(|| bad("give X0,Y0:X1,Y1 (and Z in 3D), numbers in m"))?;
+        if v.len() != f.dim {
+            return Err(bad(&format!(
+                "a point of a {}D run has {} coordinates, got {}",
+                f.dim,
+                f.dim,
+                v.len()
+            )));
+        }
+        Ok(std::array::from_fn(|d| v.get(d).copied().unwrap_or(0.0)))
+    };
+    let (a, b) = text
+        .split_once(':')
+        .ok_or_else(|| bad("give two points A:B, as X0,Y0:X1,Y1"))?;
+    let (a, b) = (point(a)?, point(b)?);
+    let length = (0..3).map(|d| (b[d] - a[d]).powi(2)).sum::<f64>().sqrt();
+    if length == 0.0 {
+        return Err(bad("the two points are the same"));
+    }
+    let h = info
+        .cell_size
+        .ok_or_else(|| bad("run.toml, which gives the cell size, cannot be read"))?;
+    let mut rows = Vec::with_capacity(LINE_POINTS);
+    for k in 0..LINE_POINTS {
+        let t = k as f64 / (LINE_POINTS - 1) as f64;
+        let s: [f64; 3] = std::array::from_fn(|d| a[d] + t * (b[d] - a[d]));
+        let (mut sum, mut weight) = (0.0, 0.0);
+        for p in 0..f.x.len() {
+            let w: f64 = (0..f.dim)
+                .map(|d| (1.0 - (f.x[p][d] - s[d]).abs() / h).max(0.0))
+                .product();
+            let q = f.value(field, p);
+            if w > 0.0 && q.is_finite() {
+                sum += w * f.mass[p] * q;
+                weight += w * f.mass[p];
+            }
+        }
+        rows.push((t * length, s, (weight > 0.0).then(|| sum / weight)));
+    }
+    let name = format!("plot_line_{}_{n:06}", field.name());
+    let png = png_path(out, dir, &format!("{name}.png"))?;
+    let csv = png.with_extension("csv");
+    let axes = &["x", "y", "z"][..f.dim];
+    let mut body = format!("distance,{},{}\n", axes.join(","), field.name());
+    for (dist, s, v) in &rows {
+        let coords: Vec<String> = s[..f.dim].iter().map(|c| format!("{c:.9e}")).collect();
+        let value = v.map_or(String::new(), |v| format!("{v:.9e}"));
+        body.push_str(&format!("{dist:.9e},{},{value}\n", coords.join(",")));
+    }
+    pmpm::atomic::write_atomic(&csv, |w| std::io::Write::write_all(w, body.as_bytes()))
+        .map_err(|e| Error::io(&csv, e))?;
+    let pts: Vec<(f64, f64)> = rows
+        .iter()
+        .filter_map(|(dist, _, v)| v.map(|v| (*dist, v)))
+        .collect();
+    let when = time.map_or(String::new(), |t| format!(", t = {}", fmt_time(t)));
+    let fmt = |p: &[f64; 3]| {
+        let c: Vec<String> = p[..f.dim].iter().map(|c| short(*c)).collect();
+        format!("({})", c.join(", "))
+    };
+    let panel = Panel {
+        title: format!(
+            "{} from {} to {}, frame {n}{when}",
+            field.label(),
+            fmt(&a),
+            fmt(&b)
+        ),
+        x_label: "distance along the line (m)".into(),
+        y_label: field.label().into(),
+        series: vec![line("", pts, colors::PROJ)],
+        x_range: Some((0.0, length)),
+        ..Default::default()
+    };
+    vplot::save(&png, &[panel], 1, 800, 500)
+        .map_err(|e| Error::io(&png, std::io::Error::other(e)))?;
+    Ok(vec![png, csv])
+}
+
+/// The faces of the grid, as run.toml names them.
+const FACES: [&str; 6] = ["x_min", "x_max", "y_min", "y_max", "z_min", "z_max"];
+
+/// The grid of run.toml with linear hat weights: the explicit scheme's pressure is smoothed
+/// through it for display, as the grid frames spread the particles' fields.
+#[derive(Debug, Clone)]
+struct Hat {
+    dim: usize,
+    origin: [f64; 3],
+    h: f64,
+    /// Nodes along each axis (1 past the last axis).
+    nodes: [usize; 3],
+}
+
+impl Hat {
+    fn of(info: &RunInfo) -> Option<Self> {
+        let (o, size) = info.grid.as_ref()?;
+        let h = info.cell_size.filter(|h| *h > 0.0)?;
+        let dim = o.len();
+        let mut hat = Self {
+            dim,
+            origin: [0.0; 3],
+            h,
+            nodes: [1; 3],
+        };
+        for d in 0..dim {
+            hat.origin[d] = o[d];
+            hat.nodes[d] = (size[d] / h).round() as usize + 1;
+        }
+        Some(hat)
+    }
+
+    /// Calls `each(node, weight)` for the nodes of the cell holding `x`, with the linear hat
+    /// weights prod_d (1 - |x_d - x_i,d| / h) (a point outside the grid: its nearest cell's).
+    fn weights(&self, x: &[f64; 3], mut each: impl FnMut(usize, f64)) {
+        let mut base = [0usize; 3];
+        let mut frac = [0.0; 3];
+        for d in 0..self.dim {
+            let c = ((x[d] - self.origin[d]) / self.h).clamp(0.0, (self.nodes[d] - 1) as f64);
+            base[d] = (c.floor() as usize).min(self.nodes[d].saturating_sub(2));
+            frac[d] = c - base[d] as f64;
+        }
+        for corner in 0..1usize << self.dim {
+            let (mut node, mut stride, mut w) = (0, 1, 1.0);
+            for d in 0..self.dim {
+                let up = (corner >> d) & 1;
+                node += (base[d] + up) * stride;
+                stride *= self.nodes[d];
+                w *= if up == 1 { frac[d] } else { 1.0 - frac[d] };
+            }
+            if w > 0.0 {
+                each(node, w);
+            }
         }
     }
 }
@@ -643,27 +961,67 @@ struct Frame {
     x: Vec<[f64; 3]>,
     pressure: Vec<f64>,
     speed: Vec<f64>,
+    /// Velocity (vz = 0 in 2D).
+    v: Vec<[f64; 3]>,
     /// Particle size: volume^(1/D).
     size: Vec<f64>,
     material: Vec<usize>,
+    mass: Vec<f64>,
 }
 
 impl Frame {
     /// The frame at `path`, only the particles in `view`'s slab.
     fn read(path: &Path, view: &View) -> Result<Self, Error> {
         let mut f = Self::read_all(path)?;
+        if let Some(hat) = &view.smooth {
+            f.smooth_pressure(hat);
+        }
         if let Some((axis, lo, hi)) = view.slab {
             let keep: Vec<bool> = f.x.iter().map(|x| x[axis] >= lo && x[axis] <= hi).collect();
             let mut k = keep.iter();
             f.x.retain(|_| *k.next().unwrap());
+            let mut k = keep.iter();
+            f.v.retain(|_| *k.next().unwrap());
             for v in [&mut f.pressure, &mut f.speed, &mut f.size] {
                 let mut k = keep.iter();
                 v.retain(|_| *k.next().unwrap());
             }
             let mut k = keep.iter();
             f.material.retain(|_| *k.next().unwrap());
+            let mut k = keep.iter();
+            f.mass.retain(|_| *k.next().unwrap());
         }
         Ok(f)
+    }
+
+    /// The explicit scheme's pressure p = K (1 - J) alternates from particle to particle (a
+    /// checkerboard: J of nearly incompressible water varies at the particles' scale). For
+    /// display it is spread to the nodes, sum_p N_ip m_p p_p / sum_p N_ip m_p, and read back
+    /// at each particle with the same weights: the field a grid frame holds.
+    fn smooth_pressure(&mut self, hat: &Hat) {
+        let count: usize = hat.nodes.iter().product();
+        let (mut mp, mut m) = (vec![0.0; count], vec![0.0; count]);
+        for p in 0..self.x.len() {
+            let (mass, pressure) = (self.mass[p], self.pressure[p]);
+            if pressure.is_finite() {
+                hat.weights(&self.x[p], |i, w| {
+                    mp[i] += w * mass * pressure;
+                    m[i] += w * mass;
+                });
+            }
+        }
+        for p in 0..self.x.len() {
+            let (mut sum, mut weight) = (0.0, 0.0);
+            hat.weights(&self.x[p], |i, w| {
+                if m[i] > 0.0 {
+                    sum += w * mp[i] / m[i];
+                    weight += w;
+                }
+            });
+            if weight > 0.0 {
+                self.pressure[p] = sum / weight;
+            }
+        }
     }
 
     fn read_all(path: &Path) -> Result<Self, Error> {
@@ -689,14 +1047,17 @@ impl Frame {
             .map(|a| need(a))
             .collect::<Result<_, _>>()?;
         let (pi, voli, mi) = (need("pressure")?, need("volume")?, need("material")?);
+        let massi = need("mass")?;
         let n = t.rows.len();
         let mut f = Frame {
             dim,
             x: Vec::with_capacity(n),
             pressure: Vec::with_capacity(n),
             speed: Vec::with_capacity(n),
+            v: Vec::with_capacity(n),
             size: Vec::with_capacity(n),
             material: Vec::with_capacity(n),
+            mass: Vec::with_capacity(n),
         };
         for r in &t.rows {
             let mut x = [0.0; 3];
@@ -704,11 +1065,17 @@ impl Frame {
                 x[d] = r[i];
             }
             f.x.push(x);
+            let mut v = [0.0; 3];
+            for (d, &i) in vi.iter().enumerate() {
+                v[d] = r[i];
+            }
+            f.v.push(v);
             f.speed
                 .push(vi.iter().map(|&i| r[i] * r[i]).sum::<f64>().sqrt());
             f.pressure.push(r[pi]);
             f.size.push(r[voli].max(0.0).powf(1.0 / dim as f64));
             f.material.push(r[mi].max(0.0) as usize);
+            f.mass.push(r[massi]);
         }
         Ok(f)
     }
@@ -718,6 +1085,7 @@ impl Frame {
             Field::Pressure => self.pressure[p],
             Field::Speed => self.speed[p],
             Field::Material => self.material[p] as f64,
+            Field::Velocity(d) => self.v[p][d],
         }
     }
 
@@ -1038,9 +1406,15 @@ impl Sketch<'_> {
         let title_h = TITLE_H + if three_d { TITLE_3D_H } else { 0 };
         let (title, body) = root.split_vertically(title_h);
         let what = match self.scene.field {
+            Field::Pressure if self.scene.view.smooth.is_some() => {
+                "Pressure (smoothed on the grid)"
+            }
             Field::Pressure => "Pressure",
             Field::Speed => "Speed",
             Field::Material => "Material",
+            Field::Velocity(0) => "Velocity x",
+            Field::Velocity(1) => "Velocity y",
+            Field::Velocity(_) => "Velocity z",
         };
         let when = match self.time {
             Some(t) => format!("t = {}", fmt_time(t)),
@@ -1066,6 +1440,7 @@ impl Sketch<'_> {
         let (bw, _) = body.dim_in_pixel();
         let (plot_area, bar_area) = body.split_horizontally(bw - BAR_W);
         let outlines = self.scene.bodies.outlines(self.time.unwrap_or(0.0), a, b);
+        let walls = walls(self.scene.info, a, b);
         draw_particles(
             f,
             self.scene.field,
@@ -1075,6 +1450,7 @@ impl Sketch<'_> {
             b,
             self.scene.view.plane,
             &outlines,
+            &walls,
             &plot_area,
         )?;
         match self.scene.field {
@@ -1271,6 +1647,7 @@ fn draw_particles(
     b: usize,
     plane: Plane,
     outlines: &[Vec<(f64, f64)>],
+    walls: &[(Vec<(f64, f64)>, &str)],
     area: &Area<'_>,
 ) -> DrawResult {
     let build = |x: (f64, f64), y: (f64, f64)| {
@@ -1357,6 +1734,32 @@ fn draw_particles(
         [(extent.x.0, extent.y.0), (extent.x.1, extent.y.1)],
         RGBColor(90, 90, 90).stroke_width(1),
     )))?;
+    // the walls by kind: no-slip thick, slip thin, outflow dashed blue, periodic dashed grey,
+    // open not drawn; inflow patches green
+    for (line, kind) in walls {
+        let dark = RGBColor(40, 40, 40);
+        match *kind {
+            "no_slip" => chart.draw_series([PathElement::new(line.clone(), dark.stroke_width(5))]),
+            "slip" => chart.draw_series([PathElement::new(line.clone(), dark.stroke_width(2))]),
+            "inflow" => chart.draw_series([PathElement::new(
+                line.clone(),
+                RGBColor(0, 160, 60).stroke_width(6),
+            )]),
+            "outflow" => chart.draw_series([DashedPathElement::new(
+                line.clone(),
+                10,
+                6,
+                RGBColor(30, 90, 220).stroke_width(3),
+            )]),
+            "periodic" => chart.draw_series([DashedPathElement::new(
+                line.clone(),
+                4,
+                4,
+                RGBColor(120, 120, 120).stroke_width(1),
+            )]),
+            _ => continue,
+        }?;
+    }
     // the rigid bodies' outlines
     chart.draw_series(
         outlines
@@ -1364,6 +1767,39 @@ fn draw_particles(
             .map(|o| PathElement::new(o.clone(), RGBColor(200, 30, 30).stroke_width(2))),
     )?;
     Ok(())
+}
+
+/// The grid's faces seen edge-on in the plane of axes (a, b), each with its kind, and the
+/// inflow patches on them ("inflow"), from run.toml.
+fn walls(info: &RunInfo, a: usize, b: usize) -> Vec<(Vec<(f64, f64)>, &str)> {
+    let Some((o, s)) = &info.grid else {
+        return Vec::new();
+    };
+    // the edge of face k from `lo` to `hi` along the other axis of the plane
+    let edge = |k: usize, lo: &[f64], hi: &[f64]| -> Option<Vec<(f64, f64)>> {
+        let (axis, at) = (k / 2, o[k / 2] + if k % 2 == 1 { s[k / 2] } else { 0.0 });
+        if axis == a {
+            Some(vec![(at, lo[b]), (at, hi[b])])
+        } else if axis == b {
+            Some(vec![(lo[a], at), (hi[a], at)])
+        } else {
+            None
+        }
+    };
+    let top: Vec<f64> = o.iter().zip(s).map(|(o, s)| o + s).collect();
+    let mut out: Vec<(Vec<(f64, f64)>, &str)> = info
+        .faces
+        .iter()
+        .enumerate()
+        .take(o.len() * 2)
+        .filter_map(|(k, kind)| Some((edge(k, o, &top)?, kind.as_deref()?)))
+        .collect();
+    for (k, lo, hi) in &info.inflows {
+        if lo.len() == o.len() && hi.len() == o.len() {
+            out.extend(edge(*k, lo, hi).map(|line| (line, "inflow")));
+        }
+    }
+    out
 }
 
 fn draw_bar(field: Field, range: (f64, f64), data: &Stats, area: &Area<'_>) -> DrawResult {
@@ -1780,6 +2216,80 @@ mod tests {
         assert_eq!(short(-20.3645), "-20.4");
         assert_eq!(short(0.012345), "0.0123");
         assert_eq!(short(2.2e9), "2.20e9");
+    }
+
+    #[test]
+    fn smoothing_takes_out_a_checkerboard_and_keeps_a_linear_field() {
+        // particles on a lattice of spacing h/2, p = 1000 - 100 y plus a checkerboard of
+        // +-50: the nodes' weights see the checkerboard's signs in equal shares, and a linear
+        // field is reproduced, so inside the grid the smoothed pressure is the linear part
+        let h = 0.1;
+        let hat = Hat {
+            dim: 2,
+            origin: [0.0; 3],
+            h,
+            nodes: [11, 11, 1],
+        };
+        let n = 20;
+        let mut f = Frame {
+            dim: 2,
+            x: Vec::new(),
+            pressure: Vec::new(),
+            speed: Vec::new(),
+            v: Vec::new(),
+            size: Vec::new(),
+            material: Vec::new(),
+            mass: Vec::new(),
+        };
+        for i in 0..n {
+            for j in 0..n {
+                let (x, y) = ((i as f64 + 0.5) * h / 2.0, (j as f64 + 0.5) * h / 2.0);
+                let sign = if (i + j) % 2 == 0 { 1.0 } else { -1.0 };
+                f.x.push([x, y, 0.0]);
+                f.pressure.push(1000.0 - 100.0 * y + 50.0 * sign);
+                f.mass.push(2.5);
+            }
+        }
+        f.smooth_pressure(&hat);
+        let mut inside = 0;
+        for (x, p) in f.x.iter().zip(&f.pressure) {
+            if x[0] > h && x[0] < 0.9 && x[1] > h && x[1] < 0.9 {
+                assert!((p - (1000.0 - 100.0 * x[1])).abs() < 1e-9, "{x:?}: {p}");
+                inside += 1;
+            }
+        }
+        assert_eq!(inside, 16 * 16);
+    }
+
+    #[test]
+    fn walls_are_the_faces_seen_edge_on() {
+        let info = RunInfo {
+            grid: Some((vec![0.0, 0.0], vec![1.0, 0.5])),
+            dim: Some(2),
+            faces: ["slip", "outflow", "no_slip", "open"]
+                .iter()
+                .map(|k| Some(k.to_string()))
+                .collect(),
+            inflows: vec![(0, vec![0.0, 0.0], vec![0.0, 0.2])],
+            ..Default::default()
+        };
+        let w = walls(&info, 0, 1);
+        let expected: Vec<(Vec<(f64, f64)>, &str)> = vec![
+            (vec![(0.0, 0.0), (0.0, 0.5)], "slip"),
+            (vec![(1.0, 0.0), (1.0, 0.5)], "outflow"),
+            (vec![(0.0, 0.0), (1.0, 0.0)], "no_slip"),
+            (vec![(0.0, 0.5), (1.0, 0.5)], "open"),
+            (vec![(0.0, 0.0), (0.0, 0.2)], "inflow"),
+        ];
+        assert_eq!(w, expected);
+        // in 3D the faces across the line of sight are not edges
+        let info = RunInfo {
+            grid: Some((vec![0.0; 3], vec![1.0, 0.3, 0.5])),
+            dim: Some(3),
+            faces: vec![Some("no_slip".to_string()); 6],
+            ..Default::default()
+        };
+        assert_eq!(walls(&info, 0, 2).len(), 4);
     }
 
     #[test]

@@ -352,3 +352,131 @@ formats = ["csv"]
     assert!(frames >= 3, "{frames} frames");
     assert_eq!(gif.last(), Some(&0x3B));
 }
+
+#[test]
+fn a_line_profile_reads_the_hydrostatic_pressure() {
+    // A column at rest under the projection: p = rho g (H - y) at the particles, to
+    // round-off. Linear hat weights over a lattice of spacing h/2 reproduce a linear field,
+    // so the profile up the middle reads it exactly where the weights see a whole cell of
+    // water on each side (y from 2h to H - 2h).
+    let deck = r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 0.02
+dt = 0.005
+gravity = [0.0, -9.81]
+
+[grid]
+size = [0.4, 0.3]
+cell_size = 0.02
+
+[grid.boundary]
+x_min = "slip"
+x_max = "slip"
+y_min = "slip"
+y_max = "open"
+
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [0.4, 0.2] }
+particles_per_cell = 2
+
+[output]
+interval = 0.02
+formats = ["csv"]
+"#;
+    let out = run_deck("plot-line", deck);
+    let o = plot(&[s(&out), "--line", "0.2,0:0.2,0.3"]);
+    ok(&o);
+    let (png, csv) = (
+        out.join("plot_line_pressure_000001.png"),
+        out.join("plot_line_pressure_000001.csv"),
+    );
+    assert_eq!(
+        String::from_utf8_lossy(&o.stdout),
+        format!("wrote {}\nwrote {}\n", png.display(), csv.display())
+    );
+    assert_eq!(png_size(&png), (800, 500));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("distance,x,y,pressure"));
+    let (rho_g, top, h) = (1000.0 * 9.81, 0.2, 0.02);
+    let (mut inside, mut above) = (0, 0);
+    for line in lines {
+        let v: Vec<&str> = line.split(',').collect();
+        let y: f64 = v[2].parse().unwrap();
+        if y > top + h {
+            assert_eq!(v[3], "", "no water within a cell of y = {y}");
+            above += 1;
+        } else if (2.0 * h..=top - 2.0 * h).contains(&y) {
+            let p: f64 = v[3].parse().unwrap();
+            assert!(
+                (p - rho_g * (top - y)).abs() < 1e-9 * rho_g * top,
+                "y = {y}: {p} against {}",
+                rho_g * (top - y)
+            );
+            inside += 1;
+        }
+    }
+    assert_eq!(text.lines().count(), 202);
+    assert!(
+        inside >= 80 && above > 50,
+        "{inside} points inside, {above} above"
+    );
+
+    fails_with(
+        &plot(&[s(&out), "--line", "0.2,0"]),
+        "--line 0.2,0: give two points A:B, as X0,Y0:X1,Y1",
+    );
+    fails_with(
+        &plot(&[s(&out), "--line", "0.2,0,0:0.2,0.3,0"]),
+        "--line 0.2,0,0:0.2,0.3,0: a point of a 2D run has 2 coordinates, got 3",
+    );
+    fails_with(
+        &plot(&[s(&out), "--line", "0.2,0:0.2,0.3", "--field", "material"]),
+        "--line 0.2,0:0.2,0.3: a profile is of pressure, speed, vx, vy or vz",
+    );
+    // a velocity component colours a frame too
+    ok(&plot(&[s(&out), "--field", "vy"]));
+    assert!(out.join("plot_vy_000001.png").is_file());
+}
+
+#[test]
+fn an_mp4_needs_ffmpeg() {
+    let out = run_deck("plot-mp4", SMALL_2D);
+    let movie = out.join("movie.mp4");
+    // no ffmpeg where PATH points: a usage error, and no file
+    let empty = scratch_dir("plot-no-path");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pmpm"))
+        .args(["plot", s(&out), "--movie", "--out", s(&movie)])
+        .env("PATH", &empty)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.starts_with(&format!(
+            "error: --out {}: an MP4 movie needs ffmpeg on the PATH (",
+            movie.display()
+        )),
+        "{err}"
+    );
+    assert!(!movie.exists());
+    assert!(!out.join("movie.mp4.partial").exists());
+    // with ffmpeg, where this machine has it: an MP4 file
+    let has_ffmpeg = std::process::Command::new("ffmpeg")
+        .arg("-version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if has_ffmpeg {
+        ok(&plot(&[s(&out), "--movie", "--out", s(&movie)]));
+        let bytes = std::fs::read(&movie).unwrap();
+        assert_eq!(&bytes[4..8], b"ftyp", "an MP4 starts with its ftyp box");
+    }
+}
