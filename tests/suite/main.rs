@@ -7,6 +7,7 @@ mod bingham;
 mod checkpoint;
 mod common;
 mod elastic;
+mod example_headers;
 mod faults;
 mod gauges;
 mod geometry;
