@@ -462,24 +462,34 @@ fn write_movie(
         let mut enc = gif::Encoder::new(file, w16, h16, &[]).map_err(std::io::Error::other)?;
         enc.set_repeat(gif::Repeat::Infinite)
             .map_err(std::io::Error::other)?;
-        for chunk in frames.chunks(rayon::current_num_threads().max(1)) {
-            let shots: Vec<Result<Vec<u8>, Error>> = chunk.par_iter().map(&shot).collect();
-            for s in shots {
-                let rgb = match s {
-                    Ok(rgb) => rgb,
-                    Err(e) => {
-                        failure = Some(e);
-                        return Err(std::io::Error::other("a frame could not be drawn"));
-                    }
-                };
-                let mut frame = gif::Frame::from_rgb_speed(w16, h16, &rgb, 10);
-                frame.delay = 10;
-                enc.write_frame(&frame).map_err(std::io::Error::other)?;
-            }
-        }
-        Ok(())
+        in_order(frames, &shot, |rgb| {
+            let mut frame = gif::Frame::from_rgb_speed(w16, h16, &rgb, 10);
+            frame.delay = 10;
+            enc.write_frame(&frame)
+                .map_err(|e| Error::io(out, std::io::Error::other(e)))
+        })
+        .map_err(|e| {
+            failure = Some(e);
+            std::io::Error::other("a frame could not be drawn")
+        })
     })
     .map_err(|e| failure.take().unwrap_or_else(|| Error::io(out, e)))
+}
+
+/// Draws `frames` with `shot`, as many at once as there are workers, and hands each picture
+/// to `sink` in the frames' order; stops at the first error.
+fn in_order(
+    frames: &[(usize, PathBuf)],
+    shot: impl Fn(&(usize, PathBuf)) -> Result<Vec<u8>, Error> + Sync,
+    mut sink: impl FnMut(Vec<u8>) -> Result<(), Error>,
+) -> Result<(), Error> {
+    for chunk in frames.chunks(rayon::current_num_threads().max(1)) {
+        let shots: Vec<Result<Vec<u8>, Error>> = chunk.par_iter().map(&shot).collect();
+        for s in shots {
+            sink(s?)?;
+        }
+    }
+    Ok(())
 }
 
 /// The frames of a movie as an MP4 (H.264) file at `out`, encoded by ffmpeg from the PATH at
@@ -532,19 +542,9 @@ fn write_mp4(
             ))
         })?;
     let mut stdin = child.stdin.take().expect("piped");
-    let mut drawn = Ok(());
-    'frames: for chunk in frames.chunks(rayon::current_num_threads().max(1)) {
-        let shots: Vec<Result<Vec<u8>, Error>> = chunk.par_iter().map(&shot).collect();
-        for s in shots {
-            match s.and_then(|rgb| stdin.write_all(&rgb).map_err(|e| Error::io(out, e))) {
-                Ok(()) => {}
-                Err(e) => {
-                    drawn = Err(e);
-                    break 'frames;
-                }
-            }
-        }
-    }
+    let drawn = in_order(frames, shot, |rgb| {
+        stdin.write_all(&rgb).map_err(|e| Error::io(out, e))
+    });
     drop(stdin);
     let done = child.wait_with_output().map_err(|e| Error::io(out, e))?;
     let result = drawn.and_then(|()| {
