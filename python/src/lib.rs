@@ -228,6 +228,8 @@ impl Simulation {
             ..self.clock
         };
         let mut driver = Driver::resume(clock, self.next_frame);
+        let end = self.deck.simulation.end_time;
+        let toward = until.filter(|u| (u - end).abs() > clock.eps());
         let (inner, pool) = (&mut self.inner, &self.pool);
         // The loop runs on a worker of the pool, as `pmpm run` does: the many short parallel
         // loops of a step then start without waking a sleeping thread from outside the pool
@@ -239,7 +241,8 @@ impl Simulation {
                     if until.is_some() && with_sim!(&*inner, s => driver.finished(s.as_ref())) {
                         return Ok(taken);
                     }
-                    with_sim!(&mut *inner, s => driver.step(s.as_mut())).map_err(py_err)?;
+                    with_sim!(&mut *inner, s => step_toward(&mut driver, s.as_mut(), toward))
+                        .map_err(py_err)?;
                     taken += 1;
                     if until.is_none() {
                         return Ok(taken);
@@ -251,6 +254,38 @@ impl Simulation {
         self.next_frame = driver.next_frame;
         taken
     }
+}
+
+/// One step of the driver's size, except on the way to a time `until` other than the deck's
+/// end (None: to the clock's end, as `pmpm run` steps): when less than two steps are left, they share the time left equally. Cut to land on
+/// `until`, the last step could be a sliver, and a projection step that short turns the
+/// divergence left over into a pressure spike (the driver's `land_on_frames` avoids the same
+/// for frames). Stepping the 2D dam break to each 0.01 s with slivers: 515 steps, the
+/// particles' volume off by 0.16 % at worst; `pmpm run`: 499 steps, 0.03 %.
+fn step_toward<const D: usize>(
+    driver: &mut Driver,
+    sim: &mut Sim<D>,
+    until: Option<f64>,
+) -> Result<(), Error> {
+    let dt = match until {
+        Some(until) => {
+            let natural = Clock {
+                end: f64::INFINITY,
+                ..driver.clock
+            }
+            .next_dt(sim, driver.next_frame);
+            let left = until - sim.time;
+            if left < 2.0 * natural {
+                // a step a hair short of `natural` (round-off in the time) counts as one
+                left / (left / natural - 1e-9).ceil().max(1.0)
+            } else {
+                natural
+            }
+        }
+        // to the deck's end: the steps `pmpm run` takes
+        None => driver.clock.next_dt(sim, driver.next_frame),
+    };
+    driver.step_by(sim, dt).map(|_| ())
 }
 
 /// A pool of `threads` workers (all cores by default), as `--threads` makes.

@@ -125,8 +125,18 @@ impl Driver {
 
     /// Takes one step of the policy's size and says whether a frame is due after it.
     pub fn step<const D: usize>(&mut self, sim: &mut Simulation<D>) -> Result<Step, Error> {
-        let t0 = sim.time;
         let dt = self.clock.next_dt(sim, self.next_frame);
+        self.step_by(sim, dt)
+    }
+
+    /// Takes one step of size `dt` (a caller's own choice, within the policy's) and says
+    /// whether a frame is due after it.
+    pub fn step_by<const D: usize>(
+        &mut self,
+        sim: &mut Simulation<D>,
+        dt: f64,
+    ) -> Result<Step, Error> {
+        let t0 = sim.time;
         sim.step(dt)?;
         let eps = self.clock.eps();
         let frame = sim.time >= self.next_frame - eps || self.finished(sim);
