@@ -161,6 +161,8 @@ struct Run {
     dir: PathBuf,
     steps: u64,
     particles: usize,
+    /// The CSV frames, read once, at the first figure that needs them.
+    frames: std::cell::OnceCell<Vec<(f64, Table)>>,
 }
 
 impl Run {
@@ -173,7 +175,10 @@ impl Run {
     }
 
     /// The CSV particle frames in order, with their times.
-    fn frames(&self) -> Result<Vec<(f64, Table)>, String> {
+    fn frames(&self) -> Result<&[(f64, Table)], String> {
+        if let Some(f) = self.frames.get() {
+            return Ok(f);
+        }
         let series = self.table("series")?;
         let (f, t) = (column(&series, "frame")?, column(&series, "time")?);
         let mut out = Vec::new();
@@ -183,12 +188,12 @@ impl Run {
                 .join(format!("frames/particles_{:06}.csv", row[f] as usize));
             out.push((row[t], Table::read(&path)?));
         }
-        Ok(out)
+        Ok(self.frames.get_or_init(|| out))
     }
 
     /// The CSV frame nearest time `t`: a run that does not land on frame times writes each
     /// frame at the first step past it. No frame within half the frame interval is an error.
-    fn frame_at(&self, t: f64) -> Result<Table, String> {
+    fn frame_at(&self, t: f64) -> Result<&Table, String> {
         let frames = self.frames()?;
         let gap = frames
             .windows(2)
@@ -196,7 +201,7 @@ impl Run {
             .filter(|g| *g > 0.0)
             .fold(f64::INFINITY, f64::min);
         frames
-            .into_iter()
+            .iter()
             .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))
             .filter(|(time, _)| (time - t).abs() <= 0.5 * gap)
             .map(|(_, table)| table)
@@ -266,7 +271,7 @@ impl Run {
                 let v0: std::collections::HashMap<u64, f64> =
                     first.rows.iter().map(|r| (r[id] as u64, r[vol])).collect();
                 let mut least = 1.0f64;
-                for (_, t) in &frames {
+                for (_, t) in frames {
                     let kept = t
                         .rows
                         .iter()
@@ -389,6 +394,7 @@ fn run_example(path: &Path) -> Result<Run, String> {
         dir,
         steps: summary.steps,
         particles: summary.particles,
+        frames: std::cell::OnceCell::new(),
     })
 }
 
