@@ -240,7 +240,7 @@ impl Run {
                 let total = |t: &Table| {
                     column(t, "volume").map(|c| t.rows.iter().map(|r| r[c]).sum::<f64>())
                 };
-                Ok(total(&now)? / total(first)? - 1.0)
+                Ok(total(now)? / total(first)? - 1.0)
             }
             "settlement" => {
                 let (first, now) = (&self.frames()?[0].1, self.frame_at(num(0)?)?);
@@ -286,13 +286,13 @@ impl Run {
             }
             "frame_max" | "frame_min" | "frame_mean" => {
                 let t = self.frame_at(num(1)?)?;
-                let c = column(&t, arg(0)?)?;
+                let c = column(t, arg(0)?)?;
                 let rows: Vec<&Vec<f64>> = match a.get(2) {
                     Some(m) => {
                         let m: f64 = m
                             .parse()
                             .map_err(|_| "material is not a number".to_string())?;
-                        let mc = column(&t, "material")?;
+                        let mc = column(t, "material")?;
                         t.rows.iter().filter(|r| r[mc] == m).collect()
                     }
                     None => t.rows.iter().collect(),
