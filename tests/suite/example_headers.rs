@@ -22,6 +22,7 @@
 //! | `settlement(t)` | how far the particles of the top row at t = 0 (the highest y) have moved down by time t, on average |
 //! | `frame_max(col, t)`, `frame_min(col, t)` | a CSV frame column's max / min in the frame nearest time t |
 //! | `frame_mean(col, t[, material])` | its mean, of one material's particles if given |
+//! | `depth(x0, x1, t)` | 2D: the particles' volume with x0 <= x < x1 per length x1 - x0, in the frame nearest time t |
 //! | `csv_first(file, col)`, `csv_last(file, col)` | first / last row of series, probes, rigid_bodies or gauges |
 //! | `csv_at(file, col, t)` | the first row at or after time t |
 //! | `csv_max(file, col[, t0, t1])`, `csv_min(...)` | over all rows, or those with t0 <= time <= t1 |
@@ -283,6 +284,18 @@ impl Run {
                     least = least.min(kept as f64 / t.rows.len() as f64);
                 }
                 Ok(least)
+            }
+            "depth" => {
+                let (x0, x1) = (num(0)?, num(1)?);
+                let t = self.frame_at(num(2)?)?;
+                let (x, vol) = (column(t, "x")?, column(t, "volume")?);
+                let held: f64 = t
+                    .rows
+                    .iter()
+                    .filter(|r| r[x] >= x0 && r[x] < x1)
+                    .map(|r| r[vol])
+                    .sum();
+                Ok(held / (x1 - x0))
             }
             "frame_max" | "frame_min" | "frame_mean" => {
                 let t = self.frame_at(num(1)?)?;
