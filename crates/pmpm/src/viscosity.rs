@@ -268,12 +268,11 @@ impl<const D: usize> ImplicitViscosity<D> {
     /// is); the other cells (at the free surface, next to a rigid body, where fluids or a fluid
     /// and a solid meet) take their particles as points, of weight V_p.
     ///
-    /// Integrated at the particles alone, K weighs each cell by the volume of the particles in
-    /// it, at the places they happen to be. Where a flow has stirred the particles (a sheared
-    /// film in a channel: cells holding 0.5 to 2 times their volume, J at 1 throughout) the
-    /// film's resistance ran through its least filled cells: it flowed a fifth to a half faster
-    /// than the viscosity gives, and the pressure strayed from hydrostatic by nearly its own
-    /// size. Inside the fluid the weak form integrates over the cell, whatever it holds.
+    /// Why: integrated at the particles alone, K weighs each cell by the volume of the
+    /// particles in it, at the places they happen to be, so where a flow has stirred them a
+    /// film's resistance runs through its least filled cells (docs/method.md, "Implicit
+    /// viscosity", has the figures). Inside the fluid the weak form integrates over the cell,
+    /// whatever it holds.
     fn quadrature(
         &mut self,
         ps: &Particles<D>,
