@@ -218,6 +218,14 @@ impl<const D: usize> GridGeometry<D> {
     }
 }
 
+/// Gauss point `k` (0 to 2^D - 1, bit d for axis d) of the 2-point Gauss rule on a cell, as a
+/// fraction of the cell from its lower corner: 1/2 -+ 1/(2 sqrt 3) along each axis. The
+/// pressure's cell quadrature and the viscous solve's deep cells both use it.
+pub fn gauss_point<const D: usize>(k: usize) -> Vector<D> {
+    let a = 0.5 / 3f64.sqrt();
+    Vector::<D>::from_fn(|d, _| if (k >> d) & 1 == 1 { 0.5 + a } else { 0.5 - a })
+}
+
 /// Particles sorted by the cell they are in (a counting sort, redone every step with reused
 /// buffers), so that a node can gather from the particles of the cells around it: the
 /// projection's assembly and corrector are gathers, deterministic for any thread count.

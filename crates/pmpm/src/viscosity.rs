@@ -331,7 +331,6 @@ impl<const D: usize> ImplicitViscosity<D> {
         self.coefficient.clear();
         self.point_material.clear();
         let corners = 1usize << D;
-        let a = 0.5 / 3f64.sqrt();
         let gauss_weight = geo.h.powi(D as i32) / corners as f64;
         for c in 0..n {
             if sums[c].0 <= 0.0 {
@@ -344,10 +343,9 @@ impl<const D: usize> ImplicitViscosity<D> {
             if deep(c) {
                 let lower = geo.node_position(&idx);
                 for k in 0..corners {
-                    self.points.push(Vector::<D>::from_fn(|d, _| {
-                        let s = if (k >> d) & 1 == 1 { 0.5 + a } else { 0.5 - a };
-                        lower[d] + s * geo.h
-                    }));
+                    let s = crate::grid::gauss_point::<D>(k);
+                    self.points
+                        .push(Vector::<D>::from_fn(|d, _| lower[d] + s[d] * geo.h));
                     self.widths.push(0.0);
                     self.coefficient.push(dt * gauss_weight);
                     self.point_material.push(sums[c].1);

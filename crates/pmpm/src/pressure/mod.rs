@@ -1117,7 +1117,6 @@ impl<const D: usize> GaussPoints<D> {
         let mean_density = mass.iter().sum::<f64>() / volume.iter().sum::<f64>();
         let corners = 1usize << D;
         let cell_volume = geo.h.powi(D as i32);
-        let a = 0.5 / 3f64.sqrt();
         for (c, &phi) in fraction.iter().enumerate() {
             let w = phi.min(1.0);
             let idx = geo.multi(c);
@@ -1177,10 +1176,8 @@ impl<const D: usize> GaussPoints<D> {
             let vol = w.max(0.0) * cell_volume / corners as f64;
             let matrix_vol = matrix_share * cell_volume / corners as f64;
             for k in 0..corners {
-                let x = Vector::<D>::from_fn(|d, _| {
-                    let s = if (k >> d) & 1 == 1 { 0.5 + a } else { 0.5 - a };
-                    lower[d] + s * geo.h
-                });
+                let s = crate::grid::gauss_point::<D>(k);
+                let x = Vector::<D>::from_fn(|d, _| lower[d] + s[d] * geo.h);
                 self.x.push(x);
                 self.volume.push(vol);
                 self.volume_over_density.push(matrix_vol / rho);
@@ -1190,18 +1187,7 @@ impl<const D: usize> GaussPoints<D> {
         }
         if self.templates.is_empty() {
             let stencils = (0..corners)
-                .map(|k| {
-                    let x = Vector::<D>::from_fn(
-                        |d, _| {
-                            if (k >> d) & 1 == 1 {
-                                0.5 + a
-                            } else {
-                                0.5 - a
-                            }
-                        },
-                    );
-                    Stencil::<D>::new(shape, &x, geo.h, 0.0)
-                })
+                .map(|k| Stencil::<D>::new(shape, &crate::grid::gauss_point::<D>(k), geo.h, 0.0))
                 .collect();
             self.templates = assemble::ReferenceCell::new(stencils);
         }
