@@ -1220,22 +1220,8 @@ impl<const D: usize> RigidBodies<D> {
             if !wet(geo, phi, &f.x) {
                 continue;
             }
-            // over the nodes that carry a pressure: the wider shape functions reach nodes
-            // inside the body that no material reaches, whose pressure is not solved for
-            let st = Stencil::<D>::new(shape, &geo.to_cells(&f.x), geo.h, 0.0);
-            let (mut p, mut weight) = (0.0, 0.0);
-            st.for_each(|nw| {
-                let i = geo.flat(&nw.node);
-                if matches!(
-                    kinds[geo.canonical(i)],
-                    NodeKind::Interior | NodeKind::FreeSurface
-                ) {
-                    p += nw.n * node_pressure[i];
-                    weight += nw.n;
-                }
-            });
-            if weight > 0.0 {
-                self.force[f.body][f.axis] += f.sign * p / weight * f.weight;
+            if let Some(p) = surface_pressure(geo, node_pressure, kinds, &f.x) {
+                self.force[f.body][f.axis] += f.sign * p * f.weight;
             }
         }
         // and on the shaped bodies' wet surfaces, at the rays' crossings
