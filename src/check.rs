@@ -307,6 +307,12 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     }
     rigid_bodies(deck, D, &mut out);
     inflows::<D>(deck, &mut out);
+    for (i, z) in deck.damping_zones.iter().enumerate() {
+        out += &format!(
+            "  damping zone {i}   {} from {} m (rate 0) to {} m ({} 1/s) and beyond, as s^2\n",
+            z.axis, z.from, z.to, z.rate
+        );
+    }
     out += &format!("  particles        {}\n", sim.particles.len());
     out += &format!(
         "  transfer         {:?}, shape functions {:?}\n",

@@ -50,7 +50,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown table",
             edit(&[("[output]", "[outputs]")]),
-            "bad.toml:32:2: outputs: unknown key; did you mean `output`? (valid keys: pmpm, simulation, grid, pressure, materials, bodies, rigid_bodies, inflows, output)",
+            "bad.toml:32:2: outputs: unknown key; did you mean `output`? (valid keys: pmpm, simulation, grid, pressure, materials, bodies, rigid_bodies, inflows, damping_zones, output)",
         ),
         // unknown values: the nearest allowed value, and the allowed values
         (
@@ -459,6 +459,27 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "an inflow of a material the deck lacks",
             format!("{SMALL_2D}\n[[inflows]]\nmaterial = \"mud\"\nface = \"x_min\"\nmin = [0.0, 0.0]\nmax = [0.0, 0.05]\nvelocity = [0.1, 0.0]\n"),
             "bad.toml: inflows[0].material: no material named \"mud\" (defined: \"water\")",
+        ),
+        // damping zones
+        (
+            "a damping zone along z in 2D",
+            format!("{SMALL_2D}\n[[damping_zones]]\naxis = \"z\"\nfrom = 0.3\nto = 0.4\nrate = 5.0\n"),
+            "bad.toml: damping_zones[0].axis: must be one of \"x\", \"y\" (dimension = 2), got \"z\"",
+        ),
+        (
+            "a damping zone past the grid",
+            format!("{SMALL_2D}\n[[damping_zones]]\naxis = \"x\"\nfrom = 0.3\nto = 0.5\nrate = 5.0\n"),
+            "bad.toml: damping_zones[0].to: must lie in the grid along x ([0, 0.4]), got 0.5",
+        ),
+        (
+            "a damping zone thinner than a cell",
+            format!("{SMALL_2D}\n[[damping_zones]]\naxis = \"x\"\nfrom = 0.39\nto = 0.4\nrate = 5.0\n"),
+            "bad.toml: damping_zones[0].to: must be at least a cell (grid.cell_size = 0.02) from `from` = 0.39, got 0.4: the rate grows from 0 at `from` to `rate` at `to`, and a sudden rise reflects the waves the zone should absorb",
+        ),
+        (
+            "a damping zone without a rate",
+            format!("{SMALL_2D}\n[[damping_zones]]\naxis = \"x\"\nfrom = 0.3\nto = 0.4\nrate = 0.0\n"),
+            "bad.toml: damping_zones[0].rate: must be > 0, got 0",
         ),
         // rigid bodies
         // rigid bodies of the general path and free bodies: the keys that do not go together

@@ -27,6 +27,8 @@
 //! | `csv_at(file, col, t)` | the first row at or after time t |
 //! | `csv_max(file, col[, t0, t1])`, `csv_min(...)` | over all rows, or those with t0 <= time <= t1 |
 //! | `csv_mean(file, col, t0, t1)` | mean over t0 < time <= t1, each row weighted by the time since the row before |
+//! | `csv_period(file, col, t0, t1)` | the mean period of an oscillation: the time between its first and last upward crossings of its mean (as `csv_mean`) over t0 <= time <= t1, over the number of periods between them |
+//! | `csv_amplitude(file, col, T, t0, t1)` | the amplitude of its component of period T, \|(2 / span) sum y e^(-2 pi i t / T) dt\| over t0 < time <= t1 (a whole number of periods), each row weighted as in `csv_mean` |
 //!
 //! `cargo test --release` runs every example but the slowest ones (about 2 minutes on 2
 //! cores); `cargo test --release --test suite -- --ignored example_headers` runs those
@@ -38,7 +40,7 @@ use pmpm_cli::table::Table;
 use std::path::{Path, PathBuf};
 
 /// The examples that take more than about 10 s on 2 cores: checked by the ignored test.
-const SLOW: [&str; 20] = [
+const SLOW: [&str; 21] = [
     "bingham_slump_2d_explicit",
     "dam_break_closed_tank_2d",
     "dam_break_closed_tank_2d_explicit",
@@ -58,6 +60,7 @@ const SLOW: [&str; 20] = [
     "open_channel_2d",
     "sloshing_2d",
     "strip_footing_2d",
+    "wave_flume_2d",
     "yield_block_slump_2d_explicit",
 ];
 
@@ -316,6 +319,50 @@ impl Run {
                     "frame_min" => values.fold(f64::INFINITY, f64::min),
                     _ => values.sum::<f64>() / rows.len() as f64,
                 })
+            }
+            "csv_period" | "csv_amplitude" => {
+                let t = self.table(arg(0)?)?;
+                let (time, c) = (column(&t, "time")?, column(&t, arg(1)?)?);
+                let (period, t0, t1) = if fig.measure == "csv_amplitude" {
+                    (num(2)?, num(3)?, num(4)?)
+                } else {
+                    (0.0, num(2)?, num(3)?)
+                };
+                // (time, weight, value) of the rows in the window, each weighted by the time
+                // since the row before
+                let mut rows = Vec::new();
+                let mut before = 0.0f64;
+                for r in &t.rows {
+                    if r[time] > t0 + 1e-9 && r[time] <= t1 + 1e-9 {
+                        rows.push((r[time], r[time] - before.max(t0), r[c]));
+                    }
+                    before = r[time];
+                }
+                let span: f64 = rows.iter().map(|r| r.1).sum();
+                if span <= 0.0 {
+                    return Err(format!("no row of {} in the window", arg(0)?));
+                }
+                if fig.measure == "csv_amplitude" {
+                    let w = 2.0 * std::f64::consts::PI / period;
+                    let (re, im) = rows.iter().fold((0.0, 0.0), |(re, im), &(s, dt, y)| {
+                        (re + y * (w * s).cos() * dt, im - y * (w * s).sin() * dt)
+                    });
+                    return Ok(2.0 / span * (re * re + im * im).sqrt());
+                }
+                let mean = rows.iter().map(|r| r.1 * r.2).sum::<f64>() / span;
+                let ups: Vec<f64> = rows
+                    .windows(2)
+                    .filter(|p| p[0].2 < mean && p[1].2 >= mean)
+                    .map(|p| p[0].0 + (mean - p[0].2) / (p[1].2 - p[0].2) * (p[1].0 - p[0].0))
+                    .collect();
+                match (ups.first(), ups.last()) {
+                    (Some(a), Some(b)) if ups.len() >= 2 => Ok((b - a) / (ups.len() - 1) as f64),
+                    _ => Err(format!(
+                        "{} crosses its mean upwards {} times in the window: no period",
+                        arg(1)?,
+                        ups.len()
+                    )),
+                }
             }
             "csv_first" | "csv_last" | "csv_at" | "csv_max" | "csv_min" | "csv_mean" => {
                 let t = self.table(arg(0)?)?;

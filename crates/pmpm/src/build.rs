@@ -107,7 +107,14 @@ impl<const D: usize> Simulation<D> {
         let averaging = (deck.simulation.volumetric_averaging == VolumetricAveraging::Nodal
             || averaged)
             .then(|| NodalAveraging::new(rayon::current_num_threads(), geo.node_count()));
+        let zones: Vec<crate::damping::DampingZone> = deck
+            .damping_zones
+            .iter()
+            .map(crate::deck::DampingZoneDeck::zone)
+            .collect();
+        let damping = crate::damping::node_rates(&zones, &geo);
         let parts = Parts {
+            damping,
             policy: step_policy(deck),
             particles,
             geo,

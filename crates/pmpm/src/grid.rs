@@ -298,6 +298,9 @@ pub struct Grid<const D: usize> {
     pub body: Vec<Vector<D>>,
     /// Mass-weighted particle pressure, sum N m p; divided by m_i after P2G.
     pub pressure: Vec<f64>,
+    /// The damping zones' rate at each node (1/s; [`crate::damping`]), fixed for the run;
+    /// empty where the deck has none.
+    pub damping: Vec<f64>,
 }
 
 impl<const D: usize> Grid<D> {
@@ -313,6 +316,7 @@ impl<const D: usize> Grid<D> {
             force: vec![Vector::<D>::zeros(); n],
             body: vec![Vector::<D>::zeros(); n],
             pressure: vec![0.0; n],
+            damping: Vec::new(),
         }
     }
 }

@@ -69,6 +69,7 @@ pub mod averaging;
 pub mod boundary;
 pub mod build;
 pub mod checkpoint;
+pub mod damping;
 pub mod deck;
 pub mod driver;
 pub mod error;

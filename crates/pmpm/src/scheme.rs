@@ -116,6 +116,8 @@ pub struct Parts<const D: usize> {
     pub body_force: Option<crate::field::CompiledField>,
     /// The implicit viscous solve (`simulation.viscosity = "implicit"`).
     pub viscosity: Option<ImplicitViscosity<D>>,
+    /// The damping zones' rate at each node (empty: none).
+    pub damping: Vec<f64>,
 }
 
 /// The whole state of a run: particles, grid, settings, time.
@@ -169,7 +171,10 @@ impl<const D: usize> Simulation<D> {
             viscosity: parts.viscosity,
             policy: parts.policy,
             particles: parts.particles,
-            grid: Grid::new(parts.geo),
+            grid: Grid {
+                damping: parts.damping,
+                ..Grid::new(parts.geo)
+            },
             materials: parts.materials,
             settings: parts.settings,
             boundary: parts.boundary,
@@ -844,7 +849,8 @@ pub(crate) fn least_density<const D: usize>(ps: &Particles<D>) -> f64 {
 }
 
 impl<const D: usize> Grid<D> {
-    /// Predictor on the nodes: v* = v^n / (1 + dt damping) + dt f / m, zero on empty nodes.
+    /// Predictor on the nodes: v* = v^n / (1 + dt c_i) + dt f / m, zero on empty nodes, with
+    /// c_i = damping + the damping zones' rate at the node ([`crate::damping`]).
     /// The damping acts on the velocity the node has (implicitly, so it is stable for any
     /// coefficient), not on the step's force: damping the force too, (v^n + dt f / m) /
     /// (1 + dt damping), made a column at rest under the projection carry only
@@ -861,7 +867,7 @@ impl<const D: usize> Grid<D> {
     /// answered with 3.6 kPa a quarter of a cell below the surface, and a particle left at
     /// 4 m/s). The body force is a force per unit mass and stays whole.
     pub fn predict(&mut self, dt: f64, damping: f64, mass_epsilon: f64, mass_floor: f64) {
-        let scale = 1.0 / (1.0 + dt * damping);
+        let zones = &self.damping;
         (
             self.velocity_new.par_iter_mut(),
             self.velocity.par_iter(),
@@ -870,7 +876,10 @@ impl<const D: usize> Grid<D> {
             self.mass.par_iter(),
         )
             .into_par_iter()
-            .for_each(|(vn, v, f, b, &m)| {
+            .enumerate()
+            .for_each(|(i, (vn, v, f, b, &m))| {
+                let rate = damping + zones.get(i).copied().unwrap_or(0.0);
+                let scale = 1.0 / (1.0 + dt * rate);
                 *vn = if m >= mass_floor && m > mass_epsilon {
                     v * scale + f * (dt / m)
                 } else if m > mass_epsilon {

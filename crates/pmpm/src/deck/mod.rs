@@ -699,6 +699,33 @@ pub struct InflowDeck {
     pub particles_per_cell: usize,
 }
 
+/// `[[damping_zones]]`: a layer where the grid's velocities relax towards rest, to absorb the
+/// waves that reach the ends of a tank ([`crate::damping`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DampingZoneDeck {
+    /// "x", "y" or "z": the axis along which the rate grows.
+    pub axis: String,
+    /// Where the damping starts (rate 0), as a coordinate along `axis` (m).
+    pub from: f64,
+    /// Where it reaches `rate` (m); the zone lies on this side of `from`.
+    pub to: f64,
+    /// The rate at `to` and beyond (1/s).
+    pub rate: f64,
+}
+
+impl DampingZoneDeck {
+    /// The zone of a validated entry.
+    pub fn zone(&self) -> crate::damping::DampingZone {
+        crate::damping::DampingZone {
+            axis: AXES.iter().position(|a| *a == self.axis).unwrap_or(0),
+            from: self.from,
+            to: self.to,
+            rate: self.rate,
+        }
+    }
+}
+
 /// The whole deck.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -723,6 +750,9 @@ pub struct Deck {
     /// `[[inflows]]`: patches of wall faces through which material enters.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub inflows: Vec<InflowDeck>,
+    /// `[[damping_zones]]`: layers that absorb waves (pmpm).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub damping_zones: Vec<DampingZoneDeck>,
     /// `[output]`
     #[serde(default)]
     pub output: OutputDeck,
@@ -844,11 +874,12 @@ fn quoted_list<S: AsRef<str>>(names: &[S]) -> String {
 }
 
 /// Keys that hold a list of tables, each entry written `[[key]]`.
-const TABLE_LISTS: [&str; 6] = [
+const TABLE_LISTS: [&str; 7] = [
     "materials",
     "bodies",
     "rigid_bodies",
     "inflows",
+    "damping_zones",
     "output.probes",
     "output.gauges",
 ];
@@ -1183,6 +1214,7 @@ impl Deck {
         self.check_bodies(&c)?;
         self.check_rigid_bodies(&c)?;
         self.check_inflows(&c)?;
+        self.check_damping_zones(&c)?;
         self.check_output(&c)?;
         self.check_time_step(&c)?;
         Ok(())
@@ -1832,6 +1864,53 @@ impl Deck {
                     ),
                 ));
             }
+        }
+        Ok(())
+    }
+
+    /// The `[[damping_zones]]`: an axis of the run's dimension, `from` and `to` apart and
+    /// inside the grid along it, and a positive rate.
+    fn check_damping_zones(&self, c: &Check) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
+        let (lo, hi) = self.domain();
+        let tol = 1e-9 * self.grid.cell_size;
+        for (i, z) in self.damping_zones.iter().enumerate() {
+            let k = format!("damping_zones[{i}]");
+            let Some(axis) = AXES[..dim].iter().position(|a| *a == z.axis) else {
+                return Err(c.err(
+                    format!("{k}.axis"),
+                    format!(
+                        "must be one of {} (dimension = {dim}), got \"{}\"",
+                        AXES[..dim]
+                            .iter()
+                            .map(|a| format!("\"{a}\""))
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                        z.axis
+                    ),
+                ));
+            };
+            for (name, v) in [("from", z.from), ("to", z.to)] {
+                if !v.is_finite() || v < lo[axis] - tol || v > hi[axis] + tol {
+                    return Err(c.err(
+                        format!("{k}.{name}"),
+                        format!(
+                            "must lie in the grid along {} ([{}, {}]), got {v}",
+                            z.axis, lo[axis], hi[axis]
+                        ),
+                    ));
+                }
+            }
+            if (z.to - z.from).abs() < self.grid.cell_size {
+                return Err(c.err(
+                    format!("{k}.to"),
+                    format!(
+                        "must be at least a cell (grid.cell_size = {}) from `from` = {}, got {}: the rate grows from 0 at `from` to `rate` at `to`, and a sudden rise reflects the waves the zone should absorb",
+                        self.grid.cell_size, z.from, z.to
+                    ),
+                ));
+            }
+            c.positive(&format!("{k}.rate"), z.rate)?;
         }
         Ok(())
     }
