@@ -102,15 +102,9 @@ fn an_stl_column_takes_the_force_of_its_cylinder() {
     }
 }
 
-/// A box 0.3 x 0.1 m of density 500 kg/m^3, free to heave (held along x and against turning),
-/// released with its base at 0.26 m in water 0.3 m deep in a tank 1 m wide: Archimedes puts its
-/// base 0.05 m under the surface, and the surface at 0.3 - 0.3 * 0.04 + 0.015 = 0.303 m (the
-/// water left out under the box at the start, plus the volume it displaces afloat), so its
-/// centre at 0.303 m. The box heaves about it without settling (the waves it radiates come back
-/// from the walls: the next test absorbs them); its mean over 1 to 4 s gives the draft.
-#[test]
-fn a_free_box_floats_at_its_hydrostatic_draft() {
-    let text = r#"
+/// A box 0.3 x 0.1 m of density 500 kg/m^3 in water 0.3 m deep in a tank 1 m wide, free to heave
+/// (held along x and against turning), its base at 0.26 m: the deck of the two floating tests.
+const FLOATING_BOX: &str = r#"
 [simulation]
 dimension = 2
 scheme = "projection"
@@ -147,6 +141,16 @@ fixed = ["x", "rotation"]
 interval = 0.1
 formats = ["csv"]
 "#;
+
+/// A box 0.3 x 0.1 m of density 500 kg/m^3, free to heave (held along x and against turning),
+/// released with its base at 0.26 m in water 0.3 m deep in a tank 1 m wide: Archimedes puts its
+/// base 0.05 m under the surface, and the surface at 0.3 - 0.3 * 0.04 + 0.015 = 0.303 m (the
+/// water left out under the box at the start, plus the volume it displaces afloat), so its
+/// centre at 0.303 m. The box heaves about it without settling (the waves it radiates come back
+/// from the walls: the next test absorbs them); its mean over 1 to 4 s gives the draft.
+#[test]
+fn a_free_box_floats_at_its_hydrostatic_draft() {
+    let text = FLOATING_BOX;
     let d = common::deck(text);
     let (mut sum, mut span) = (0.0, 0.0);
     in_pool(2, || {
@@ -173,56 +177,32 @@ formats = ["csv"]
 /// 1 m tank of the test above, without zones, it still heaves by 7 mm over those seconds.)
 #[test]
 fn a_free_box_settles_where_damping_zones_absorb_its_waves() {
-    let text = r#"
-[simulation]
-dimension = 2
-scheme = "projection"
-end_time = 2.0
-cfl = 0.5
-gravity = [0.0, -9.81]
-transfer = "apic"
-shape_function = "linear"
-
-[grid]
-origin = [0.0, 0.0]
-size = [3.0, 0.5]
-cell_size = 0.01
-
-[[materials]]
-name = "water"
-model = "newtonian"
-density = 1000.0
-viscosity = 1.0e-3
-
-[[bodies]]
-material = "water"
-shape = { type = "box", min = [0.0, 0.0], max = [3.0, 0.3] }
-particles_per_cell = 2
-
-[[rigid_bodies]]
-name = "box"
-shape = { type = "box", min = [1.35, 0.26], max = [1.65, 0.36] }
-motion = "free"
-density = 500.0
-fixed = ["x", "rotation"]
-
+    let text = FLOATING_BOX
+        .replace("end_time = 4.0", "end_time = 2.0")
+        .replace("size = [1.0, 0.5]", "size = [3.0, 0.5]")
+        .replace("max = [1.0, 0.3]", "max = [3.0, 0.3]")
+        .replace(
+            "min = [0.35, 0.26], max = [0.65, 0.36]",
+            "min = [1.35, 0.26], max = [1.65, 0.36]",
+        )
+        .replace(
+            "\n[output]",
+            "
 [[damping_zones]]
-axis = "x"
+axis = \"x\"
 from = 0.8
 to = 0.0
 rate = 14.0
 
 [[damping_zones]]
-axis = "x"
+axis = \"x\"
 from = 2.2
 to = 3.0
 rate = 14.0
 
-[output]
-interval = 0.1
-formats = ["csv"]
-"#;
-    let d = common::deck(text);
+[output]",
+        );
+    let d = common::deck(&text);
     let rest = 0.301;
     let (mut sum, mut span, mut worst) = (0.0, 0.0, 0.0f64);
     in_pool(2, || {
