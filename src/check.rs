@@ -136,6 +136,26 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
             }
         }
     }
+    // a free body that starts inside another rigid body: the contact parts bodies that meet
+    // as they move, not one placed through another
+    for (a, ra) in deck.rigid_bodies.iter().enumerate() {
+        let Ok(solid) = ra.shape.solid(deck.simulation.dimension) else {
+            continue;
+        };
+        for (b, rb) in deck.rigid_bodies.iter().enumerate() {
+            let free = |r: &pmpm::deck::RigidBodyDeck| r.motion == pmpm::deck::RigidMotion::Free;
+            if b <= a || !(free(ra) || free(rb)) {
+                continue;
+            }
+            if let Some(x) = overlap_point(&solid, &rb.shape, (&glo, &ghi)) {
+                let at: Vec<String> = x.iter().map(|c| format!("{c}")).collect();
+                w.push(format!(
+                    "rigid_bodies[{a}] and rigid_bodies[{b}] overlap at the start (for example at ({})): a free body is parted from the bodies it meets, not from one it starts inside; place them apart",
+                    at.join(", ")
+                ));
+            }
+        }
+    }
     w
 }
 

@@ -347,3 +347,116 @@ formats = ["csv"]
         assert!((sim.time - 0.3).abs() < 1e-9, "stopped at t = {}", sim.time);
     });
 }
+
+/// Free bodies meet other bodies: a disc three times denser than water sinks onto a fixed
+/// block (a step on the floor) and a box falls onto another free box that has sunk to the
+/// floor. Neither passes into the body below it, and each comes to rest on it: the contact
+/// parts bodies along the normal of their overlap ([`pmpm::rigid`]'s contact).
+#[test]
+fn free_bodies_rest_on_the_bodies_they_sink_onto() {
+    let text = r#"
+[simulation]
+dimension = 2
+scheme = "projection"
+end_time = 1.2
+cfl = 0.5
+gravity = [0.0, -9.81]
+transfer = "apic"
+shape_function = "linear"
+
+[grid]
+origin = [0.0, 0.0]
+size = [0.6, 0.4]
+cell_size = 0.0125
+
+[grid.boundary]
+x_min = "slip"
+x_max = "slip"
+y_min = "slip"
+y_max = "slip"
+
+[[materials]]
+name = "water"
+model = "newtonian"
+density = 1000.0
+viscosity = 1.0e-3
+
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [0.6, 0.2] }
+particles_per_cell = 2
+
+[[rigid_bodies]]
+name = "step"
+shape = { type = "box", min = [0.05, 0.0], max = [0.25, 0.1] }
+
+[[rigid_bodies]]
+name = "disc"
+shape = { type = "sphere", center = [0.15, 0.3], radius = 0.05 }
+motion = "free"
+density = 3000.0
+
+[[rigid_bodies]]
+name = "low"
+shape = { type = "box", min = [0.36, 0.05], max = [0.46, 0.11] }
+motion = "free"
+density = 2000.0
+fixed = ["rotation"]
+
+[[rigid_bodies]]
+name = "high"
+shape = { type = "box", min = [0.38, 0.27], max = [0.44, 0.33] }
+motion = "free"
+density = 3000.0
+fixed = ["rotation"]
+
+[output]
+interval = 0.1
+formats = ["csv"]
+"#;
+    let d = common::deck(text);
+    let (mut disc_low, mut gap_low, mut floor_low) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+    let mut end = [0.0; 3];
+    in_pool(2, || {
+        let mut sim = Simulation::<2>::new(&d).unwrap();
+        drive(&d, &mut sim, |sim, _| {
+            let r = &sim.boundary.rigid;
+            let y = |b: usize| r.centre(b, sim.time)[1];
+            disc_low = disc_low.min(y(1));
+            floor_low = floor_low.min(y(2));
+            gap_low = gap_low.min(y(3) - y(2));
+            end = [
+                y(1),
+                y(3) - y(2),
+                r.centre(3, sim.time)[0] - r.centre(2, sim.time)[0],
+            ];
+            true
+        });
+        assert!((sim.time - 1.2).abs() < 1e-9, "stopped at t = {}", sim.time);
+    });
+    println!(
+        "lowest: disc {disc_low:.6} m (on the step 0.15), upper box over the lower \
+         {gap_low:.6} m (0.06), lower box {floor_low:.6} m (0.03); at the end {end:?}"
+    );
+    // the disc's surface points are its rays' crossings, a third of a cell apart: its lowest
+    // may sit a chord's sagitta (0.04 mm here) below the step; allow 1 % of r
+    assert!(disc_low >= 0.15 - 0.01 * 0.05, "disc {disc_low}");
+    assert!(
+        (end[0] / 0.15 - 1.0).abs() < 0.01 * 0.05 / 0.15,
+        "disc at the end {end:?}"
+    );
+    // boxes: the faces sampled every half cell meet a box exactly (to the bisection's 1e-4 h)
+    assert!(
+        gap_low >= 0.06 - 1e-5,
+        "the upper box passed into the lower: {gap_low}"
+    );
+    assert!(
+        end[1] < 0.06 + 0.1 * 0.0125,
+        "the upper box is not resting: {end:?}"
+    );
+    assert!(
+        end[2].abs() < 0.05 + 0.03,
+        "the upper box slid off: {end:?}"
+    );
+    assert!((floor_low - 0.03).abs() < 1e-12, "lower box {floor_low}");
+}

@@ -629,3 +629,29 @@ fn init_writes_a_starter_deck_that_checks_and_runs() {
         assert_eq!(std::fs::read_to_string(&deck).unwrap(), "mine");
     }
 }
+
+/// `pmpm check` warns of a free body placed through another rigid body (the contact parts
+/// bodies that meet, not one that starts inside another), and not of bodies that touch.
+#[test]
+fn check_warns_of_a_free_body_that_starts_inside_another() {
+    let warning = "rigid_bodies[0] and rigid_bodies[1] overlap at the start";
+    let dir = scratch_dir("check-free-overlap");
+    let deck = dir.join("floating.toml");
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/floating_box_2d.toml"),
+    )
+    .unwrap();
+    let block = "\n[[rigid_bodies]]\nname = \"pier\"\nshape = { type = \"box\", min = [LO, 0.0], max = [HI, 0.5] }\n";
+    let (cx, half) = (1.5, 0.15); // the box spans x 1.35 to 1.65
+    for (lo, hi, warned) in [(cx + half - 0.05, 1.8, true), (cx + half, 1.8, false)] {
+        let with = format!(
+            "{text}{}",
+            block
+                .replace("LO", &lo.to_string())
+                .replace("HI", &hi.to_string())
+        );
+        std::fs::write(&deck, with).unwrap();
+        let out = check(deck.to_str().unwrap());
+        assert_eq!(out.contains(warning), warned, "pier from x = {lo}: {out}");
+    }
+}

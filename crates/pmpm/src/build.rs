@@ -362,7 +362,8 @@ pub fn rigid_shape(deck: &Deck, b: &crate::deck::RigidBodyDeck) -> Option<Shaped
 /// the coupling assumes ([`crate::rigid::Free::advance`]): the densest material's mass in the
 /// disc (2D) or ball of radius `r` about the centroid that holds the body, above the added
 /// mass of any body it holds (a plate's across the disc, rho pi a^2, is the most), so that
-/// the coupling is stable at any density.
+/// the coupling is stable at any density; for the rotation that ball's polar moment less the
+/// body's least moment, at least 0.
 fn free_motion(
     deck: &Deck,
     b: &crate::deck::RigidBodyDeck,
@@ -385,15 +386,26 @@ fn free_motion(
         4.0 / 3.0 * std::f64::consts::PI * r * r * r
     };
     let held = |n: &str| b.fixed.iter().any(|f| f == n);
+    // the rotation's assumed added inertia: the ball's (disc's) of water, less the body's own
+    // least moment. The coupling is stable for any assumed value above half the true added
+    // inertia less the body's (at most the ball's, less the body's); the part above the true
+    // one feeds the spin through the lagged term, and a dense disc resting in a corner of the
+    // tank spun up to 10 rad/s with the whole ball's
+    let inertia = moments * density;
+    let least_moment = if dim == 2 {
+        inertia[(2, 2)]
+    } else {
+        inertia.symmetric_eigenvalues().min()
+    };
     Free {
         mass: density * volume,
-        inertia: moments * density,
+        inertia,
         gravity,
         held_axes: [held("x"), held("y"), held("z")],
         held_rotation: held("rotation"),
         dim,
         added_mass: fluid * ball,
-        added_inertia: 0.5 * fluid * ball * r * r,
+        added_inertia: (0.5 * fluid * ball * r * r - least_moment).max(0.0),
     }
 }
 

@@ -237,7 +237,23 @@ impl<const D: usize> Simulation<D> {
         // 7. the inflows emit the material that entered over the step
         self.emit_inflow()?;
         self.check_particles()?;
+        self.check_bodies()?;
         self.check_volumes()
+    }
+
+    /// Stops the run if a free rigid body's position or velocity is no longer a number.
+    fn check_bodies(&self) -> Result<(), Error> {
+        let Some(b) = self.boundary.rigid.runaway() else {
+            return Ok(());
+        };
+        Err(Error::BlowUp(format!(
+            "run stopped at step {}, t = {:.6} s: free rigid body {} (rigid_bodies[{b}]) has a \
+             non-finite position or velocity. Likely cause: a step too large for the force on \
+             it; lower simulation.cfl",
+            self.steps,
+            self.time,
+            b + 1
+        )))
     }
 
     /// Step 2: v* = v^n + dt f / m. The projection takes v^n on the walls from the wall

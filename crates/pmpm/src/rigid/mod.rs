@@ -24,6 +24,7 @@
 //! the pressure on the wet faces, int p n dS, is added: the corrector's gradient form pushes the
 //! material away from a face with it, whichever nodes carry the push.
 
+mod contact;
 mod motion;
 mod shaped;
 
@@ -1070,7 +1071,9 @@ impl<const D: usize> RigidBodies<D> {
     }
 
     /// After the step's pressure: the force and torque on each body, and the free bodies
-    /// moved by them over the step.
+    /// moved by them over the step, then parted from the bodies they reached
+    /// ([`contact`]) and held inside the grid. Contact and walls take turns (three passes): a
+    /// body parted from another onto a wall is put back and parted again.
     pub fn end_step(&mut self, grid: &Grid<D>, dt: f64, pressure: PressureForce<'_, D>) {
         if self.is_empty() {
             return;
@@ -1088,37 +1091,85 @@ impl<const D: usize> RigidBodies<D> {
                     Vector3::zeros(),
                     dt,
                 );
-                // the walls hold it: a step that would take a face past one ends on it
-                let (lo, hi) = self.bounds(b);
-                let (glo, ghi) = (grid.geo.origin, grid.geo.upper());
-                for d in 0..D {
-                    let v = pose.velocity[d];
-                    if lo[d] + v * dt < glo[d] {
-                        pose.velocity[d] = (glo[d] - lo[d]) / dt;
-                    } else if hi[d] + v * dt > ghi[d] {
-                        pose.velocity[d] = (ghi[d] - hi[d]) / dt;
-                    }
-                }
                 self.velocity[b] = from3(&pose.velocity);
             }
             if let Some(ShapedBody {
-                shape,
                 motion: Motion::Free(free),
                 ..
             }) = &self.shaped[b]
             {
-                let pose = &mut self.pose[b];
                 free.advance(
-                    pose,
+                    &mut self.pose[b],
                     &mut self.last[b],
                     to3(&self.force[b]),
                     self.torque[b],
                     dt,
                 );
-                // the walls hold it: a body whose surface passed one is put back on it, its
-                // velocity into it stopped
+            }
+        }
+        let stepped: Vec<Vector3<f64>> = (0..self.len()).map(|b| self.free_velocity(b)).collect();
+        for pass in 0..3 {
+            if !self.contacts(dt, grid.geo.h) && pass > 0 {
+                break;
+            }
+            self.hold_in_grid(&grid.geo, dt);
+        }
+        // what the contact and the walls took from a body's velocity is no acceleration the
+        // material's reaction lags: the next step's added-mass term must not give it back
+        // (it did: a ball that sank onto the floor bounced off it, higher each time)
+        for (b, v) in stepped.iter().enumerate() {
+            let change = self.free_velocity(b) - v;
+            self.last[b].0 += change;
+        }
+    }
+
+    /// The velocity of free body `b` (zero for the others).
+    fn free_velocity(&self, b: usize) -> Vector3<f64> {
+        if self.free_box[b].is_some() {
+            to3(&self.velocity[b])
+        } else if self.is_free(b) {
+            self.pose[b].velocity
+        } else {
+            Vector3::zeros()
+        }
+    }
+
+    /// The first free body whose position or velocity is not a finite number.
+    pub fn runaway(&self) -> Option<usize> {
+        (0..self.len()).find(|&b| {
+            self.is_free(b)
+                && !(self.free_velocity(b).iter().all(|c| c.is_finite())
+                    && self.centre(b, self.time).iter().all(|c| c.is_finite())
+                    && self.pose[b].omega.iter().all(|c| c.is_finite()))
+        })
+    }
+
+    /// The walls hold the free bodies: a box's step that would take a face past one ends on
+    /// it; a shaped body whose surface passed one is put back on it, its velocity into it
+    /// stopped.
+    fn hold_in_grid(&mut self, geo: &GridGeometry<D>, dt: f64) {
+        let (glo, ghi) = (geo.origin, geo.upper());
+        for b in 0..self.len() {
+            if self.free_box[b].is_some() {
+                let (lo, hi) = self.bounds(b);
+                for d in 0..D {
+                    let v = self.velocity[b][d];
+                    if lo[d] + v * dt < glo[d] {
+                        self.velocity[b][d] = (glo[d] - lo[d]) / dt;
+                    } else if hi[d] + v * dt > ghi[d] {
+                        self.velocity[b][d] = (ghi[d] - hi[d]) / dt;
+                    }
+                }
+            }
+            if let Some(ShapedBody {
+                shape,
+                motion: Motion::Free(_),
+                ..
+            }) = &self.shaped[b]
+            {
+                let pose = &mut self.pose[b];
                 let (lo, hi) = shape.extent(pose);
-                let (glo, ghi) = (to3(&grid.geo.origin), to3(&grid.geo.upper()));
+                let (glo, ghi) = (to3(&glo), to3(&ghi));
                 for d in 0..D {
                     if lo[d] < glo[d] {
                         pose.centre[d] += glo[d] - lo[d];

@@ -491,6 +491,18 @@ impl Shaped {
         }
     }
 
+    /// The surface points of the body at `pose` in the world, as (point, push): the normal
+    /// into the body along the ray times the ray's share of the cross-section.
+    pub(super) fn surface_world<'a>(
+        &'a self,
+        pose: &'a Pose,
+    ) -> impl Iterator<Item = (Vector3<f64>, Vector3<f64>)> + 'a {
+        self.surface.iter().map(move |r| {
+            let push = pose.rotation.column(r.axis) * (r.sign * r.weight);
+            (self.to_world(pose, &r.y), push.into_owned())
+        })
+    }
+
     /// Puts the world point `x`, inside the body at `pose`, out of it: along the grid axis
     /// whose nearest exit (looked for up to two cells away, in eighths of a cell, then
     /// bisected) is nearest, reflected across the surface by as far as it was inside. Returns
