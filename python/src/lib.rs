@@ -273,7 +273,7 @@ fn step_toward<const D: usize>(
                 end: f64::INFINITY,
                 ..driver.clock
             }
-            .next_dt(sim, driver.next_frame);
+            .next_dt(sim, driver.next_frame)?;
             let left = until - sim.time;
             if left < 2.0 * natural {
                 // a step a hair short of `natural` (round-off in the time) counts as one
@@ -283,7 +283,7 @@ fn step_toward<const D: usize>(
             }
         }
         // to the deck's end: the steps `pmpm run` takes
-        None => driver.clock.next_dt(sim, driver.next_frame),
+        None => driver.clock.next_dt(sim, driver.next_frame)?,
     };
     driver.step_by(sim, dt).map(|_| ())
 }

@@ -630,6 +630,21 @@ fn init_writes_a_starter_deck_that_checks_and_runs() {
     }
 }
 
+/// A speed that runs away (here one particle's, set to 1e30 m/s) would shrink the adaptive
+/// step to nothing and the run would crawl without end: the driver stops it as a blow-up.
+#[test]
+fn a_stable_step_that_collapses_stops_the_run_as_a_blow_up() {
+    let d = common::deck(common::SMALL_2D);
+    let mut sim = pmpm::scheme::Simulation::<2>::new(&d).unwrap();
+    sim.particles.v[0] = pmpm::grid::Vector::<2>::new(1e30, 0.0);
+    let mut driver = pmpm::driver::Driver::new(pmpm::build::clock(&d));
+    match driver.step(&mut sim) {
+        Err(pmpm::Error::BlowUp(m)) => assert!(m.contains("stable step fell"), "{m}"),
+        other => panic!("expected a blow-up, got {other:?}"),
+    }
+    assert_eq!(sim.time, 0.0, "no step was taken");
+}
+
 /// `pmpm check` warns of a free body placed through another rigid body (the contact parts
 /// bodies that meet, not one that starts inside another), and not of bodies that touch.
 #[test]

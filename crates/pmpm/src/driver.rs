@@ -52,8 +52,13 @@ impl Clock {
     }
 
     /// The next step's size from `sim`'s state, with the next frame due at `next_frame`:
-    /// never past the end time.
-    pub fn next_dt<const D: usize>(&self, sim: &Simulation<D>, next_frame: f64) -> f64 {
+    /// never past the end time. An error when the stable step has fallen below a trillionth
+    /// of the output interval (or of the run): something has blown up.
+    pub fn next_dt<const D: usize>(
+        &self,
+        sim: &Simulation<D>,
+        next_frame: f64,
+    ) -> Result<f64, Error> {
         let mut dt = match self.step {
             StepSize::Fixed(dt) => dt,
             StepSize::Adaptive {
@@ -61,6 +66,18 @@ impl Clock {
                 land_on_frames,
             } => {
                 let dt = sim.stable_dt(cfl);
+                if dt < 1e-3 * self.eps() {
+                    // a trillion steps to the next frame: a speed has run away (a free body
+                    // fed by its coupling, a particle flung out), and the run would crawl
+                    return Err(Error::BlowUp(format!(
+                        "run stopped at t = {:.6} s: the stable step fell to {dt:.3e} s, below \
+                         a trillionth of the output interval, at a speed of {:.3e} m/s (the \
+                         fastest particle, wall or rigid body). Likely cause: a flow or body \
+                         that blew up; lower simulation.cfl",
+                        sim.time,
+                        sim.max_speed().max(sim.boundary.max_wall_speed())
+                    )));
+                }
                 let left = next_frame.min(self.end) - sim.time;
                 if !land_on_frames {
                     // at most one frame interval, so that no frame is skipped
@@ -79,7 +96,7 @@ impl Clock {
             // at rest with nothing to bound the step: step to the next frame
             dt = (next_frame.min(self.end) - sim.time).max(self.eps());
         }
-        dt
+        Ok(dt)
     }
 }
 
@@ -125,7 +142,7 @@ impl Driver {
 
     /// Takes one step of the policy's size and says whether a frame is due after it.
     pub fn step<const D: usize>(&mut self, sim: &mut Simulation<D>) -> Result<Step, Error> {
-        let dt = self.clock.next_dt(sim, self.next_frame);
+        let dt = self.clock.next_dt(sim, self.next_frame)?;
         self.step_by(sim, dt)
     }
 
