@@ -223,12 +223,10 @@ rate = 14.0
     assert!((draft / 0.05 - 1.0).abs() < 0.02, "draft {draft}");
 }
 
-/// The walls hold a free body: a disc and a box three times denser than water, dropped into a
-/// tank, sink and come to rest on the floor (the disc free to turn, the box held from it),
-/// neither passing it, and the run goes on to its end.
-#[test]
-fn free_bodies_denser_than_water_sink_and_rest_on_the_floor() {
-    let text = r#"
+/// A 2D tank `width` m long and 0.4 m high, water 0.2 m deep (h = 12.5 mm), run for 1.2 s:
+/// the start of the dense-body decks below, which add their rigid bodies and output.
+fn tank(width: f64) -> String {
+    r#"
 [simulation]
 dimension = 2
 scheme = "projection"
@@ -240,7 +238,7 @@ shape_function = "linear"
 
 [grid]
 origin = [0.0, 0.0]
-size = [0.5, 0.4]
+size = [WIDTH, 0.4]
 cell_size = 0.0125
 
 [grid.boundary]
@@ -257,9 +255,19 @@ viscosity = 1.0e-3
 
 [[bodies]]
 material = "water"
-shape = { type = "box", min = [0.0, 0.0], max = [0.5, 0.2] }
+shape = { type = "box", min = [0.0, 0.0], max = [WIDTH, 0.2] }
 particles_per_cell = 2
+"#
+    .replace("WIDTH", &format!("{width:?}"))
+}
 
+/// The walls hold a free body: a disc and a box three times denser than water, dropped into a
+/// tank, sink and come to rest on the floor (the disc free to turn, the box held from it),
+/// neither passing it, and the run goes on to its end.
+#[test]
+fn free_bodies_denser_than_water_sink_and_rest_on_the_floor() {
+    let text = tank(0.5)
+        + r#"
 [[rigid_bodies]]
 name = "disc"
 shape = { type = "sphere", center = [0.15, 0.3], radius = 0.05 }
@@ -277,7 +285,7 @@ fixed = ["rotation"]
 interval = 0.1
 formats = ["csv"]
 "#;
-    let d = common::deck(text);
+    let d = common::deck(&text);
     let (mut lowest, mut end) = ([f64::INFINITY; 2], [[0.0; 2]; 2]);
     in_pool(2, || {
         let mut sim = Simulation::<2>::new(&d).unwrap();
@@ -354,38 +362,8 @@ formats = ["csv"]
 /// parts bodies along the normal of their overlap ([`pmpm::rigid`]'s contact).
 #[test]
 fn free_bodies_rest_on_the_bodies_they_sink_onto() {
-    let text = r#"
-[simulation]
-dimension = 2
-scheme = "projection"
-end_time = 1.2
-cfl = 0.5
-gravity = [0.0, -9.81]
-transfer = "apic"
-shape_function = "linear"
-
-[grid]
-origin = [0.0, 0.0]
-size = [0.6, 0.4]
-cell_size = 0.0125
-
-[grid.boundary]
-x_min = "slip"
-x_max = "slip"
-y_min = "slip"
-y_max = "slip"
-
-[[materials]]
-name = "water"
-model = "newtonian"
-density = 1000.0
-viscosity = 1.0e-3
-
-[[bodies]]
-material = "water"
-shape = { type = "box", min = [0.0, 0.0], max = [0.6, 0.2] }
-particles_per_cell = 2
-
+    let text = tank(0.6)
+        + r#"
 [[rigid_bodies]]
 name = "step"
 shape = { type = "box", min = [0.05, 0.0], max = [0.25, 0.1] }
@@ -414,7 +392,7 @@ fixed = ["rotation"]
 interval = 0.1
 formats = ["csv"]
 "#;
-    let d = common::deck(text);
+    let d = common::deck(&text);
     let (mut disc_low, mut gap_low, mut floor_low) = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
     let mut end = [0.0; 3];
     in_pool(2, || {
