@@ -22,7 +22,8 @@ use nalgebra::Vector3;
 use std::sync::Arc;
 
 /// A body as the contact sees it, where it will be at the step's end.
-struct Body {
+#[derive(Debug, Clone)]
+pub(super) struct Body {
     /// Its shape (None: a box between `lo` and `hi`).
     shape: Option<Arc<Shaped>>,
     /// A shaped body's pose; a box's velocity is `pose.velocity`.
@@ -225,7 +226,10 @@ impl<const D: usize> RigidBodies<D> {
         if n < 2 || !(0..n).any(|b| self.is_free(b)) {
             return false;
         }
-        let mut bodies: Vec<Body> = (0..n).map(|b| self.contact_body(b, dt)).collect();
+        // the scratch list, kept between steps (no allocation in the step loop)
+        let mut bodies = std::mem::take(&mut self.contact_scratch);
+        bodies.clear();
+        bodies.extend((0..n).map(|b| self.contact_body(b, dt)));
         let mut any = false;
         for a in 0..n {
             for b in a + 1..n {
@@ -262,6 +266,7 @@ impl<const D: usize> RigidBodies<D> {
                 self.velocity[b] = super::shaped::from3(&v);
             }
         }
+        self.contact_scratch = bodies;
         any
     }
 }

@@ -217,6 +217,10 @@ pub struct RigidBodies<const D: usize> {
     /// Scratch of [`RigidBodies::push_out`]: each shaped body's pose at the step's end and
     /// the box that holds it there.
     ends: Vec<Option<(Pose, Bounds)>>,
+    /// Scratch of [`RigidBodies::end_step`]: the free bodies' velocities after their step,
+    /// before the contact and the walls; and the bodies as the contact sees them.
+    stepped: Vec<Vector3<f64>>,
+    contact_scratch: Vec<contact::Body>,
 }
 
 /// A quadrature point on a rigid body's face.
@@ -292,6 +296,8 @@ impl<const D: usize> RigidBodies<D> {
             torque: vec![Vector3::zeros(); n],
             free_torque: vec![Vector3::zeros(); n],
             ends: Vec::new(),
+            stepped: Vec::new(),
+            contact_scratch: Vec::new(),
         }
     }
 
@@ -1107,7 +1113,9 @@ impl<const D: usize> RigidBodies<D> {
                 );
             }
         }
-        let stepped: Vec<Vector3<f64>> = (0..self.len()).map(|b| self.free_velocity(b)).collect();
+        let mut stepped = std::mem::take(&mut self.stepped);
+        stepped.clear();
+        stepped.extend((0..self.len()).map(|b| self.free_velocity(b)));
         for pass in 0..3 {
             if !self.contacts(dt, grid.geo.h) && pass > 0 {
                 break;
@@ -1121,6 +1129,7 @@ impl<const D: usize> RigidBodies<D> {
             let change = self.free_velocity(b) - v;
             self.last[b].0 += change;
         }
+        self.stepped = stepped;
     }
 
     /// The velocity of free body `b` (zero for the others).
