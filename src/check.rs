@@ -138,13 +138,13 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     }
     // a free body that starts inside another rigid body: the contact parts bodies that meet
     // as they move, not one placed through another
+    let free = |r: &pmpm::deck::RigidBodyDeck| r.motion == pmpm::deck::RigidMotion::Free;
     for (a, ra) in deck.rigid_bodies.iter().enumerate() {
         let Ok(solid) = ra.shape.solid(deck.simulation.dimension) else {
             continue;
         };
-        for (b, rb) in deck.rigid_bodies.iter().enumerate() {
-            let free = |r: &pmpm::deck::RigidBodyDeck| r.motion == pmpm::deck::RigidMotion::Free;
-            if b <= a || !(free(ra) || free(rb)) {
+        for (b, rb) in deck.rigid_bodies.iter().enumerate().skip(a + 1) {
+            if !(free(ra) || free(rb)) {
                 continue;
             }
             if let Some(x) = overlap_point(&solid, &rb.shape, (&glo, &ghi)) {

@@ -389,8 +389,7 @@ fn free_motion(
     // the rotation's assumed added inertia: the ball's (disc's) of water, less the body's own
     // least moment. The coupling is stable for any assumed value above half the true added
     // inertia less the body's (at most the ball's, less the body's); the part above the true
-    // one feeds the spin through the lagged term, and a dense disc resting in a corner of the
-    // tank spun up to 10 rad/s with the whole ball's
+    // one feeds the spin through the lagged term (docs/method.md, "Free rigid bodies")
     let inertia = moments * density;
     let least_moment = if dim == 2 {
         inertia[(2, 2)]

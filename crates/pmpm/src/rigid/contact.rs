@@ -21,6 +21,9 @@ use super::{Motion, RigidBodies};
 use nalgebra::Vector3;
 use std::sync::Arc;
 
+/// Surface points and their pushes (the normal into the body times the point's share).
+pub(super) type Points = Vec<(Vector3<f64>, Vector3<f64>)>;
+
 /// A body as the contact sees it, where it will be at the step's end.
 #[derive(Debug, Clone)]
 pub(super) struct Body {
@@ -56,20 +59,28 @@ impl Body {
         }
     }
 
-    /// The surface points and their pushes: a shaped body's rays' crossings; for a box, the
-    /// midpoints of a lattice of spacing at most h / 2 on each face.
-    fn points(&self, dim: usize, h: f64) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    /// The surface points and their pushes that `keep` accepts, into `out` (emptied first): a
+    /// shaped body's rays' crossings; for a box, the midpoints of a lattice of spacing at
+    /// most h / 2 on each face.
+    fn points(&self, dim: usize, h: f64, keep: impl Fn(&Vector3<f64>) -> bool, out: &mut Points) {
+        out.clear();
         if let Some(s) = &self.shape {
-            return s.surface_world(&self.pose).collect();
+            out.extend(s.surface_world(&self.pose).filter(|(x, _)| keep(x)));
+            return;
         }
-        let mut out = Vec::new();
         for axis in 0..dim {
-            let across: Vec<usize> = (0..dim).filter(|&e| e != axis).collect();
-            let counts: Vec<usize> = across
-                .iter()
-                .map(|&e| ((self.hi[e] - self.lo[e]) / (0.5 * h)).ceil().max(1.0) as usize)
-                .collect();
-            let total: usize = counts.iter().product();
+            // the axes across the face (one in 2D, two in 3D) and the points along each
+            let across = match axis {
+                0 => [1, 2],
+                1 => [0, 2],
+                _ => [0, 1],
+            };
+            let across = &across[..dim - 1];
+            let mut counts = [1usize; 2];
+            for (j, &e) in across.iter().enumerate() {
+                counts[j] = ((self.hi[e] - self.lo[e]) / (0.5 * h)).ceil().max(1.0) as usize;
+            }
+            let total: usize = counts[..dim - 1].iter().product();
             let area: f64 = across.iter().map(|&e| self.hi[e] - self.lo[e]).product();
             for (side, sign) in [(self.lo[axis], 1.0), (self.hi[axis], -1.0)] {
                 for k in 0..total {
@@ -81,13 +92,14 @@ impl Body {
                         x[e] = self.lo[e] + ((rem % counts[j]) as f64 + 0.5) * step;
                         rem /= counts[j];
                     }
-                    let mut push = Vector3::zeros();
-                    push[axis] = sign * area / total as f64;
-                    out.push((x, push));
+                    if keep(&x) {
+                        let mut push = Vector3::zeros();
+                        push[axis] = sign * area / total as f64;
+                        out.push((x, push));
+                    }
                 }
             }
         }
-        out
     }
 
     /// The velocity of the body's point at `x`.
@@ -116,32 +128,32 @@ impl Body {
 /// The contact between `a` and `b`: the normal that parts them (the way `a` goes), the least
 /// distance along it that does, and the contact's centre; None when they do not overlap, or
 /// when no distance up to their size parts them (one started inside the other).
-fn separation(a: &Body, b: &Body, dim: usize, h: f64) -> Option<(Vector3<f64>, f64, Vector3<f64>)> {
+fn separation(
+    a: &Body,
+    b: &Body,
+    dim: usize,
+    h: f64,
+    scratch: &mut (Points, Points),
+) -> Option<(Vector3<f64>, f64, Vector3<f64>)> {
     // only the points near the other's box can meet it (within two cells: the parting is
     // a cell or less a step), which keeps a large body's surface out of the tests
     let ((alo, ahi), (blo, bhi)) = (a.bounds(), b.bounds());
     let near = |x: &Vector3<f64>, lo: &Vector3<f64>, hi: &Vector3<f64>| {
         (0..dim).all(|d| x[d] > lo[d] - 2.0 * h && x[d] < hi[d] + 2.0 * h)
     };
-    let pa: Vec<_> = a
-        .points(dim, h)
-        .into_iter()
-        .filter(|(x, _)| near(x, &blo, &bhi))
-        .collect();
-    let pb: Vec<_> = b
-        .points(dim, h)
-        .into_iter()
-        .filter(|(x, _)| near(x, &alo, &ahi))
-        .collect();
+    let (pa, pb) = scratch;
+    a.points(dim, h, |x| near(x, &blo, &bhi), pa);
+    b.points(dim, h, |x| near(x, &alo, &ahi), pb);
+    let (pa, pb) = (&*pa, &*pb);
     let (mut normal, mut centre, mut count) = (Vector3::zeros(), Vector3::zeros(), 0usize);
-    for (x, push) in &pa {
+    for (x, push) in pa {
         if b.holds(x, dim) {
             normal += push;
             centre += x;
             count += 1;
         }
     }
-    for (x, push) in &pb {
+    for (x, push) in pb {
         if a.holds(x, dim) {
             normal -= push;
             centre += x;
@@ -241,7 +253,9 @@ impl<const D: usize> RigidBodies<D> {
                 if (0..D).any(|d| alo[d] >= bhi[d] || blo[d] >= ahi[d]) {
                     continue;
                 }
-                let Some((normal, s, at)) = separation(&bodies[a], &bodies[b], D, h) else {
+                let Some((normal, s, at)) =
+                    separation(&bodies[a], &bodies[b], D, h, &mut self.contact_points)
+                else {
                     continue;
                 };
                 any = true;
@@ -296,13 +310,13 @@ mod tests {
             boxed([0.42, 0.2967], [0.48, 0.3567], 1.0),
             boxed([0.3, 0.2], [0.6, 0.3], 0.0),
         );
-        let (n, s, at) = separation(&a, &b, 2, h).expect("they overlap");
+        let (n, s, at) = separation(&a, &b, 2, h, &mut Default::default()).expect("they overlap");
         assert!((n - Vector3::y()).norm() < 1e-12, "normal {n}");
         assert!(s >= 0.0033 - 1e-12 && s < 0.0033 + 1e-4 * h, "depth {s}");
         assert!((at[1] - 0.3).abs() < 0.0034, "centre {at}");
         // touching faces do not overlap
         let c = boxed([0.42, 0.3], [0.48, 0.36], 1.0);
-        assert!(separation(&c, &b, 2, h).is_none());
+        assert!(separation(&c, &b, 2, h, &mut Default::default()).is_none());
     }
 
     #[test]
@@ -325,7 +339,8 @@ mod tests {
         };
         // the corner (0.6, 0.3) is 0.0283 m from the centre: 21.7 mm inside the disc
         let block = boxed([0.3, 0.2], [0.6, 0.3], 0.0);
-        let (n, s, _) = separation(&disc, &block, 2, h).expect("they overlap");
+        let (n, s, _) =
+            separation(&disc, &block, 2, h, &mut Default::default()).expect("they overlap");
         let diagonal = Vector3::new(1.0, 1.0, 0.0).normalize();
         assert!(n.dot(&diagonal) > 0.99, "normal {n}");
         // parted along n the corner must leave the disc: at least r - |c - corner| along

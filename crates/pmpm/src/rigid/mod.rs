@@ -218,9 +218,11 @@ pub struct RigidBodies<const D: usize> {
     /// the box that holds it there.
     ends: Vec<Option<(Pose, Bounds)>>,
     /// Scratch of [`RigidBodies::end_step`]: the free bodies' velocities after their step,
-    /// before the contact and the walls; and the bodies as the contact sees them.
+    /// before the contact and the walls; the bodies as the contact sees them; and the
+    /// surface points of a pair it tests.
     stepped: Vec<Vector3<f64>>,
     contact_scratch: Vec<contact::Body>,
+    contact_points: (contact::Points, contact::Points),
 }
 
 /// A quadrature point on a rigid body's face.
@@ -298,6 +300,7 @@ impl<const D: usize> RigidBodies<D> {
             ends: Vec::new(),
             stepped: Vec::new(),
             contact_scratch: Vec::new(),
+            contact_points: Default::default(),
         }
     }
 

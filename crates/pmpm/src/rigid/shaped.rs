@@ -480,15 +480,11 @@ impl Shaped {
         body: usize,
         out: &mut Vec<SurfacePoint<D>>,
     ) {
-        for r in &self.surface {
-            let x = self.to_world(pose, &r.y);
-            let push = pose.rotation.column(r.axis) * (r.sign * r.weight);
-            out.push(SurfacePoint {
-                x: from3(&x),
-                push: from3(&push.into_owned()),
-                body,
-            });
-        }
+        out.extend(self.surface_world(pose).map(|(x, push)| SurfacePoint {
+            x: from3(&x),
+            push: from3(&push),
+            body,
+        }));
     }
 
     /// The surface points of the body at `pose` in the world, as (point, push): the normal
