@@ -170,15 +170,19 @@ fn a_free_box_floats_at_its_hydrostatic_draft() {
 }
 
 /// The same box in a tank 3 m long whose last 0.8 m at each end are damping zones: the waves it
-/// radiates as it heaves are absorbed, and it settles. Released 8.5 mm above its rest (the
-/// surface settles at 0.3 + (0.015 - 0.012) / 3 = 0.301 m, the box's centre with it), it is
-/// within a fifth of that, 1.7 mm, of its rest over 1 to 2 s (it settles within one heave
-/// period, about 0.6 s), and its mean draft there is Archimedes' 0.05 m within 2 %. (In the
-/// 1 m tank of the test above, without zones, it still heaves by 7 mm over those seconds.)
+/// radiates as it heaves are absorbed. Released 8.5 mm above its rest (the surface settles at
+/// 0.3 + (0.015 - 0.012) / 3 = 0.301 m, the box's centre with it), it heaves about its rest with
+/// a period of about 1 s, its mean draft over 1 to 4 s is Archimedes' 0.05 m within 2 %, and the
+/// heave dies down, slowly. Measured: a draft of 50.66 mm; farthest from rest 3.01 mm over 1 to
+/// 2 s, 2.46 mm over 3 to 4 s. Before the cut cells were integrated exactly the box was within
+/// 1.7 mm of its rest by t = 1 s, the bound this test held then: the cut cells' error stirred
+/// still water, and damped the heave with it. The heave's true damping is not known here (its
+/// waves, a millimetre high, are a tenth of a cell); free along x, as in
+/// `examples/floating_box_2d.toml`, the box is within 1.5 mm over 3 to 4 s. (In the 1 m tank
+/// of the test above, without zones, it still heaves by 7 mm over those seconds.)
 #[test]
 fn a_free_box_settles_where_damping_zones_absorb_its_waves() {
     let text = FLOATING_BOX
-        .replace("end_time = 4.0", "end_time = 2.0")
         .replace("size = [1.0, 0.5]", "size = [3.0, 0.5]")
         .replace("max = [1.0, 0.3]", "max = [3.0, 0.3]")
         .replace(
@@ -202,9 +206,10 @@ rate = 14.0
 
 [output]",
         );
+    assert!(text.contains("end_time = 4.0") && text.contains("rate = 14.0"));
     let d = common::deck(&text);
     let rest = 0.301;
-    let (mut sum, mut span, mut worst) = (0.0, 0.0, 0.0f64);
+    let (mut sum, mut span, mut early, mut late) = (0.0, 0.0, 0.0f64, 0.0f64);
     in_pool(2, || {
         let mut sim = Simulation::<2>::new(&d).unwrap();
         drive(&d, &mut sim, |sim, step| {
@@ -212,14 +217,25 @@ rate = 14.0
                 let y = sim.boundary.rigid.centre(0, sim.time)[1];
                 sum += y * step.dt;
                 span += step.dt;
-                worst = worst.max((y - rest).abs());
+                let off = (y - rest).abs();
+                if sim.time <= 2.0 {
+                    early = early.max(off);
+                } else if sim.time > 3.0 {
+                    late = late.max(off);
+                }
             }
             true
         });
     });
     let draft = rest - (sum / span - 0.05);
-    println!("over 1 to 2 s: farthest from rest {worst:.5} m, mean draft {draft:.5} m");
-    assert!(worst < 0.0017, "the box still heaves by {worst} m");
+    println!(
+        "farthest from rest over 1 to 2 s {early:.5} m, over 3 to 4 s {late:.5} m; \
+         mean draft over 1 to 4 s {draft:.5} m"
+    );
+    assert!(
+        late < early,
+        "the heave does not die down: {early} m, then {late} m"
+    );
     assert!((draft / 0.05 - 1.0).abs() < 0.02, "draft {draft}");
 }
 

@@ -8,11 +8,14 @@
 //!
 //! With cut cells (`pressure.rigid_faces = "cut"`, the nodal projection with the level-set
 //! free surface and linear or GIMP shape functions) the faces act where they lie: no rows are
-//! held ahead; a node less than half a cell inside a face holds the ghost normal velocity that
-//! puts the body's on the face; one between half a cell and a cell inside leaves its normal to
-//! the pressure, whose right-hand side takes the jump of the normal velocity across the face
-//! ([`RigidBodies::add_face_flux`]); the cells a face cuts are integrated over their open part.
-//! A face less than a quarter cell (`SNAP`) past a node row acts on that row.
+//! held ahead; a node less than a cell inside a face holds a ghost normal velocity, which
+//! puts the body's on the face where the node is less than half a cell inside it and goes
+//! over continuously to the body's own a cell inside (no node switches between held and free
+//! as a face moves past it: the switch stirred the water under a heaving box); the
+//! pressure's right-hand side takes the jump of the normal velocity across the face
+//! ([`RigidBodies::add_face_flux`]); the cells a face cuts are integrated over their open
+//! part, exactly ([`RigidBodies::open_part`]). A face less than a quarter cell (`SNAP`) past a
+//! node row acts on that row.
 //!
 //! The force: on a body's nodes the grid momentum without the body would be, at the step's
 //! end, P = sum_i (m_i v_i^n + dt f_i) (the predictor of P2G's velocity and forces, the
@@ -57,11 +60,12 @@ pub enum RigidSides {
 
 /// With cut cells, the least distance (in cells) between a face and the nearest node outside
 /// it for that node to stay free. A node closer than this holds the face's normal velocity,
-/// and the node a cell behind it, whose open part is then thinner than SNAP, holds it too:
-/// the face acts on the node row, at most SNAP h from where it lies. A node whose only
+/// and the sliver between it and the face counts as the body's (in the cells' quadrature
+/// too): the face acts on the node row, at most SNAP h from where it lies. A node whose only
 /// material is such a sliver has a mass that goes to zero with it, and its free velocity
 /// blew up (a dam break against a block whose face lay 0.01 to 0.1 h past a node row stopped
-/// on a pressure solve with NaN when the surge reached it).
+/// on a pressure solve with NaN when the surge reached it); integrated, the sliver coupled the
+/// row to the nodes inside the body, massless and read as air, and set still water moving.
 const SNAP: f64 = 0.25;
 
 /// One rigid body as the settings give it: an axis-aligned box moving at a constant velocity.
@@ -604,7 +608,7 @@ impl<const D: usize> RigidBodies<D> {
     /// sides, a node on faces that do not lead or less than a cell inside them (and on no
     /// leading face) holds their normals only. With cut cells a node on a face or less than a
     /// cell inside it leaves that face's normal to the pressure (rough sides hold the other
-    /// components, smooth ones none), unless the open part of its cell is thinner than SNAP; a
+    /// components, smooth ones none) for its ghost value ([`RigidBodies::ghost_normals`]); a
     /// node outside a face but within SNAP of it holds the normal.
     fn held(&self, b: usize, span: &Span<D>, idx: &[usize; D], geo: &GridGeometry<D>) -> u8 {
         let eps = EPS;
@@ -622,8 +626,7 @@ impl<const D: usize> RigidBodies<D> {
             }
             let (in_lo, in_hi) = ((x - face_lo[d]) / geo.h, (face_hi[d] - x) / geo.h);
             if cut {
-                if (span.live_lo[d] && in_lo < 1.0 - SNAP)
-                    || (span.live_hi[d] && in_hi < 1.0 - SNAP)
+                if (span.live_lo[d] && in_lo < 1.0 - eps) || (span.live_hi[d] && in_hi < 1.0 - eps)
                 {
                     normals |= 1 << d;
                 }
@@ -652,9 +655,14 @@ impl<const D: usize> RigidBodies<D> {
         }
     }
 
-    /// With cut cells, the normals a node less than half a cell inside a face of body `b` holds
-    /// by the ghost value of the normal component (the nearer face where the body is thinner
-    /// than two cells); each such node is recorded in `ghosts`.
+    /// With cut cells, the normals a node less than a cell inside a face of body `b` holds by a
+    /// ghost value of the normal component (the nearer face where the body is thinner than two
+    /// cells); each such node is recorded in `ghosts`. A node at a from the face, the node
+    /// beyond it outside, holds v = V + c (V - v_beyond): with c = a / (h - a) up to half a
+    /// cell the linear interpolation between the two puts V on the face; past it c falls as
+    /// (h - a) / a to 0 a cell inside, where the node holds V as the body's other nodes do (c
+    /// above 1 would amplify the outside node's velocity; a node left free there, as this
+    /// once did, jumped between the pressure's value and V as the face moved).
     fn ghost_normals(
         &mut self,
         b: usize,
@@ -676,12 +684,13 @@ impl<const D: usize> RigidBodies<D> {
                 (l, u) => l.or(u),
             };
             if let Some((a, beyond)) = near {
-                if a >= -eps * geo.h && a <= (0.5 + eps) * geo.h {
+                if a >= -eps * geo.h && a < (1.0 - eps) * geo.h {
                     let mut out = *idx;
                     out[d] = beyond;
                     let a = a.max(0.0);
+                    let c = (a / (geo.h - a)).min((geo.h - a) / a.max(1e-300));
                     self.ghosts
-                        .push((i, self.velocity[b][d], d, geo.flat(&out), a / (geo.h - a)));
+                        .push((i, self.velocity[b][d], d, geo.flat(&out), c));
                     h |= 1 << d;
                 }
             }
@@ -782,16 +791,48 @@ impl<const D: usize> RigidBodies<D> {
         })
     }
 
-    /// Whether `x` lies inside a box body that cuts cells, at the time of
-    /// [`RigidBodies::set_time`] (a shaped body's nodes hold it where it is: its cells are not
-    /// cut).
-    pub fn cuts_at(&self, x: &Vector<D>) -> bool {
-        (0..self.len()).any(|b| {
-            self.shaped[b].is_none() && {
-                let (lo, hi) = self.bounds(b);
-                (0..D).all(|d| x[d] > lo[d] && x[d] < hi[d])
+    /// The part of the box [lo, hi] that the box bodies (not the shaped ones) leave open, their
+    /// faces moved onto the node rows within SNAP of them as [`RigidBodies::held`] moves them:
+    /// its volume and centroid, exact for one body (overlapping bodies are taken one by one,
+    /// their common part counted once per body, the volume clamped at zero).
+    pub fn open_part(
+        &self,
+        geo: &GridGeometry<D>,
+        lo: &Vector<D>,
+        hi: &Vector<D>,
+    ) -> (f64, Vector<D>) {
+        let whole: f64 = (0..D).map(|d| hi[d] - lo[d]).product();
+        let centre = (lo + hi) * 0.5;
+        let (mut volume, mut moment) = (whole, centre * whole);
+        for b in 0..self.len() {
+            if self.shaped[b].is_some() {
+                continue;
             }
-        })
+            let (mut blo, mut bhi) = self.bounds(b);
+            for d in 0..D {
+                let row = |x: f64| (x - geo.origin[d]) / geo.h;
+                let below = row(blo[d]).floor();
+                if row(blo[d]) - below < SNAP {
+                    blo[d] = geo.origin[d] + below * geo.h;
+                }
+                let above = row(bhi[d]).ceil();
+                if above - row(bhi[d]) < SNAP {
+                    bhi[d] = geo.origin[d] + above * geo.h;
+                }
+            }
+            let (mut v, mut c) = (1.0, Vector::<D>::zeros());
+            for d in 0..D {
+                let (a, z) = (lo[d].max(blo[d]), hi[d].min(bhi[d]));
+                v *= (z - a).max(0.0);
+                c[d] = 0.5 * (a + z);
+            }
+            volume -= v;
+            moment -= c * v;
+        }
+        if volume <= 1e-12 * whole {
+            return (0.0, centre);
+        }
+        (volume, moment / volume)
     }
 
     /// Whether a box body (not a shaped one) overlaps the cell whose lower corner is `lower`.
@@ -1520,7 +1561,7 @@ mod tests {
     }
 
     #[test]
-    fn cut_cells_leave_a_face_normal_to_the_pressure_or_to_a_ghost_value() {
+    fn cut_cells_hold_a_face_normal_by_a_ghost_value() {
         let g = geo();
         // a block at rest on the floor; the nodes x = 0.4, 0.6 and y = 0.4 lie 0.7 h inside
         // its sides and top
@@ -1531,17 +1572,19 @@ mod tests {
         let held = |r: &RigidBodies<2>, x: f64, y: f64| {
             r.nodes.iter().find(|n| n.0 == node(x, y)).map(|n| n.2)
         };
-        // the first row inside the left side: its normal, x, free; the rough side holds y
-        assert_eq!(held(&r, 0.4, 0.2), Some(0b10));
-        // on the floor, which is a wall and no face to the material: as above
-        assert_eq!(held(&r, 0.4, 0.0), Some(0b10));
-        // under the top: y free
-        assert_eq!(held(&r, 0.5, 0.4), Some(0b01));
-        // the corner: both normals free
-        assert_eq!(held(&r, 0.6, 0.4), Some(0b00));
-        // deeper than a cell from every face: all
-        assert_eq!(held(&r, 0.5, 0.2), Some(0b11));
-        assert!(r.ghosts.is_empty());
+        // the first row inside the left side: its normal, x, by a ghost value; the rough side
+        // holds y; so on the floor, which is a wall and no face to the material; under the top;
+        // at the corner; and deeper than a cell from every face
+        for (x, y) in [(0.4, 0.2), (0.4, 0.0), (0.5, 0.4), (0.6, 0.4), (0.5, 0.2)] {
+            assert_eq!(held(&r, x, y), Some(0b11), "({x}, {y})");
+        }
+        // 0.7 h inside, past half a cell: c = (h - a) / a = 3 / 7, v = V + c (V - v_beyond)
+        let mut v = vec![Vector::<2>::new(-2.0, 0.0); g.node_count()];
+        r.apply(&mut v);
+        let ghost = v[node(0.4, 0.2)][0];
+        assert!((ghost - 3.0 / 7.0 * 2.0).abs() < 1e-12, "{ghost}");
+        // and a node a cell or more inside holds the body's velocity
+        assert_eq!(v[node(0.5, 0.2)][0], 0.0);
         // the faces' points: the sides (0.47 m each) and the top (0.34 m), not the floor
         let length = |r: &RigidBodies<2>, axis: usize, sign: f64| -> f64 {
             r.faces
@@ -1554,11 +1597,11 @@ mod tests {
         assert!((length(&r, 0, -1.0) - 0.47).abs() < 1e-12);
         assert!((length(&r, 1, -1.0) - 0.34).abs() < 1e-12);
         assert_eq!(length(&r, 1, 1.0), 0.0);
-        // smooth sides hold nothing in the first row
+        // smooth sides hold only the ghost normal in the first row
         let mut r = bodies([0.33, 0.0], [0.67, 0.47], [0.0, 0.0]);
         (r.cut, r.smooth) = (true, vec![true]);
         r.set_time(0.0, &g);
-        assert_eq!(held(&r, 0.4, 0.2), Some(0b00));
+        assert_eq!(held(&r, 0.4, 0.2), Some(0b01));
         assert_eq!(held(&r, 0.5, 0.2), Some(0b11));
         // a side 0.3 h from the first node inside (x = 0.37, node 0.4): that node holds the
         // ghost value V + c (V - v_beyond), c = 0.3 / 0.7, which puts V on the face
