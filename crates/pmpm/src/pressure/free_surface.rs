@@ -147,6 +147,9 @@ impl Surface {
         if !rigid.is_empty() {
             self.solid.resize(geo.node_count(), 0.0);
             rigid.cover(geo, &mut self.solid);
+            if self.method == FreeSurface::LevelSet {
+                rigid.fill_cut_cells(geo, &self.solid, &mut self.fraction);
+            }
         }
         if self.method == FreeSurface::LevelSet {
             // a rigid body is neither water nor air: the level set weighs only the part of
@@ -367,12 +370,25 @@ pub fn level_set<const D: usize>(
         if room(&node) >= half {
             return;
         }
+        // the nodes across a face first: the level set goes on into the body along the
+        // face's normal, so a water line meeting a vertical face between node rows stays
+        // where it is; a diagonal neighbour, a row deeper in the water, put the node on the
+        // water line inside the body under the surface (an unknown without its p = 0), and
+        // set still water around a box held across the surface moving
         let mut least = f64::INFINITY;
-        for_each_neighbour(geo, &node, |j| {
+        for_each_axis_neighbour(geo, &node, |j| {
             if room(&geo.multi(j)) >= half {
                 least = least.min(own[j]);
             }
         });
+        if !least.is_finite() {
+            // (a node past a body's edge, with only diagonal neighbours in the open)
+            for_each_neighbour(geo, &node, |j| {
+                if room(&geo.multi(j)) >= half {
+                    least = least.min(own[j]);
+                }
+            });
+        }
         if least.is_finite() {
             *phi = least;
         }
@@ -561,6 +577,27 @@ pub fn extend_velocity<const D: usize>(
             }
         }
     });
+}
+
+/// Calls `f` with the flat index of each node next to `node` along an axis (2 D of them,
+/// fewer at the padded grid's edges).
+#[inline]
+fn for_each_axis_neighbour<const D: usize>(
+    geo: &GridGeometry<D>,
+    node: &[usize; D],
+    mut f: impl FnMut(usize),
+) {
+    for d in 0..D {
+        let mut idx = *node;
+        if node[d] >= 1 {
+            idx[d] = node[d] - 1;
+            f(geo.flat(&idx));
+        }
+        if node[d] + 1 < geo.nodes[d] {
+            idx[d] = node[d] + 1;
+            f(geo.flat(&idx));
+        }
+    }
 }
 
 /// Calls `f` with the flat index of each of the 3^D - 1 nodes around `node` that lie in the

@@ -791,10 +791,28 @@ impl<const D: usize> RigidBodies<D> {
         })
     }
 
+    /// Box `b` as the cut cells see it: each face less than SNAP past a node row moved onto
+    /// that row, as [`RigidBodies::held`] moves it (the sliver between counts as the body's).
+    fn snapped(&self, b: usize, geo: &GridGeometry<D>) -> (Vector<D>, Vector<D>) {
+        let (mut lo, mut hi) = self.bounds(b);
+        for d in 0..D {
+            let row = |x: f64| (x - geo.origin[d]) / geo.h;
+            let below = row(lo[d]).floor();
+            if row(lo[d]) - below < SNAP {
+                lo[d] = geo.origin[d] + below * geo.h;
+            }
+            let above = row(hi[d]).ceil();
+            if above - row(hi[d]) < SNAP {
+                hi[d] = geo.origin[d] + above * geo.h;
+            }
+        }
+        (lo, hi)
+    }
+
     /// The part of the box [lo, hi] that the box bodies (not the shaped ones) leave open, their
-    /// faces moved onto the node rows within SNAP of them as [`RigidBodies::held`] moves them:
-    /// its volume and centroid, exact for one body (overlapping bodies are taken one by one,
-    /// their common part counted once per body, the volume clamped at zero).
+    /// faces [`snapped`](RigidBodies::snapped) to the node rows: its volume and centroid, exact
+    /// for one body (overlapping bodies are taken one by one, their common part counted once
+    /// per body, the volume clamped at zero).
     pub fn open_part(
         &self,
         geo: &GridGeometry<D>,
@@ -808,18 +826,7 @@ impl<const D: usize> RigidBodies<D> {
             if self.shaped[b].is_some() {
                 continue;
             }
-            let (mut blo, mut bhi) = self.bounds(b);
-            for d in 0..D {
-                let row = |x: f64| (x - geo.origin[d]) / geo.h;
-                let below = row(blo[d]).floor();
-                if row(blo[d]) - below < SNAP {
-                    blo[d] = geo.origin[d] + below * geo.h;
-                }
-                let above = row(bhi[d]).ceil();
-                if above - row(bhi[d]) < SNAP {
-                    bhi[d] = geo.origin[d] + above * geo.h;
-                }
-            }
+            let (blo, bhi) = self.snapped(b, geo);
             let (mut v, mut c) = (1.0, Vector::<D>::zeros());
             for d in 0..D {
                 let (a, z) = (lo[d].max(blo[d]), hi[d].min(bhi[d]));
@@ -1096,6 +1103,73 @@ impl<const D: usize> RigidBodies<D> {
                     idx[d] = first[d];
                 }
                 break;
+            }
+        }
+    }
+
+    /// With cut cells, fills the open part of each cell a box's face cuts as full as the cell
+    /// beyond the face, on the material's side, is filled, where its own particles fill it
+    /// less. Particles seeded on a lattice stop up to a particle's spacing short of a face (none
+    /// sits in a narrower sliver), and a cut cell at the free surface read as partly empty: the
+    /// level set put the water line against the face too low, the projection's divergence
+    /// weighed the cell less than its matrix, and still water around a box held across the
+    /// surface at a face between node rows began to move (and pushed a floating box sideways).
+    /// `solid` is the share of each cell the bodies cover ([`RigidBodies::cover`]), `fraction`
+    /// the particles' volume fraction of each cell.
+    pub fn fill_cut_cells(&self, geo: &GridGeometry<D>, solid: &[f64], fraction: &mut [f64]) {
+        if !self.cut {
+            return;
+        }
+        let cells = geo.cells;
+        for b in 0..self.len() {
+            if self.shaped[b].is_some() {
+                continue;
+            }
+            let (lo, hi) = self.bounds(b);
+            let (cl, ch) = (geo.to_cells(&lo), geo.to_cells(&hi));
+            if (0..D).any(|e| ch[e] <= 0.0 || cl[e] >= cells[e] as f64) {
+                continue;
+            }
+            for d in 0..D {
+                // the face's cells, and the side of the material beyond them
+                for (plane, out) in [(cl[d], -1isize), (ch[d], 1)] {
+                    let k = plane.floor();
+                    let beyond = k as isize + out;
+                    if plane - k < EPS || k < 0.0 || beyond < 0 || beyond >= cells[d] as isize {
+                        continue;
+                    }
+                    let range = |e: usize| -> (usize, usize) {
+                        if e == d {
+                            (PAD + k as usize, PAD + k as usize)
+                        } else {
+                            let first = (cl[e].floor().max(0.0) as usize).min(cells[e] - 1);
+                            let last = ((ch[e].ceil() - 1.0).max(0.0) as usize).min(cells[e] - 1);
+                            (PAD + first, PAD + last)
+                        }
+                    };
+                    let first: [usize; D] = std::array::from_fn(|e| range(e).0);
+                    let last: [usize; D] = std::array::from_fn(|e| range(e).1);
+                    let mut idx = first;
+                    'cells: loop {
+                        let mut next = idx;
+                        next[d] = (PAD as isize + beyond) as usize;
+                        let (c, n) = (geo.flat(&idx), geo.flat(&next));
+                        let open = 1.0 - solid[c].clamp(0.0, 1.0);
+                        let open_beyond = 1.0 - solid[n].clamp(0.0, 1.0);
+                        if open > 0.0 && open_beyond > 0.5 {
+                            let full = (fraction[n] / open_beyond).clamp(0.0, 1.0);
+                            fraction[c] = fraction[c].max(open * full);
+                        }
+                        for e in 0..D {
+                            if idx[e] < last[e] {
+                                idx[e] += 1;
+                                continue 'cells;
+                            }
+                            idx[e] = first[e];
+                        }
+                        break;
+                    }
+                }
             }
         }
     }
