@@ -375,19 +375,24 @@ pub fn level_set<const D: usize>(
         // where it is; a diagonal neighbour, a row deeper in the water, put the node on the
         // water line inside the body under the surface (an unknown without its p = 0), and
         // set still water around a box held across the surface moving
-        let mut least = f64::INFINITY;
-        for_each_axis_neighbour(geo, &node, |j| {
-            if room(&geo.multi(j)) >= half {
-                least = least.min(own[j]);
-            }
-        });
-        if !least.is_finite() {
-            // (a node past a body's edge, with only diagonal neighbours in the open)
-            for_each_neighbour(geo, &node, |j| {
+        let least_of = |along_axes: bool| {
+            let mut least = f64::INFINITY;
+            let take = |j: usize| {
                 if room(&geo.multi(j)) >= half {
                     least = least.min(own[j]);
                 }
-            });
+            };
+            if along_axes {
+                for_each_axis_neighbour(geo, &node, take);
+            } else {
+                for_each_neighbour(geo, &node, take);
+            }
+            least
+        };
+        let mut least = least_of(true);
+        if !least.is_finite() {
+            // (a node past a body's edge, with only diagonal neighbours in the open)
+            least = least_of(false);
         }
         if least.is_finite() {
             *phi = least;

@@ -1087,23 +1087,14 @@ impl<const D: usize> RigidBodies<D> {
             if (0..D).any(|d| ch[d] <= 0.0 || cl[d] >= geo.cells[d] as f64) {
                 continue;
             }
-            let mut idx = first;
-            'cells: loop {
+            for_each_cell(first, last, |idx| {
                 let mut part = 1.0;
                 for d in 0..D {
                     let c0 = idx[d] as f64 - PAD as f64;
                     part *= (ch[d].min(c0 + 1.0) - cl[d].max(c0)).clamp(0.0, 1.0);
                 }
-                fraction[geo.flat(&idx)] += part;
-                for d in 0..D {
-                    if idx[d] < last[d] {
-                        idx[d] += 1;
-                        continue 'cells;
-                    }
-                    idx[d] = first[d];
-                }
-                break;
-            }
+                fraction[geo.flat(idx)] += part;
+            });
         }
     }
 
@@ -1149,26 +1140,17 @@ impl<const D: usize> RigidBodies<D> {
                     };
                     let first: [usize; D] = std::array::from_fn(|e| range(e).0);
                     let last: [usize; D] = std::array::from_fn(|e| range(e).1);
-                    let mut idx = first;
-                    'cells: loop {
-                        let mut next = idx;
+                    for_each_cell(first, last, |idx| {
+                        let mut next = *idx;
                         next[d] = (PAD as isize + beyond) as usize;
-                        let (c, n) = (geo.flat(&idx), geo.flat(&next));
+                        let (c, n) = (geo.flat(idx), geo.flat(&next));
                         let open = 1.0 - solid[c].clamp(0.0, 1.0);
                         let open_beyond = 1.0 - solid[n].clamp(0.0, 1.0);
                         if open > 0.0 && open_beyond > 0.5 {
                             let full = (fraction[n] / open_beyond).clamp(0.0, 1.0);
                             fraction[c] = fraction[c].max(open * full);
                         }
-                        for e in 0..D {
-                            if idx[e] < last[e] {
-                                idx[e] += 1;
-                                continue 'cells;
-                            }
-                            idx[e] = first[e];
-                        }
-                        break;
-                    }
+                    });
                 }
             }
         }
@@ -1499,6 +1481,27 @@ fn surface_pressure<const D: usize>(
         }
     }
     Some(psum / wsum)
+}
+
+/// Calls `f` with each cell index from `first` to `last` (both included, per axis), the first
+/// axis fastest.
+fn for_each_cell<const D: usize>(
+    first: [usize; D],
+    last: [usize; D],
+    mut f: impl FnMut(&[usize; D]),
+) {
+    let mut idx = first;
+    'cells: loop {
+        f(&idx);
+        for d in 0..D {
+            if idx[d] < last[d] {
+                idx[d] += 1;
+                continue 'cells;
+            }
+            idx[d] = first[d];
+        }
+        break;
+    }
 }
 
 /// The components of `v` that `held` names (bit d: component d), the others zero.
