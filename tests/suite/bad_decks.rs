@@ -174,11 +174,6 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "bad.toml:1:1: grid: the [grid] table is required but missing",
         ),
         (
-            "neither dt nor cfl",
-            edit(&[("cfl = 0.4\n", "")]),
-            "bad.toml: simulation: needs a time step: give dt (a fixed step, in s) or cfl (an adaptive step, e.g. cfl = 0.4)",
-        ),
-        (
             "both dt and cfl",
             edit(&[("cfl = 0.4", "cfl = 0.4\ndt = 1.0e-4")]),
             "bad.toml: simulation.cfl: give either a fixed dt or an adaptive cfl, not both",

@@ -670,3 +670,19 @@ fn check_warns_of_a_free_body_that_starts_inside_another() {
         assert_eq!(out.contains(warning), warned, "pier from x = {lo}: {out}");
     }
 }
+
+/// A deck with neither `dt` nor `cfl` runs with the adaptive step at cfl = 0.4, as
+/// docs/deck.md says (it used to be refused), and its run.toml says so.
+#[test]
+fn a_deck_without_dt_or_cfl_steps_at_the_default_cfl() {
+    let dir = scratch_dir("default-cfl");
+    let deck = dir.join("deck.toml");
+    assert!(SMALL_2D.contains("cfl = 0.4\n"));
+    std::fs::write(&deck, SMALL_2D.replace("cfl = 0.4\n", "")).unwrap();
+    let out = dir.join("out");
+    run_ok(&deck, &out, &[]);
+    let run: toml::Table =
+        toml::from_str(&std::fs::read_to_string(out.join("run.toml")).unwrap()).unwrap();
+    assert_eq!(run["simulation"]["cfl"].as_float(), Some(0.4));
+    assert!(run["simulation"].get("dt").is_none());
+}

@@ -114,6 +114,9 @@ impl<'de> Deserialize<'de> for BoundarySpec {
     }
 }
 
+/// The adaptive step's Courant number where a deck gives neither `dt` nor `cfl`.
+pub const DEFAULT_CFL: f64 = 0.4;
+
 /// `[simulation]`
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -128,7 +131,8 @@ pub struct SimulationDeck {
     /// Fixed time step (s); absent: adaptive with `cfl`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dt: Option<f64>,
-    /// Courant number of the adaptive step; one of `dt` and `cfl` is required.
+    /// Courant number of the adaptive step; [`DEFAULT_CFL`] where neither `dt` nor `cfl` is
+    /// given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cfl: Option<f64>,
     /// Cap of the adaptive step (s).
@@ -1237,12 +1241,9 @@ impl Deck {
                 ));
             }
         } else {
-            let Some(cfl) = s.cfl else {
-                return Err(c.err(
-                    "simulation",
-                    "needs a time step: give dt (a fixed step, in s) or cfl (an adaptive step, e.g. cfl = 0.4)",
-                ));
-            };
+            // neither key: the adaptive step at its default Courant number, written into the
+            // run's deck (run.toml) like every default
+            let cfl = *s.cfl.get_or_insert(DEFAULT_CFL);
             if !(cfl > 0.0 && cfl <= 1.0) {
                 return Err(c.err("simulation.cfl", format!("must be in (0, 1], got {cfl}")));
             }
