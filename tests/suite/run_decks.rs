@@ -620,7 +620,8 @@ fn init_writes_a_starter_deck_that_checks_and_runs() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let gauges = std::fs::read_to_string(out.join("gauges.csv")).unwrap();
         assert!(gauges.starts_with("time,middle_height"), "{gauges}");
-        assert_eq!(gauges.lines().count(), 4, "{gauges}");
+        // the header, the state at t = 0 and the three steps
+        assert_eq!(gauges.lines().count(), 5, "{gauges}");
         // a second init leaves the file alone
         std::fs::write(&deck, "mine").unwrap();
         let o = pmpm(&["init", d, "--dimension", dim]);

@@ -530,15 +530,30 @@ impl OutputWriter {
         before: f64,
         sim: &Simulation<D>,
     ) -> Result<(), Error> {
-        let Some(w) = &mut self.gauges else {
+        if self.gauges.is_none() {
             return Ok(());
-        };
+        }
         if let Some(every) = self.gauge_interval {
             let eps = 1e-9 * every;
             if ((sim.time + eps) / every).floor() <= ((before + eps) / every).floor() {
                 return Ok(());
             }
         }
+        self.gauge_row_now(sim)
+    }
+
+    /// Frame 0 and the gauges' row of the state at t = 0, before the first step (the probes'
+    /// first row, sampled at the first step's start, is stamped t = 0 too).
+    pub fn first_frame<const D: usize>(&mut self, sim: &Simulation<D>) -> Result<(), Error> {
+        self.frame(sim, 0.0, 0.0)?;
+        self.gauge_row_now(sim)
+    }
+
+    /// Appends one row of gauge readings of the state now, due or not.
+    fn gauge_row_now<const D: usize>(&mut self, sim: &Simulation<D>) -> Result<(), Error> {
+        let Some(w) = &mut self.gauges else {
+            return Ok(());
+        };
         self.gauge_row.clear();
         for g in &self.gauge_list {
             g.read(sim, &mut self.gauge_row);

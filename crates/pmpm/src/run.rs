@@ -175,7 +175,7 @@ fn run_dim<const D: usize>(
         Driver::resume(clock, w.driver.next_frame)
     } else {
         w.out
-            .frame(&sim, 0.0, 0.0)
+            .first_frame(&sim)
             .map_err(|e| write_failure_hint(e, None, ""))?;
         Driver::new(clock)
     };
