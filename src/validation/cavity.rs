@@ -45,6 +45,8 @@ fn simulate(re: u32, h: f64, end: f64) -> Result<Run, String> {
             d.output.probes.push(ProbeDeck {
                 name,
                 position: vec![x, y],
+                sample: Default::default(),
+                radius: None,
             })
         };
         for (i, (y, _)) in gu.iter().enumerate() {

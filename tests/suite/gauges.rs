@@ -219,3 +219,100 @@ fn grid_frames_hold_the_named_fields() {
     }
     assert!(vti[at..].starts_with(b"\n  </AppendedData>"));
 }
+
+/// The Martin & Moyce dam break (the shipped example, h = a/20, to t = 0.4 s) past its impact
+/// on the far wall, with three probes at one point of that wall, 3.5 cells above the floor (on the nodes;
+/// on the particles within a cell; on those within three cells), and a pressure gauge there.
+/// Returns the rows of probes.csv and gauges.csv.
+fn impact_run() -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+    let dir = scratch_dir("impact-probe");
+    let at = "position = [0.4572, 0.01]";
+    let probes = format!(
+        "name = \"nodes\"\n{at}\n\n\
+         [[output.probes]]\nname = \"cell\"\n{at}\nsample = \"particles\"\n\n\
+         [[output.probes]]\nname = \"wide\"\n{at}\nsample = \"particles\"\nradius = 0.0085725\n\n\
+         [[output.gauges]]\nname = \"g\"\ntype = \"pressure\"\n{at}\n"
+    );
+    let text = std::fs::read_to_string("examples/dam_break_2d.toml")
+        .unwrap()
+        .replace("formats = [\"vtk\", \"csv\"]", "formats = [\"csv\"]")
+        .replace(
+            "name = \"wall\"\nposition = [0.00142875, 0.00142875]   # (h/2, h/2): foot of the back wall\n",
+            &probes,
+        );
+    let deck = dir.join("impact.toml");
+    std::fs::write(&deck, text).unwrap();
+    let out = dir.join("out");
+    let o = pmpm(&[
+        "run",
+        deck.to_str().unwrap(),
+        "--output",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rows = |f: &str| -> Vec<Vec<f64>> {
+        std::fs::read_to_string(out.join(f))
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+            .collect()
+    };
+    (rows("probes.csv"), rows("gauges.csv"))
+}
+
+/// Both time series start with the state at t = 0 (the gauges used to start at the end of
+/// the first step), and a probe with `sample = "particles"` reads what the pressure gauge at
+/// its point reads: the probe's row at a step's start is the gauge's row at the end of the
+/// step before, to the last digit written.
+///
+/// Where the surge strikes the wall (t > 0.27 s) the pressure swings from step to step over
+/// the whole neighbourhood, so a mean over the particles within a cell is no smoother than
+/// the nodes (measured: lowest -815 Pa against -654 Pa, largest jump between steps 859 Pa
+/// against 936 Pa); within three cells the suction dips are gone and the jumps smaller
+/// (lowest -29 Pa, largest jump 568 Pa, peak 1177 Pa against 1291 Pa).
+#[test]
+fn probes_and_gauges_start_at_t_0_and_a_particle_probe_reads_as_the_gauge() {
+    let (probes, gauges) = impact_run();
+    assert_eq!(probes[0][0], 0.0, "probes.csv's first row is t = 0");
+    assert_eq!(gauges[0][0], 0.0, "gauges.csv's first row is t = 0");
+    // the water starts 0.4 m from the wall: nothing at the point at t = 0
+    assert_eq!(gauges[0][1], 0.0);
+    // columns: time, then per probe pressure, vx, vy
+    let (nodes, cell, wide) = (1, 4, 7);
+    for (k, p) in probes.iter().enumerate().take(probes.len() - 1) {
+        assert_eq!(p[0], gauges[k][0], "row {k}: same times");
+        assert_eq!(
+            p[cell], gauges[k][1],
+            "row {k} at t = {}: same pressure",
+            p[0]
+        );
+    }
+    let swing = |col: usize| {
+        let w: Vec<f64> = probes
+            .iter()
+            .filter(|r| r[0] >= 0.25)
+            .map(|r| r[col])
+            .collect();
+        let jump = w
+            .windows(2)
+            .map(|p| (p[1] - p[0]).abs())
+            .fold(0.0, f64::max);
+        let peak = w.iter().cloned().fold(0.0, f64::max);
+        let low = w.iter().cloned().fold(0.0, f64::min);
+        eprintln!("column {col}: peak {peak:.0} Pa, lowest {low:.0} Pa, largest jump {jump:.0} Pa");
+        (peak, low, jump)
+    };
+    let (pn, ln, jn) = swing(nodes);
+    let (pw, lw, jw) = swing(wide);
+    assert!(
+        pn > 500.0 && pw > 500.0,
+        "the surge reached the wall: {pn}, {pw} Pa"
+    );
+    assert!(lw > 0.25 * ln, "lowest: wide {lw} Pa against nodes {ln} Pa");
+    assert!(
+        jw < 0.8 * jn,
+        "largest jump: wide {jw} Pa against nodes {jn} Pa"
+    );
+}

@@ -5,7 +5,7 @@
 use crate::averaging::{NodalAveraging, VolumetricAveraging};
 use crate::boundary::{Boundary, BoundaryKind};
 use crate::deck::RigidMotion;
-use crate::deck::{Deck, DeckError, MaterialDeck};
+use crate::deck::{Deck, DeckError, MaterialDeck, ProbeSample};
 use crate::driver::{Clock, StepSize};
 use crate::error::Error;
 use crate::flow::Inflow;
@@ -81,12 +81,7 @@ impl<const D: usize> Simulation<D> {
             },
         };
         let boundary = boundary(deck, &geo);
-        let probes: Vec<Vector<D>> = deck
-            .output
-            .probes
-            .iter()
-            .map(|p| Vector::<D>::from_column_slice(&p.position))
-            .collect();
+        let probes = probes(deck, &geo);
         let projection = (deck.simulation.scheme == Scheme::Projection).then(|| {
             Projection::new(
                 &deck.pressure,
@@ -135,6 +130,18 @@ impl<const D: usize> Simulation<D> {
         };
         Ok(Self::from_parts(parts))
     }
+}
+
+/// Each probe's place, and the radius of its particles' mean (None: it reads the nodes).
+fn probes<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Vec<(Vector<D>, Option<f64>)> {
+    deck.output
+        .probes
+        .iter()
+        .map(|p| {
+            let radius = (p.sample == ProbeSample::Particles).then(|| p.radius.unwrap_or(geo.h));
+            (Vector::<D>::from_column_slice(&p.position), radius)
+        })
+        .collect()
 }
 
 /// The grid of a validated deck: its origin, cells and periodic axes.

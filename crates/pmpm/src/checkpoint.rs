@@ -94,6 +94,16 @@ fn fingerprint(deck: &Deck) -> toml::Table {
 /// deck whose new defaults differ from them is refused by name (for example
 /// `simulation.viscosity was "explicit", the deck has "implicit"`: add the key to the deck).
 fn as_run_then(deck: &mut toml::Table) {
+    // before `sample` (pmpm 0.1 up to 2026-12-02) every probe read the grid's nodes
+    if let Some(toml::Value::Array(probes)) = deck
+        .get_mut("output")
+        .and_then(|o| o.as_table_mut())
+        .and_then(|o| o.get_mut("probes"))
+    {
+        for p in probes.iter_mut().filter_map(|p| p.as_table_mut()) {
+            p.entry("sample").or_insert_with(|| "nodes".into());
+        }
+    }
     let Some(toml::Value::Table(s)) = deck.get_mut("simulation") else {
         return;
     };

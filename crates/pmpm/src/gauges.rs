@@ -162,20 +162,7 @@ fn point_mean<const D: usize>(
     at: &Vector<D>,
     q: impl Fn(usize) -> Vector<D>,
 ) -> (f64, Vector<D>) {
-    let ps = &sim.particles;
-    let h = sim.grid.geo.h;
-    let (mut m, mut sum) = (0.0, Vector::<D>::zeros());
-    for p in 0..ps.len() {
-        let mut w = 1.0;
-        for d in 0..D {
-            w *= (1.0 - (ps.x[p][d] - at[d]).abs() / h).max(0.0);
-        }
-        if w > 0.0 {
-            m += w * ps.mass[p];
-            sum += q(p) * (w * ps.mass[p]);
-        }
-    }
-    (m, if m > 0.0 { sum / m } else { sum })
+    sim.particles.hat_mean(at, sim.grid.geo.h, q)
 }
 
 /// The surface's height on the vertical line through `at`: the volume fraction phi (the

@@ -67,11 +67,26 @@ pub struct StepPolicy {
     pub scheme: Scheme,
 }
 
+/// What a probe reads about its point.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ProbeSample {
+    /// The grid nodes that carry material, weighted by the shape functions (after P2G).
+    #[default]
+    Nodes,
+    /// The mass-weighted mean of the particles within a cell (linear hat weights), as the
+    /// pressure and velocity gauges read.
+    Particles,
+}
+
 /// Points where the grid's pressure and velocity are sampled at every step.
 #[derive(Debug, Clone)]
 pub struct Probes<const D: usize> {
     /// Probe positions.
     pub positions: Vec<Vector<D>>,
+    /// Per probe, the half-width of the hat over which it averages the particles
+    /// (`sample = "particles"`), or None where it reads the grid's nodes.
+    pub radius: Vec<Option<f64>>,
     /// Samples of the last step's P2G (the state at the step's start): per probe, pressure
     /// then D velocity components.
     pub values: Vec<f64>,
@@ -106,8 +121,8 @@ pub struct Parts<const D: usize> {
     pub settings: TransferSettings<D>,
     /// Wall conditions and rigid bodies.
     pub boundary: Boundary<D>,
-    /// Probe positions.
-    pub probes: Vec<Vector<D>>,
+    /// Probe positions, and the radius of the particles' mean of those that read it.
+    pub probes: Vec<(Vector<D>, Option<f64>)>,
     /// The pressure projection (scheme = "projection").
     pub projection: Option<Projection<D>>,
     /// The nodal averaging of the volumetric strain rate, where it applies.
@@ -182,7 +197,8 @@ impl<const D: usize> Simulation<D> {
             steps: 0,
             probes: Probes {
                 values: vec![0.0; parts.probes.len() * (D + 1)],
-                positions: parts.probes,
+                positions: parts.probes.iter().map(|p| p.0).collect(),
+                radius: parts.probes.iter().map(|p| p.1).collect(),
             },
             work: Work {
                 p2g: P2gScratch::new(rayon::current_num_threads()),
@@ -661,6 +677,21 @@ impl<const D: usize> Simulation<D> {
     fn sample_probes(&mut self) {
         let geo = &self.grid.geo;
         for (k, x) in self.probes.positions.iter().enumerate() {
+            if let Some(r) = self.probes.radius[k] {
+                let ps = &self.particles;
+                let (m, q) = ps.hat_mean(x, r, |p| {
+                    let mut q = Vector::<D>::zeros();
+                    q[0] = ps.pressure[p];
+                    q
+                });
+                let (_, v) = ps.hat_mean(x, r, |p| ps.v[p]);
+                let out = &mut self.probes.values[k * (D + 1)..(k + 1) * (D + 1)];
+                out[0] = if m > 0.0 { q[0] } else { 0.0 };
+                for d in 0..D {
+                    out[1 + d] = if m > 0.0 { v[d] } else { 0.0 };
+                }
+                continue;
+            }
             let st = Stencil::<D>::new(self.settings.shape, &geo.to_cells(x), geo.h, 0.25);
             let (mut wsum, mut p, mut v) = (0.0, 0.0, Vector::<D>::zeros());
             st.for_each(|nw| {

@@ -21,7 +21,7 @@ pub use crate::pressure::Quadrature;
 pub use crate::pressure::RigidFaces;
 pub use crate::pressure::{DensityCorrection, Preconditioner, PressureSettings, Solver};
 pub use crate::rigid::RigidSides;
-pub use crate::scheme::Scheme;
+pub use crate::scheme::{ProbeSample, Scheme};
 pub use crate::shape::ShapeFunction;
 pub use crate::transfer::StressUpdate;
 pub use crate::transfer::Transfer;
@@ -521,6 +521,13 @@ pub struct ProbeDeck {
     pub name: String,
     /// Where the grid fields are sampled.
     pub position: Vec<f64>,
+    /// What is read there.
+    #[serde(default)]
+    pub sample: ProbeSample,
+    /// With `sample = "particles"`: the half-width of the hat weights (m); the cell size
+    /// where absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
 }
 
 /// What a gauge reads ([`crate::gauges`]).
@@ -2217,6 +2224,22 @@ impl Deck {
                 ));
             }
             c.vector(&format!("{k}.position"), &pr.position, dim)?;
+            if let Some(r) = pr.radius {
+                if pr.sample != ProbeSample::Particles {
+                    return Err(c.err(
+                        format!("{k}.radius"),
+                        "applies to sample = \"particles\" only (the nodes' reading has the shape functions' reach)",
+                    ));
+                }
+                c.positive(&format!("{k}.radius"), r)?;
+                let span = (0..dim).map(|d| hi[d] - lo[d]).fold(0.0, f64::max);
+                if r > span {
+                    return Err(c.err(
+                        format!("{k}.radius"),
+                        format!("must be at most the grid's extent ({span} m), got {r}"),
+                    ));
+                }
+            }
             if let Some(d) = (0..dim).find(|&d| pr.position[d] < lo[d] || pr.position[d] > hi[d]) {
                 return Err(c.err(
                     format!("{k}.position"),
