@@ -367,12 +367,9 @@ fn bodies<const D: usize>(
     let geo = &sim.grid.geo;
     // particles per body (the bodies are filled in deck order, so body b's particles are a
     // range of ids), and those of a later body that lie inside an earlier one
+    let seeding = pmpm::build::seeded::<D>(deck, geo).map_or(Vec::new(), |(_, s)| s);
     let per_body: Vec<usize> = (0..deck.bodies.len())
-        .map(|b| {
-            let mut one = deck.clone();
-            one.bodies = vec![deck.bodies[b].clone()];
-            pmpm::build::particles::<D>(&one, geo).map_or(0, |p| p.len())
-        })
+        .map(|b| seeding.get(b).map_or(0, |s| s.particles))
         .collect();
     let solids: Vec<Option<pmpm::geometry::Solid>> = (0..deck.bodies.len())
         .map(|b| deck.body_solid(b).ok())
@@ -398,14 +395,28 @@ fn bodies<const D: usize>(
         "m3"
     };
     for (b, body) in deck.bodies.iter().enumerate() {
-        let spacing = geo.h / body.particles_per_cell as f64;
+        let Some(seed) = seeding.get(b) else {
+            continue;
+        };
         *out += &format!(
             "  bodies[{b}]        {} particles of \"{}\" ({} per cell per direction), volume {:.6e} {unit}\n",
             per_body[b],
             body.material,
             body.particles_per_cell,
-            per_body[b] as f64 * spacing.powi(D as i32)
+            seed.seeded
         );
+        // the lattice rounds each face to a row of lattice points: the particles' volumes
+        // are scaled back to the shape's, which a user should know where it is not small
+        if seed.excess().abs() > 0.005 {
+            let spacing = geo.h / body.particles_per_cell as f64;
+            warn.push(format!(
+                "bodies[{b}]: its lattice (spacing {spacing} m) covers {:.6e} m{D}, {:+.2} % of its shape's {:.6e} m{D} in the grid: each particle's volume and mass are scaled by {:.5} so that the body holds density times its shape's volume; faces on the lattice's rows (the grid's origin plus whole multiples of the spacing) seed it evenly",
+                seed.lattice_volume,
+                100.0 * seed.excess(),
+                seed.volume,
+                seed.volume / seed.lattice_volume,
+            ));
+        }
         if let Some(solid) = &solids[b] {
             let (lo, hi) = solid.bounds();
             let (glo, ghi) = (geo.origin, geo.upper());

@@ -22,5 +22,6 @@ mod projection;
 mod rigid;
 mod rigid_shapes;
 mod run_decks;
+mod seeding;
 mod sort;
 mod viscosity;

@@ -11,11 +11,12 @@ use crate::error::Error;
 use crate::flow::Inflow;
 use crate::grid::{GridGeometry, Vector};
 use crate::material::MaterialParams;
-use crate::particles::{InitialStress, Matrix, Particles};
+use crate::particles::Particles;
 use crate::pressure::{PressureUnknowns, Projection};
 use crate::rigid::{Free, Motion, Pose, RigidBodies, RigidBox, Shaped, ShapedBody};
 use crate::scheme::{least_density, Parts, Scheme, Simulation, StepPolicy, LIGHT_NODE};
-use crate::transfer::{Transfer, TransferSettings};
+use crate::seed::Seeding;
+use crate::transfer::TransferSettings;
 
 impl<const D: usize> Simulation<D> {
     /// Sets up particles, grid and every part of the step from a validated deck.
@@ -415,130 +416,25 @@ fn free_motion(
     }
 }
 
-/// Fills every body of the deck with particles on a regular lattice of spacing
-/// h / particles_per_cell, lattice points at the centres of the sub-cells.
+/// Fills every body of the deck with particles ([`crate::seed`]), none inside a rigid body.
 pub fn particles<const D: usize>(
     deck: &Deck,
     geo: &GridGeometry<D>,
 ) -> Result<Particles<D>, DeckError> {
-    let mut ps = Particles::default();
+    seeded(deck, geo).map(|(ps, _)| ps)
+}
+
+/// The particles, and what each body's lattice holds against its shape (`check` reports it).
+pub fn seeded<const D: usize>(
+    deck: &Deck,
+    geo: &GridGeometry<D>,
+) -> Result<(Particles<D>, Vec<Seeding>), DeckError> {
     // no material starts inside a rigid body: a body of water drawn around an obstacle, or
     // under a floating box, fills only the room the rigid bodies leave (`check` counts what
     // they take)
     let mut rigid = rigid_bodies::<D>(deck);
     rigid.set_time(0.0, geo);
-    // the hydrostatic initial stress takes the body force at the origin at t = 0
-    let g = deck
-        .simulation
-        .gravity
-        .compile()
-        .expect("validated expressions")
-        .eval(&geo.origin, 0.0);
-    let gnorm = g.norm();
-    let apic = deck.simulation.transfer == Some(Transfer::Apic);
-    let isochoric = deck.simulation.scheme == Scheme::Projection;
-    for (b, body) in deck.bodies.iter().enumerate() {
-        let solid = deck.body_solid(b)?;
-        let mat = deck
-            .materials
-            .iter()
-            .position(|m| m.name == body.material)
-            .expect("validated: body material exists");
-        let rho = deck.materials[mat].density;
-        let ppc = body.particles_per_cell;
-        let spacing = geo.h / ppc as f64;
-        let vol = spacing.powi(D as i32);
-        // the bounding box, cut off at the grid (a half-space has no bound of its own)
-        let (lo, hi) = solid.bounds();
-        let lo: Vec<f64> = (0..D).map(|d| lo[d].max(geo.origin[d])).collect();
-        let hi: Vec<f64> = (0..D).map(|d| hi[d].min(geo.upper()[d])).collect();
-        // lattice index range covering the body's bounding box
-        let first: [i64; D] =
-            std::array::from_fn(|d| ((lo[d] - geo.origin[d]) / spacing - 0.5).floor() as i64);
-        let last: [i64; D] =
-            std::array::from_fn(|d| ((hi[d] - geo.origin[d]) / spacing - 0.5).ceil() as i64);
-        let start = ps.len();
-        let velocity = body.velocity.compile().expect("validated expressions");
-        let mut idx = first;
-        'lattice: loop {
-            let x = Vector::<D>::from_fn(|d, _| geo.origin[d] + (idx[d] as f64 + 0.5) * spacing);
-            if geo.contains(&x) && solid.contains(x.as_slice()) && !rigid.contains(&x) {
-                ps.x.push(x);
-                ps.v.push(velocity.eval(&x, 0.0));
-                if apic {
-                    ps.affine
-                        .push(initial_affine(&velocity, &x, 1e-3 * spacing, isochoric));
-                }
-                ps.mass.push(rho * vol);
-                ps.volume0.push(vol);
-                ps.material.push(mat as u16);
-                ps.half_width.push(0.5 / ppc as f64);
-            }
-            for d in 0..D {
-                idx[d] += 1;
-                if idx[d] <= last[d] {
-                    continue 'lattice;
-                }
-                idx[d] = first[d];
-            }
-            break;
-        }
-        let n = ps.len();
-        ps.jacobian.resize(n, 1.0);
-        ps.pressure.resize(n, 0.0);
-        if body.stress == Some(InitialStress::Hydrostatic) && gnorm > 0.0 {
-            // p = rho |g| (H - y), H the body's top along -g
-            let down = g / gnorm;
-            let top = ps.x[start..]
-                .iter()
-                .map(|x| -x.dot(&down))
-                .fold(f64::NEG_INFINITY, f64::max)
-                + 0.5 * spacing;
-            for p in start..n {
-                ps.pressure[p] = rho * gnorm * (top + ps.x[p].dot(&down));
-                // With an equation of state p = K (1 - J) the particle is compressed: it fills
-                // its lattice volume now, so its reference volume and mass are larger.
-                if let Some(k) = deck.materials[mat].bulk_modulus {
-                    let j = 1.0 - ps.pressure[p] / k;
-                    ps.jacobian[p] = j;
-                    ps.volume0[p] = vol / j;
-                    ps.mass[p] = rho * vol / j;
-                }
-            }
-        }
-    }
-    let n = ps.len();
-    ps.id = (0..n as u32).collect();
-    // the lattice loop grew the arrays by doubling: give back the unused half
-    ps.shrink_to_fit();
-    ps.deformation = vec![Matrix::<D>::identity(); n];
-    ps.tau = vec![Matrix::<D>::zeros(); n];
-    ps.velocity_gradient = vec![Matrix::<D>::zeros(); n];
-    if !apic {
-        ps.affine = vec![Matrix::<D>::zeros(); n];
-    }
-    Ok(ps)
-}
-
-/// APIC's affine matrix C_p at t = 0: the gradient of the body's initial velocity field at `x`
-/// (central differences over `eps`; exact for the linear field of a rigid rotation or a shear,
-/// zero for a uniform velocity), less its trace under the projection as after every transfer.
-/// Left at zero, the first transfer drops the velocity's variation around each particle, and
-/// a spinning block loses angular momentum in its first step.
-fn initial_affine<const D: usize>(
-    velocity: &crate::field::CompiledField,
-    x: &Vector<D>,
-    eps: f64,
-    isochoric: bool,
-) -> Matrix<D> {
-    let mut c = Matrix::<D>::zeros();
-    for d in 0..D {
-        let mut e = Vector::<D>::zeros();
-        e[d] = eps;
-        let dv = (velocity.eval(&(x + e), 0.0) - velocity.eval(&(x - e), 0.0)) / (2.0 * eps);
-        c.set_column(d, &dv);
-    }
-    crate::transfer::affine(c, isochoric)
+    crate::seed::fill(deck, geo, &rigid)
 }
 
 /// The first expression field that is not a finite number where the run reads it at t = 0: a

@@ -602,6 +602,60 @@ impl Solid {
         }
     }
 
+    /// The shape's volume (area in 2D) in closed form, where it has one: the primitives and a
+    /// mesh, under any transform (times |det| of its linear part); None for a half-space and
+    /// the combinations, whose volume takes an integration.
+    pub fn volume(&self) -> Option<f64> {
+        use std::f64::consts::PI;
+        let dim = self.dim;
+        let v = match &self.prim {
+            Prim::Box { lo, hi } => (0..dim).map(|d| hi[d] - lo[d]).product(),
+            Prim::Sphere { radius: r, .. } if dim == 2 => PI * r * r,
+            Prim::Sphere { radius: r, .. } => 4.0 / 3.0 * PI * r * r * r,
+            Prim::Segment {
+                a,
+                b,
+                radius: r,
+                flat,
+            } => {
+                let l = (b - a).norm();
+                match (dim, flat) {
+                    (2, true) => 2.0 * r * l,
+                    (2, false) => 2.0 * r * l + PI * r * r,
+                    (_, true) => PI * r * r * l,
+                    (_, false) => PI * r * r * l + 4.0 / 3.0 * PI * r * r * r,
+                }
+            }
+            Prim::Polygon { points, range, .. } => {
+                // the shoelace formula, times the extrusion in 3D
+                let n = points.len();
+                let twice: f64 = (0..n)
+                    .map(|i| {
+                        let (p, q) = (points[i], points[(i + 1) % n]);
+                        p[0] * q[1] - q[0] * p[1]
+                    })
+                    .sum();
+                let area = 0.5 * twice.abs();
+                if dim == 2 {
+                    area
+                } else {
+                    area * (range.1 - range.0)
+                }
+            }
+            Prim::Mesh(m) => m.volume,
+            Prim::HalfSpace { .. }
+            | Prim::Union(_)
+            | Prim::Difference(_)
+            | Prim::Intersection(_) => return None,
+        };
+        let det = match &self.transform {
+            None => 1.0,
+            Some(a) if dim == 2 => a.linear.fixed_view::<2, 2>(0, 0).determinant(),
+            Some(a) => a.linear.determinant(),
+        };
+        Some(v * det.abs())
+    }
+
     /// A box (lower, upper corner; `dim` components) holding the shape; infinite along the
     /// axes where the shape is unbounded (a half-space).
     pub fn bounds(&self) -> (Vec<f64>, Vec<f64>) {

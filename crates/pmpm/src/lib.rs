@@ -87,6 +87,7 @@ pub mod pressure;
 pub mod rigid;
 pub mod run;
 pub mod scheme;
+pub mod seed;
 pub mod shape;
 pub mod timing;
 pub mod transfer;
