@@ -13,6 +13,7 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     use pmpm::deck::{ShapeFunction, Transfer};
     let s = &deck.simulation;
     let mut w = Vec::new();
+    rounded_grid(deck, &mut w);
     if s.transfer == Some(Transfer::Apic)
         && s.scheme == pmpm::deck::Scheme::Explicit
         && matches!(
@@ -157,6 +158,23 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
         }
     }
     w
+}
+
+/// A tank that is not a whole number of cells: what the grid took instead.
+fn rounded_grid(deck: &Deck, w: &mut Vec<String>) {
+    for &(d, given) in &deck.grid.rounded {
+        let g = &deck.grid;
+        let axis = ["x", "y", "z"][d];
+        w.push(format!(
+            "grid.size[{d}] = {given} m is {:.4} cells of {} m: the grid takes {} cells, {} m, and its {axis}_max face stands {:.4e} m beyond the deck's {} m; for that face where the deck says, give a cell_size that divides every size",
+            given / g.cell_size,
+            g.cell_size,
+            (g.size[d] / g.cell_size).round(),
+            g.origin[d] + g.size[d],
+            g.size[d] - given,
+            g.origin[d] + given,
+        ));
+    }
 }
 
 /// A velocity as the deck gives it: numbers as `[0, -0.1]`, expressions quoted.

@@ -187,3 +187,62 @@ particles_per_cell = 2
     assert!(o.status.success(), "{text}");
     assert!(!text.contains("of its shape's"), "{text}");
 }
+
+/// A 3.22 m tank at h = 4 cm (80.5 cells) used to be refused; the grid now covers it with 81
+/// cells, `check` and `run` say where its x_max wall stands, and the run's deck holds the size
+/// run. 3.22 m and 1 m share no cell coarser than 2 cm, which would cost 4 times the particles.
+#[test]
+fn a_tank_that_is_not_a_whole_number_of_cells_is_covered_and_said() {
+    let dir = scratch_dir("tank-rounded");
+    let deck = dir.join("tank.toml");
+    let text = tank(
+        "[3.22, 1.0]",
+        r#"
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0], max = [1.228, 0.55] }
+particles_per_cell = 2
+
+[output]
+interval = 0.05
+"#,
+    );
+    std::fs::write(&deck, text.replace("end_time = 0.1", "end_time = 0.05")).unwrap();
+    let said = "grid.size[0] = 3.22 m is 80.5000 cells of 0.04 m: the grid takes 81 cells, 3.24 m, and its x_max face stands 2.0000e-2 m beyond the deck's 3.22 m";
+    let o = pmpm(&["check", deck.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{text}");
+    assert!(text.contains("81 x 25 cells of h = 0.04 m"), "{text}");
+    assert!(text.contains(said), "{text}");
+    let out = dir.join("out");
+    let o = pmpm(&["run", deck.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{text}");
+    assert!(text.contains(said), "{text}");
+    let run: toml::Table =
+        toml::from_str(&std::fs::read_to_string(out.join("run.toml")).unwrap()).unwrap();
+    let size = run["grid"]["size"].as_array().unwrap();
+    assert!(
+        (size[0].as_float().unwrap() - 3.24).abs() < 1e-12,
+        "{size:?}"
+    );
+    // the deck as the user wrote it resumes the run (its size rounded as before)
+    let longer = dir.join("longer.toml");
+    std::fs::write(
+        &longer,
+        std::fs::read_to_string(&deck)
+            .unwrap()
+            .replace("end_time = 0.05", "end_time = 0.1"),
+    )
+    .unwrap();
+    let o = pmpm(&[
+        "run",
+        longer.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "-q",
+        "--resume",
+        out.join("checkpoint.bin").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

@@ -223,13 +223,17 @@ pub struct GridDeck {
     /// Lower corner (default the origin).
     #[serde(default)]
     pub origin: Vec<f64>,
-    /// Extents, a whole number of cells.
+    /// Extents, a whole number of cells (validation rounds a size that is not up to the next
+    /// whole cell).
     pub size: Vec<f64>,
     /// Cell size h.
     pub cell_size: f64,
     /// Face conditions (default `slip` on every face).
     #[serde(default)]
     pub boundary: BoundaryDeck,
+    /// The sizes validation rounded up, as (axis, the size the deck gave); `check` says so.
+    #[serde(skip)]
+    pub rounded: Vec<(usize, f64)>,
 }
 
 impl GridDeck {
@@ -1400,17 +1404,16 @@ impl Deck {
         c.vector("grid.origin", &g.origin, dim)?;
         c.vector("grid.size", &g.size, dim)?;
         c.positive("grid.cell_size", g.cell_size)?;
-        for (d, &l) in g.size.iter().enumerate() {
+        // a tank is given as it is: a size that is not a whole number of cells is covered by
+        // the next whole number, and its upper wall stands there (`check` says where)
+        g.rounded.clear();
+        for d in 0..g.size.len() {
+            let l = g.size[d];
             c.positive(&format!("grid.size[{d}]"), l)?;
             let n = l / g.cell_size;
             if (n - n.round()).abs() > 1e-6 * n.max(1.0) || n.round() < 1.0 {
-                return Err(c.err(
-                    "grid.size",
-                    format!(
-                        "must be a whole number of cells: size[{d}] / cell_size = {l} / {} = {n}",
-                        g.cell_size
-                    ),
-                ));
+                g.rounded.push((d, l));
+                g.size[d] = n.ceil().max(1.0) * g.cell_size;
             }
         }
         // every node and particle index is a u32: refuse a grid that cannot be numbered (a
