@@ -74,60 +74,120 @@ const GRID_FIELDS: [&str; 9] = [
     "yielded",
 ];
 
-/// A TOML value of a Python object (the deck given as a dict); `key` names it in errors.
-fn to_toml(obj: &Bound<'_, PyAny>, key: &str) -> PyResult<toml::Value> {
-    use toml::Value;
-    if obj.is_instance_of::<PyBool>() {
-        return Ok(Value::Boolean(obj.extract()?));
+/// The deepest a deck given as a dict may nest (tables, arrays): a deck has a few levels; a
+/// dict 20,000 deep, or one that holds itself, used to overflow the stack of the conversion
+/// and crash the interpreter.
+const MAX_DEPTH: usize = 64;
+
+/// A dict's deck turned into TOML: `file` names it in messages (`<dict>`).
+struct ToToml<'a> {
+    file: &'a str,
+}
+
+impl ToToml<'_> {
+    /// `file: key: message`, the form of the deck's own errors (`key` empty: the deck).
+    fn at(&self, key: &str, message: impl std::fmt::Display) -> String {
+        let key = if key.is_empty() { "the deck" } else { key };
+        format!("{}: {key}: {message}", self.file)
     }
-    if obj.is_instance_of::<PyInt>() {
-        return Ok(Value::Integer(obj.extract()?));
-    }
-    if obj.is_instance_of::<PyFloat>() {
-        return Ok(Value::Float(obj.extract()?));
-    }
-    if obj.is_instance_of::<PyString>() {
-        return Ok(Value::String(obj.extract()?));
-    }
-    if let Ok(dict) = obj.cast::<PyDict>() {
-        let mut table = toml::Table::new();
-        for (k, v) in dict.iter() {
-            let name: String = k.extract().map_err(|_| {
-                PyTypeError::new_err(format!("deck key {key}: a key is not a string: {k}"))
-            })?;
-            let path = if key.is_empty() {
-                name.clone()
-            } else {
-                format!("{key}.{name}")
-            };
-            if !v.is_none() {
-                table.insert(name, to_toml(&v, &path)?);
-            }
+
+    /// A TOML value of a Python object nested `depth` deep; `key` names it in errors.
+    fn value(&self, obj: &Bound<'_, PyAny>, key: &str, depth: usize) -> PyResult<toml::Value> {
+        use toml::Value;
+        if depth > MAX_DEPTH {
+            return Err(DeckError::new_err(self.at(
+                key,
+                format!("nested more than {MAX_DEPTH} deep (a deck has a few levels of tables and arrays; does a dict or list hold itself?)"),
+            )));
         }
-        return Ok(Value::Table(table));
+        if obj.is_instance_of::<PyBool>() {
+            return Ok(Value::Boolean(obj.extract()?));
+        }
+        if obj.is_instance_of::<PyInt>() {
+            return obj.extract().map(Value::Integer).map_err(|_| {
+                DeckError::new_err(self.at(key, format!("integer {} out of range (a deck's integers are 64-bit: -2**63 to 2**63 - 1)", int_text(obj))))
+            });
+        }
+        if obj.is_instance_of::<PyFloat>() {
+            return Ok(Value::Float(obj.extract()?));
+        }
+        if obj.is_instance_of::<PyString>() {
+            return obj.extract().map(Value::String).map_err(|e| {
+                DeckError::new_err(
+                    self.at(key, format!("the string is not valid Unicode text: {e}")),
+                )
+            });
+        }
+        if let Ok(dict) = obj.cast::<PyDict>() {
+            let mut table = toml::Table::new();
+            for (k, v) in dict.iter() {
+                let name: String = k.extract().map_err(|_| {
+                    PyTypeError::new_err(self.at(key, format!("a key is not a string: {k}")))
+                })?;
+                let path = if key.is_empty() {
+                    name.clone()
+                } else {
+                    format!("{key}.{name}")
+                };
+                if !v.is_none() {
+                    table.insert(name, self.value(&v, &path, depth + 1)?);
+                }
+            }
+            return Ok(Value::Table(table));
+        }
+        if obj.is_instance_of::<PyList>() || obj.is_instance_of::<PyTuple>() {
+            let items = obj
+                .try_iter()?
+                .enumerate()
+                .map(|(i, v)| self.value(&v?, &format!("{key}[{i}]"), depth + 1))
+                .collect::<PyResult<Vec<_>>>()?;
+            return Ok(Value::Array(items));
+        }
+        self.other(obj, key, depth)
     }
-    if obj.is_instance_of::<PyList>() || obj.is_instance_of::<PyTuple>() {
-        let items = obj
-            .try_iter()?
-            .enumerate()
-            .map(|(i, v)| to_toml(&v?, &format!("{key}[{i}]")))
-            .collect::<PyResult<Vec<_>>>()?;
-        return Ok(Value::Array(items));
+
+    /// A value of another type: a NumPy scalar or array (as the Python number or nested list
+    /// its `tolist()` gives), an integer type (`__index__`) or a float type (`__float__`).
+    fn other(&self, obj: &Bound<'_, PyAny>, key: &str, depth: usize) -> PyResult<toml::Value> {
+        let type_name = obj.get_type().name()?.to_string();
+        let refused = |why: String| {
+            PyTypeError::new_err(self.at(
+                key,
+                format!("a {type_name} cannot be written in a deck{why} (use a bool, int, float, str, list or dict, or a NumPy number or array)"),
+            ))
+        };
+        if obj.hasattr("tolist")? {
+            let plain = obj
+                .call_method0("tolist")
+                .map_err(|e| refused(format!(": its tolist() failed: {e}")))?;
+            if plain.get_type().is(obj.get_type()) {
+                return Err(refused(String::new()));
+            }
+            return self.value(&plain, key, depth + 1);
+        }
+        if obj.hasattr("__index__")? {
+            let int = obj
+                .call_method0("__index__")
+                .map_err(|e| refused(format!(": {e}")))?;
+            return self.value(&int, key, depth + 1);
+        }
+        match obj.extract::<f64>() {
+            Ok(x) => Ok(toml::Value::Float(x)),
+            Err(_) => Err(refused(String::new())),
+        }
     }
-    // NumPy scalars and arrays: an integer type has __index__, a float type __float__
-    if obj.hasattr("__index__")? {
-        return Ok(Value::Integer(obj.extract()?));
+}
+
+/// An integer for a message: its digits, or its size where they are many (Python refuses
+/// to print more than 4300).
+fn int_text(obj: &Bound<'_, PyAny>) -> String {
+    match obj.str() {
+        Ok(s) if s.len().is_ok_and(|n| n <= 40) => s.to_string(),
+        _ => match obj.call_method0("bit_length") {
+            Ok(bits) => format!("of {bits} bits"),
+            Err(_) => "too large".to_string(),
+        },
     }
-    if obj.hasattr("tolist")? {
-        return to_toml(&obj.call_method0("tolist")?, key);
-    }
-    if let Ok(x) = obj.extract::<f64>() {
-        return Ok(Value::Float(x));
-    }
-    Err(PyTypeError::new_err(format!(
-        "deck key {key}: a {} cannot be written in a deck (use a bool, int, float, str, list or dict)",
-        obj.get_type().name()?
-    )))
 }
 
 /// A Python object of a TOML value.
@@ -160,12 +220,12 @@ fn to_py<'py>(py: Python<'py>, v: &toml::Value) -> PyResult<Bound<'py, PyAny>> {
 /// relative file names (meshes) are read from `base_dir`, by default the working directory.
 fn load_deck(deck: &Bound<'_, PyAny>, base_dir: Option<PathBuf>) -> PyResult<(Deck, String)> {
     if let Ok(dict) = deck.cast::<PyDict>() {
-        let value = to_toml(dict.as_any(), "")?;
-        let text = toml::to_string(&value).map_err(|e| {
-            PyValueError::new_err(format!("the deck cannot be written as TOML: {e}"))
-        })?;
         let base = base_dir.unwrap_or_default();
         let file = base.join("<dict>").display().to_string();
+        let value = ToToml { file: &file }.value(dict.as_any(), "", 0)?;
+        let text = toml::to_string(&value).map_err(|e| {
+            PyValueError::new_err(format!("{file}: the deck cannot be written as TOML: {e}"))
+        })?;
         let mut deck = Deck::parse(&text, &file).map_err(|e| py_err(e.into()))?;
         deck.validate(&file).map_err(|e| py_err(e.into()))?;
         return Ok((deck, file));

@@ -201,3 +201,46 @@ def test_vtk_reads_the_grid_frame_as_grid_field(tmp_path):
     assert image.GetDimensions()[:2] == pressure.shape
     from_vtk = vtk_to_numpy(data.GetArray("pressure"))
     np.testing.assert_allclose(from_vtk, pressure.ravel(order="F"), rtol=1e-6, atol=1e-6)
+
+
+# --- robustness: Ctrl-C, limits up front, deep and odd dicts, threads --------------------
+
+
+def test_a_deeply_nested_dict_is_refused_naming_where():
+    # 20,000 levels used to overflow the conversion's stack: SIGSEGV
+    deck = pmpm.read_deck(EXAMPLES / "dam_break_2d.toml")
+    deep: dict = {}
+    node = deep
+    for _ in range(20_000):
+        node["a"] = {}
+        node = node["a"]
+    with pytest.raises(pmpm.DeckError, match=r"extra\.a\.a\.a.*nested more than 64 deep"):
+        pmpm.Simulation({**deck, "extra": deep})
+    looped: list = []
+    looped.append(looped)
+    with pytest.raises(pmpm.DeckError, match=r"grid\.size\[0\]\[0\].*nested"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"grid.size": looped}))
+
+
+def test_values_errors_name_their_key_and_numpy_is_taken():
+    deck = pmpm.read_deck(EXAMPLES / "dam_break_2d.toml")
+    with pytest.raises(pmpm.DeckError, match=r"simulation\.dimension: integer 1180591620717411303424 out of range"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"simulation.dimension": 2**70}))
+    with pytest.raises(pmpm.DeckError, match=r"materials\[0\]\.density: integer of 16610 bits out of range"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"materials[0].density": 10**5000}))
+    # NumPy arrays and scalars mean the lists and numbers they hold
+    changes = {
+        "simulation.gravity": np.array([0.0, -9.81]),
+        "grid.size": np.array([0.4572, 0.17145], dtype=np.float64),
+        "bodies[0].shape.max": (np.float32(0.05715), np.array(0.1143)),
+        "bodies[0].particles_per_cell": np.uint8(2),
+        "simulation.end_time": np.float64(0.01),
+    }
+    sim = pmpm.Simulation(pmpm.with_changes(deck, changes))
+    assert sim.deck["simulation"]["gravity"] == [0.0, -9.81]
+    assert sim.deck["bodies"][0]["particles_per_cell"] == 2
+    # what means neither is refused naming its key
+    with pytest.raises(TypeError, match=r"grid\.size\[0\]: a complex cannot be written"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"grid.size": np.array([0.4572, 1j])}))
+    with pytest.raises(pmpm.DeckError, match=r"grid\.size"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"grid.size": np.zeros((2, 2))}))
