@@ -35,13 +35,21 @@ pyo3::create_exception!(
 
 /// The Python exception for a solver error, of the class its exit status stands for.
 fn py_err(e: Error) -> PyErr {
-    let message = e.to_string();
+    let message = for_python(&pmpm::limits::shorten_numbers(&e.to_string()));
     match e {
         Error::Deck(_) | Error::Unsupported { .. } | Error::Usage(_) => DeckError::new_err(message),
         Error::Io { .. } => PyOSError::new_err(message),
         Error::BlowUp(_) => SolverError::new_err(message),
         Error::Interrupted(_) => PyKeyboardInterrupt::new_err(message),
     }
+}
+
+/// A solver message with the command line's options named as the Python entry points take
+/// them (the limits' messages name `--allow-large` and `--threads`).
+fn for_python(message: &str) -> String {
+    message
+        .replace("pass --allow-large", "pass allow_large=True")
+        .replace("fewer --threads", "fewer threads")
 }
 
 /// The particle fields `Simulation.particle_field` reads.
@@ -276,6 +284,8 @@ struct Simulation {
     next_frame: f64,
     /// The workers of the steps: results are bitwise repeatable for a given count.
     pool: rayon::ThreadPool,
+    /// `run(until=...)` may go past the limits on steps (as `allow_large=True` asked).
+    allow_large: bool,
 }
 
 impl Simulation {
@@ -348,10 +358,20 @@ fn step_toward<const D: usize>(
     driver.step_by(sim, dt).map(|_| ())
 }
 
-/// A pool of `threads` workers (all cores by default), as `--threads` makes.
+/// A pool of `threads` workers (all cores by default), as `--threads` makes, and within its
+/// limit: at most 8 a core and at least 64 (starting a million threads took minutes).
 fn pool(threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
     if threads == Some(0) {
         return Err(PyValueError::new_err("threads: must be at least 1"));
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let most = (8 * cores).max(64);
+    if let Some(n) = threads.filter(|&n| n > most) {
+        return Err(PyValueError::new_err(format!(
+            "threads: {n}: at most {most} on this machine ({cores} cores; up to 8 threads a \
+             core, at least 64, so that a run made elsewhere with more threads can be repeated \
+             bit for bit)"
+        )));
     }
     let mut builder = rayon::ThreadPoolBuilder::new();
     if let Some(n) = threads {
@@ -360,6 +380,19 @@ fn pool(threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
     builder
         .build()
         .map_err(|e| PyRuntimeError::new_err(format!("cannot start the worker threads: {e}")))
+}
+
+/// Refuses, as `pmpm run` does without `--allow-large`, a deck that needs more memory than
+/// the machine has or its address-space limit allows, or more than 1e9 steps to its end
+/// time, before anything is allocated; run on `pool` to count its threads' address space.
+fn check_limits(
+    pool: &rayon::ThreadPool,
+    deck: &Deck,
+    file: &str,
+    allow_large: bool,
+) -> PyResult<()> {
+    pool.install(|| pmpm::limits::refuse_beyond_limits(deck, file, allow_large))
+        .map_err(py_err)
 }
 
 /// `(n, D)` of a D-vector per particle.
@@ -500,13 +533,16 @@ fn grid_field<'py>(
 #[pymethods]
 impl Simulation {
     #[new]
-    #[pyo3(signature = (deck, *, base_dir = None, threads = None))]
+    #[pyo3(signature = (deck, *, base_dir = None, threads = None, allow_large = false))]
     fn new(
         deck: &Bound<'_, PyAny>,
         base_dir: Option<PathBuf>,
         threads: Option<usize>,
+        allow_large: bool,
     ) -> PyResult<Self> {
+        let pool = pool(threads)?;
         let (deck, file) = load_deck(deck, base_dir)?;
+        check_limits(&pool, &deck, &file, allow_large)?;
         let build_err = |e: Error| py_err(e.with_file(&file));
         let inner = match deck.simulation.dimension {
             2 => Inner::Two(Box::new(Sim::<2>::new(&deck).map_err(build_err)?)),
@@ -519,7 +555,8 @@ impl Simulation {
             deck,
             file,
             clock,
-            pool: pool(threads)?,
+            pool,
+            allow_large,
         })
     }
 
@@ -608,6 +645,21 @@ impl Simulation {
                 "until: must be a finite time, got {until}"
             )));
         }
+        if until > self.deck.simulation.end_time && !self.allow_large {
+            // the steps to `until`, as the deck's end time is checked when it is built
+            let mut deck = self.deck.clone();
+            deck.simulation.end_time = until;
+            let steps = pmpm::limits::estimate(&deck).steps;
+            if steps > pmpm::limits::MAX_STEPS {
+                return Err(PyValueError::new_err(format!(
+                    "until: {}: the run needs about {} steps to get there, more than {:.0e}; \
+                     Simulation(..., allow_large=True) runs it anyway",
+                    pmpm::limits::short(until),
+                    pmpm::limits::short(steps),
+                    pmpm::limits::MAX_STEPS
+                )));
+            }
+        }
         self.advance(py, Some(until))
     }
 
@@ -657,10 +709,10 @@ impl Simulation {
 /// Runs a deck to its end time into a run directory, as `pmpm run` does: frames, series.csv,
 /// probes, gauges, checkpoints and run.toml. `output` is the directory (the deck's
 /// `output.directory` by default); `force` writes over an earlier run there; `threads` as
-/// for `Simulation`. Returns the
-/// run's summary as a dict: steps, frames, particles, time, wall_seconds.
+/// for `Simulation`; `allow_large` runs a deck past the limits on memory and steps.
+/// Returns the run's summary as a dict: steps, frames, particles, time, wall_seconds.
 #[pyfunction]
-#[pyo3(signature = (deck, output = None, *, force = false, base_dir = None, threads = None))]
+#[pyo3(signature = (deck, output = None, *, force = false, base_dir = None, threads = None, allow_large = false))]
 fn run<'py>(
     py: Python<'py>,
     deck: &Bound<'py, PyAny>,
@@ -668,8 +720,11 @@ fn run<'py>(
     force: bool,
     base_dir: Option<PathBuf>,
     threads: Option<usize>,
+    allow_large: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let workers = pool(threads)?;
     let (deck, file) = load_deck(deck, base_dir)?;
+    check_limits(&workers, &deck, &file, allow_large)?;
     let dir = match output {
         Some(dir) => dir,
         None if !deck.output.directory.is_empty() => PathBuf::from(&deck.output.directory),
@@ -683,7 +738,6 @@ fn run<'py>(
         force,
         ..RunOptions::default()
     };
-    let workers = pool(threads)?;
     let summary = py
         .detach(|| {
             workers.install(|| pmpm::run::run(&deck, &file, Path::new(&dir), &opts, &mut Silent))

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -244,3 +245,62 @@ def test_values_errors_name_their_key_and_numpy_is_taken():
         pmpm.Simulation(pmpm.with_changes(deck, {"grid.size": np.array([0.4572, 1j])}))
     with pytest.raises(pmpm.DeckError, match=r"grid\.size"):
         pmpm.Simulation(pmpm.with_changes(deck, {"grid.size": np.zeros((2, 2))}))
+
+
+def test_a_deck_needing_too_many_steps_is_refused_up_front(tmp_path):
+    # 4e14 steps used to start, and run for years; now refused as `pmpm run` refuses it
+    deck = pmpm.with_changes(
+        pmpm.read_deck(EXAMPLES / "dam_break_2d.toml"), {"simulation.dt": 1e-15, "simulation.cfl": None}
+    )
+    with pytest.raises(pmpm.DeckError, match=r"4\.000e14 steps .*allow_large=True"):
+        pmpm.Simulation(deck)
+    with pytest.raises(pmpm.DeckError, match="steps"):
+        pmpm.run(deck, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    sim = pmpm.Simulation(deck, allow_large=True)
+    assert sim.step() == pytest.approx(1e-15)
+    # and so is a time to run to that needs them
+    sim = pmpm.Simulation(EXAMPLES / "dam_break_2d.toml")
+    with pytest.raises(ValueError, match=r"until: 1000000000: the run needs about .* steps"):
+        sim.run(until=1e9)
+    assert sim.steps == 0
+
+
+def test_a_deck_larger_than_the_machine_is_refused_before_allocating(tmp_path):
+    # h / 300: about 460 GB; refused at once, naming the memory and allow_large
+    deck = pmpm.read_deck(EXAMPLES / "dam_break_2d.toml")
+    huge = pmpm.with_changes(deck, {"grid.cell_size": deck["grid"]["cell_size"] / 300})
+    start = time.monotonic()
+    with pytest.raises(pmpm.DeckError, match=r"needs about [\d.]+ [GT]B of memory.*allow_large=True"):
+        pmpm.Simulation(huge)
+    with pytest.raises(pmpm.DeckError, match="of memory"):
+        pmpm.run(huge, tmp_path / "out")
+    assert time.monotonic() - start < 5.0
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="RLIMIT_AS")
+def test_a_deck_beyond_ulimit_v_is_refused_not_aborted():
+    # 50 GB under a 4 GB address-space limit used to abort the interpreter (status 134)
+    script = f"""
+import resource, pmpm
+resource.setrlimit(resource.RLIMIT_AS, (4 << 30, resource.RLIM_INFINITY))
+deck = pmpm.read_deck({str(EXAMPLES / "dam_break_2d.toml")!r})
+deck = pmpm.with_changes(deck, {{"grid.cell_size": deck["grid"]["cell_size"] / 100}})
+try:
+    pmpm.Simulation(deck, threads=2)
+except pmpm.DeckError as e:
+    print(e)
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "ulimit -v" in done.stdout and "allow_large=True" in done.stdout, done.stdout
+
+
+def test_threads_beyond_the_limit_are_refused():
+    # a million threads used to hang for minutes, starting them
+    deck = EXAMPLES / "dam_break_2d.toml"
+    with pytest.raises(ValueError, match=r"threads: 1000000: at most \d+"):
+        pmpm.Simulation(deck, threads=10**6)
+    with pytest.raises(ValueError, match="threads"):
+        pmpm.run(deck, "unused", threads=10**6)
