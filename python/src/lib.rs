@@ -19,6 +19,9 @@ use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
 
 pyo3::create_exception!(
     _pmpm,
@@ -35,7 +38,12 @@ pyo3::create_exception!(
 
 /// The Python exception for a solver error, of the class its exit status stands for.
 fn py_err(e: Error) -> PyErr {
-    let message = for_python(&pmpm::limits::shorten_numbers(&e.to_string()));
+    py_err_as(e, |m| m)
+}
+
+/// [`py_err`] with its message passed through `edit`.
+fn py_err_as(e: Error, edit: impl FnOnce(String) -> String) -> PyErr {
+    let message = edit(for_python(&pmpm::limits::shorten_numbers(&e.to_string())));
     match e {
         Error::Deck(_) | Error::Unsupported { .. } | Error::Usage(_) => DeckError::new_err(message),
         Error::Io { .. } => PyOSError::new_err(message),
@@ -291,7 +299,8 @@ struct Simulation {
 impl Simulation {
     /// Steps to `until` (or one step when `until` is None) with the deck's step policy;
     /// returns the steps taken. The steps run on the simulation's worker pool with the GIL
-    /// released, and Ctrl-C stops between steps.
+    /// released; Ctrl-C (any signal whose handler raises) stops them after the step in
+    /// progress and raises, the simulation whole and able to go on.
     fn advance(&mut self, py: Python<'_>, until: Option<f64>) -> PyResult<u64> {
         let clock = Clock {
             end: until.unwrap_or(f64::INFINITY),
@@ -304,26 +313,70 @@ impl Simulation {
         // The loop runs on a worker of the pool, as `pmpm run` does: the many short parallel
         // loops of a step then start without waking a sleeping thread from outside the pool
         // each time (twice the speed on 2 cores).
-        let taken = py.detach(|| {
-            pool.install(|| -> PyResult<u64> {
-                let mut taken = 0;
-                loop {
-                    if until.is_some() && with_sim!(&*inner, s => driver.finished(s.as_ref())) {
-                        return Ok(taken);
-                    }
-                    with_sim!(&mut *inner, s => step_toward(&mut driver, s.as_mut(), toward))
-                        .map_err(py_err)?;
-                    taken += 1;
-                    if until.is_none() {
-                        return Ok(taken);
-                    }
-                    Python::attach(|py| py.check_signals())?;
+        let (taken, signal) = interruptible(py, pool, |stop| -> Result<u64, Error> {
+            let mut taken = 0;
+            loop {
+                if until.is_some() && with_sim!(&*inner, s => driver.finished(s.as_ref())) {
+                    return Ok(taken);
                 }
-            })
+                with_sim!(&mut *inner, s => step_toward(&mut driver, s.as_mut(), toward))?;
+                taken += 1;
+                if until.is_none() || stop.load(Ordering::SeqCst) {
+                    return Ok(taken);
+                }
+            }
         });
         self.next_frame = driver.next_frame;
-        taken
+        let taken = taken.map_err(py_err)?;
+        match signal {
+            Some(e) => Err(e),
+            None => Ok(taken),
+        }
     }
+}
+
+/// How often the Python thread looks for a signal while the workers step.
+const SIGNAL_POLL: Duration = Duration::from_millis(20);
+
+/// Runs `work` on a worker of `pool` while this thread, the interpreter's, releases the GIL
+/// and runs Python's signal handlers every [`SIGNAL_POLL`]: Python runs them only on its main
+/// thread, never on a worker, so a check there let Ctrl-C go unseen. When a handler raises
+/// (KeyboardInterrupt), `work`'s stop flag is set, and its exception is returned beside
+/// `work`'s result once `work` has stopped at a step.
+fn interruptible<T: Send>(
+    py: Python<'_>,
+    pool: &rayon::ThreadPool,
+    work: impl FnOnce(&Arc<AtomicBool>) -> T + Send,
+) -> (T, Option<PyErr>) {
+    /// Marks the work done, even when it panics (the scope then raises the panic).
+    struct Done<'a>(&'a AtomicBool, std::thread::Thread);
+    impl Drop for Done<'_> {
+        fn drop(&mut self) {
+            self.0.store(true, Ordering::SeqCst);
+            self.1.unpark();
+        }
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    let done = AtomicBool::new(false);
+    let mut out = None;
+    let mut signal = None;
+    pool.in_place_scope(|scope| {
+        let caller = std::thread::current();
+        scope.spawn(|_| {
+            let _done = Done(&done, caller);
+            out = Some(work(&stop));
+        });
+        while !done.load(Ordering::SeqCst) {
+            py.detach(|| std::thread::park_timeout(SIGNAL_POLL));
+            if signal.is_none() {
+                if let Err(e) = py.check_signals() {
+                    stop.store(true, Ordering::SeqCst);
+                    signal = Some(e);
+                }
+            }
+        }
+    });
+    (out.expect("the work ran to its end"), signal)
 }
 
 /// One step of the driver's size, except on the way to a time `until` other than the deck's
@@ -709,10 +762,13 @@ impl Simulation {
 /// Runs a deck to its end time into a run directory, as `pmpm run` does: frames, series.csv,
 /// probes, gauges, checkpoints and run.toml. `output` is the directory (the deck's
 /// `output.directory` by default); `force` writes over an earlier run there; `threads` as
-/// for `Simulation`; `allow_large` runs a deck past the limits on memory and steps.
+/// for `Simulation`; `allow_large` runs a deck past the limits on memory and steps; `resume`
+/// goes on from a checkpoint (`OUTDIR/checkpoint.bin`) as `pmpm run --resume` does. Ctrl-C
+/// finishes the step, writes a frame and a checkpoint and raises `KeyboardInterrupt`.
 /// Returns the run's summary as a dict: steps, frames, particles, time, wall_seconds.
 #[pyfunction]
-#[pyo3(signature = (deck, output = None, *, force = false, base_dir = None, threads = None, allow_large = false))]
+#[pyo3(signature = (deck, output = None, *, force = false, base_dir = None, threads = None, allow_large = false, resume = None))]
+#[allow(clippy::too_many_arguments)] // Python's keyword arguments
 fn run<'py>(
     py: Python<'py>,
     deck: &Bound<'py, PyAny>,
@@ -721,6 +777,7 @@ fn run<'py>(
     base_dir: Option<PathBuf>,
     threads: Option<usize>,
     allow_large: bool,
+    resume: Option<PathBuf>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let workers = pool(threads)?;
     let (deck, file) = load_deck(deck, base_dir)?;
@@ -734,15 +791,26 @@ fn run<'py>(
         )))
         }
     };
-    let opts = RunOptions {
-        force,
-        ..RunOptions::default()
+    let (summary, signal) = interruptible(py, &workers, |stop| {
+        let opts = RunOptions {
+            force,
+            resume,
+            interrupt: Some(Arc::clone(stop)),
+            ..RunOptions::default()
+        };
+        pmpm::run::run(&deck, &file, Path::new(&dir), &opts, &mut Silent)
+    });
+    let run_err = |e| py_err_as(e, |m| python_resume(m, &file, &dir));
+    let summary = match (summary, signal) {
+        // stopped at a step, its frame and checkpoint written: the run's message says so
+        (Err(e @ Error::Interrupted(_)), Some(signal))
+            if signal.is_instance_of::<PyKeyboardInterrupt>(py) =>
+        {
+            return Err(run_err(e))
+        }
+        (_, Some(signal)) => return Err(signal),
+        (summary, None) => summary.map_err(run_err)?,
     };
-    let summary = py
-        .detach(|| {
-            workers.install(|| pmpm::run::run(&deck, &file, Path::new(&dir), &opts, &mut Silent))
-        })
-        .map_err(py_err)?;
     let out = PyDict::new(py);
     out.set_item("steps", summary.steps)?;
     out.set_item("frames", summary.frames)?;
@@ -751,6 +819,20 @@ fn run<'py>(
     out.set_item("wall_seconds", summary.wall_seconds)?;
     out.set_item("directory", dir)?;
     Ok(out)
+}
+
+/// A run's message with the command that goes on from its checkpoint, which ends it
+/// (`pmpm run FILE --resume CHECKPOINT [--output DIR]`), as the call that does so from Python.
+fn python_resume(message: String, file: &str, dir: &Path) -> String {
+    match message.find(&format!("pmpm run {file} --resume ")) {
+        Some(at) => format!(
+            "{}pmpm.run(deck, {:?}, resume={:?})",
+            &message[..at],
+            dir.display().to_string(),
+            dir.join("checkpoint.bin").display().to_string()
+        ),
+        None => message,
+    }
 }
 
 /// Reads a deck file into a dict of its keys as written (no defaults filled in), to change

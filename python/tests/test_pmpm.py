@@ -7,8 +7,11 @@ Run from anywhere after `pip install ./python`: `python -m pytest python/tests`.
 from __future__ import annotations
 
 import csv
+import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -304,3 +307,55 @@ def test_threads_beyond_the_limit_are_refused():
         pmpm.Simulation(deck, threads=10**6)
     with pytest.raises(ValueError, match="threads"):
         pmpm.run(deck, "unused", threads=10**6)
+
+
+def interrupt_after(seconds: float) -> threading.Timer:
+    """A timer that sends SIGINT to this process, as Ctrl-C does, after `seconds`."""
+    timer = threading.Timer(seconds, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    return timer
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to itself")
+def test_ctrl_c_stops_simulation_run_after_the_step_in_progress():
+    # The signal used to be checked on a worker thread, where Python never runs its
+    # handlers: Ctrl-C went unseen until the whole run was over (here about 40 s).
+    sim = pmpm.Simulation(EXAMPLES / "dam_break_2d.toml", threads=2)
+    timer = interrupt_after(1.0)
+    start = time.monotonic()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            sim.run(until=1.0)
+    finally:
+        timer.cancel()
+    assert time.monotonic() - start < 4.0
+    # stopped at a step, the simulation whole: a later run goes on from there
+    steps, t = sim.steps, sim.time
+    assert 0 < t < 1.0 and steps > 0
+    sim.run(until=t + 0.01)
+    assert sim.steps > steps
+    assert sim.time == pytest.approx(t + 0.01, abs=1e-12)
+    assert np.all(np.isfinite(sim.particle_field("velocity")))
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to itself")
+def test_ctrl_c_stops_pmpm_run_with_a_checkpoint(tmp_path):
+    # As `pmpm run` does: the step in progress finishes, a frame and a checkpoint are
+    # written, and the message says so and how to go on (resume=).
+    deck = pmpm.with_changes(pmpm.read_deck(EXAMPLES / "dam_break_2d.toml"), {"simulation.end_time": 1.0})
+    timer = interrupt_after(1.0)
+    start = time.monotonic()
+    try:
+        with pytest.raises(KeyboardInterrupt, match="checkpoint") as stopped:
+            pmpm.run(deck, tmp_path / "out", threads=2)
+    finally:
+        timer.cancel()
+    assert time.monotonic() - start < 4.0
+    checkpoint = tmp_path / "out" / "checkpoint.bin"
+    assert checkpoint.stat().st_size > 0
+    # the message gives the call that goes on; here to 0.02 s past where it stopped
+    message = str(stopped.value)
+    assert f'resume="{checkpoint}"' in message, message
+    t = float(message.split(", t = ")[1].split(" s")[0])
+    summary = pmpm.run(pmpm.with_changes(deck, {"simulation.end_time": t + 0.02}), tmp_path / "out", threads=2, resume=checkpoint)
+    assert summary["time"] == pytest.approx(t + 0.02, abs=1e-12)

@@ -75,6 +75,7 @@ def run(
     base_dir: Union[str, "PathLike[str]", None] = None,
     threads: int | None = None,
     allow_large: bool = False,
+    resume: Union[str, "PathLike[str]", None] = None,
 ) -> dict[str, Any]:
     """Runs a deck to its end into a run directory, as ``pmpm run`` does; returns the summary."""
 
