@@ -19,6 +19,9 @@ use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
 
 pyo3::create_exception!(
     _pmpm,
@@ -35,13 +38,26 @@ pyo3::create_exception!(
 
 /// The Python exception for a solver error, of the class its exit status stands for.
 fn py_err(e: Error) -> PyErr {
-    let message = e.to_string();
+    py_err_as(e, |m| m)
+}
+
+/// [`py_err`] with its message passed through `edit`.
+fn py_err_as(e: Error, edit: impl FnOnce(String) -> String) -> PyErr {
+    let message = edit(for_python(&pmpm::limits::shorten_numbers(&e.to_string())));
     match e {
         Error::Deck(_) | Error::Unsupported { .. } | Error::Usage(_) => DeckError::new_err(message),
         Error::Io { .. } => PyOSError::new_err(message),
         Error::BlowUp(_) => SolverError::new_err(message),
         Error::Interrupted(_) => PyKeyboardInterrupt::new_err(message),
     }
+}
+
+/// A solver message with the command line's options named as the Python entry points take
+/// them (the limits' messages name `--allow-large` and `--threads`).
+fn for_python(message: &str) -> String {
+    message
+        .replace("pass --allow-large", "pass allow_large=True")
+        .replace("fewer --threads", "fewer threads")
 }
 
 /// The particle fields `Simulation.particle_field` reads.
@@ -74,60 +90,120 @@ const GRID_FIELDS: [&str; 9] = [
     "yielded",
 ];
 
-/// A TOML value of a Python object (the deck given as a dict); `key` names it in errors.
-fn to_toml(obj: &Bound<'_, PyAny>, key: &str) -> PyResult<toml::Value> {
-    use toml::Value;
-    if obj.is_instance_of::<PyBool>() {
-        return Ok(Value::Boolean(obj.extract()?));
+/// The deepest a deck given as a dict may nest (tables, arrays): a deck has a few levels; a
+/// dict 20,000 deep, or one that holds itself, used to overflow the stack of the conversion
+/// and crash the interpreter.
+const MAX_DEPTH: usize = 64;
+
+/// A dict's deck turned into TOML: `file` names it in messages (`<dict>`).
+struct ToToml<'a> {
+    file: &'a str,
+}
+
+impl ToToml<'_> {
+    /// `file: key: message`, the form of the deck's own errors (`key` empty: the deck).
+    fn at(&self, key: &str, message: impl std::fmt::Display) -> String {
+        let key = if key.is_empty() { "the deck" } else { key };
+        format!("{}: {key}: {message}", self.file)
     }
-    if obj.is_instance_of::<PyInt>() {
-        return Ok(Value::Integer(obj.extract()?));
-    }
-    if obj.is_instance_of::<PyFloat>() {
-        return Ok(Value::Float(obj.extract()?));
-    }
-    if obj.is_instance_of::<PyString>() {
-        return Ok(Value::String(obj.extract()?));
-    }
-    if let Ok(dict) = obj.cast::<PyDict>() {
-        let mut table = toml::Table::new();
-        for (k, v) in dict.iter() {
-            let name: String = k.extract().map_err(|_| {
-                PyTypeError::new_err(format!("deck key {key}: a key is not a string: {k}"))
-            })?;
-            let path = if key.is_empty() {
-                name.clone()
-            } else {
-                format!("{key}.{name}")
-            };
-            if !v.is_none() {
-                table.insert(name, to_toml(&v, &path)?);
-            }
+
+    /// A TOML value of a Python object nested `depth` deep; `key` names it in errors.
+    fn value(&self, obj: &Bound<'_, PyAny>, key: &str, depth: usize) -> PyResult<toml::Value> {
+        use toml::Value;
+        if depth > MAX_DEPTH {
+            return Err(DeckError::new_err(self.at(
+                key,
+                format!("nested more than {MAX_DEPTH} deep (a deck has a few levels of tables and arrays; does a dict or list hold itself?)"),
+            )));
         }
-        return Ok(Value::Table(table));
+        if obj.is_instance_of::<PyBool>() {
+            return Ok(Value::Boolean(obj.extract()?));
+        }
+        if obj.is_instance_of::<PyInt>() {
+            return obj.extract().map(Value::Integer).map_err(|_| {
+                DeckError::new_err(self.at(key, format!("integer {} out of range (a deck's integers are 64-bit: -2**63 to 2**63 - 1)", int_text(obj))))
+            });
+        }
+        if obj.is_instance_of::<PyFloat>() {
+            return Ok(Value::Float(obj.extract()?));
+        }
+        if obj.is_instance_of::<PyString>() {
+            return obj.extract().map(Value::String).map_err(|e| {
+                DeckError::new_err(
+                    self.at(key, format!("the string is not valid Unicode text: {e}")),
+                )
+            });
+        }
+        if let Ok(dict) = obj.cast::<PyDict>() {
+            let mut table = toml::Table::new();
+            for (k, v) in dict.iter() {
+                let name: String = k.extract().map_err(|_| {
+                    PyTypeError::new_err(self.at(key, format!("a key is not a string: {k}")))
+                })?;
+                let path = if key.is_empty() {
+                    name.clone()
+                } else {
+                    format!("{key}.{name}")
+                };
+                if !v.is_none() {
+                    table.insert(name, self.value(&v, &path, depth + 1)?);
+                }
+            }
+            return Ok(Value::Table(table));
+        }
+        if obj.is_instance_of::<PyList>() || obj.is_instance_of::<PyTuple>() {
+            let items = obj
+                .try_iter()?
+                .enumerate()
+                .map(|(i, v)| self.value(&v?, &format!("{key}[{i}]"), depth + 1))
+                .collect::<PyResult<Vec<_>>>()?;
+            return Ok(Value::Array(items));
+        }
+        self.other(obj, key, depth)
     }
-    if obj.is_instance_of::<PyList>() || obj.is_instance_of::<PyTuple>() {
-        let items = obj
-            .try_iter()?
-            .enumerate()
-            .map(|(i, v)| to_toml(&v?, &format!("{key}[{i}]")))
-            .collect::<PyResult<Vec<_>>>()?;
-        return Ok(Value::Array(items));
+
+    /// A value of another type: a NumPy scalar or array (as the Python number or nested list
+    /// its `tolist()` gives), an integer type (`__index__`) or a float type (`__float__`).
+    fn other(&self, obj: &Bound<'_, PyAny>, key: &str, depth: usize) -> PyResult<toml::Value> {
+        let type_name = obj.get_type().name()?.to_string();
+        let refused = |why: String| {
+            PyTypeError::new_err(self.at(
+                key,
+                format!("a {type_name} cannot be written in a deck{why} (use a bool, int, float, str, list or dict, or a NumPy number or array)"),
+            ))
+        };
+        if obj.hasattr("tolist")? {
+            let plain = obj
+                .call_method0("tolist")
+                .map_err(|e| refused(format!(": its tolist() failed: {e}")))?;
+            if plain.get_type().is(obj.get_type()) {
+                return Err(refused(String::new()));
+            }
+            return self.value(&plain, key, depth + 1);
+        }
+        if obj.hasattr("__index__")? {
+            let int = obj
+                .call_method0("__index__")
+                .map_err(|e| refused(format!(": {e}")))?;
+            return self.value(&int, key, depth + 1);
+        }
+        match obj.extract::<f64>() {
+            Ok(x) => Ok(toml::Value::Float(x)),
+            Err(_) => Err(refused(String::new())),
+        }
     }
-    // NumPy scalars and arrays: an integer type has __index__, a float type __float__
-    if obj.hasattr("__index__")? {
-        return Ok(Value::Integer(obj.extract()?));
+}
+
+/// An integer for a message: its digits, or its size where they are many (Python refuses
+/// to print more than 4300).
+fn int_text(obj: &Bound<'_, PyAny>) -> String {
+    match obj.str() {
+        Ok(s) if s.len().is_ok_and(|n| n <= 40) => s.to_string(),
+        _ => match obj.call_method0("bit_length") {
+            Ok(bits) => format!("of {bits} bits"),
+            Err(_) => "too large".to_string(),
+        },
     }
-    if obj.hasattr("tolist")? {
-        return to_toml(&obj.call_method0("tolist")?, key);
-    }
-    if let Ok(x) = obj.extract::<f64>() {
-        return Ok(Value::Float(x));
-    }
-    Err(PyTypeError::new_err(format!(
-        "deck key {key}: a {} cannot be written in a deck (use a bool, int, float, str, list or dict)",
-        obj.get_type().name()?
-    )))
 }
 
 /// A Python object of a TOML value.
@@ -160,12 +236,12 @@ fn to_py<'py>(py: Python<'py>, v: &toml::Value) -> PyResult<Bound<'py, PyAny>> {
 /// relative file names (meshes) are read from `base_dir`, by default the working directory.
 fn load_deck(deck: &Bound<'_, PyAny>, base_dir: Option<PathBuf>) -> PyResult<(Deck, String)> {
     if let Ok(dict) = deck.cast::<PyDict>() {
-        let value = to_toml(dict.as_any(), "")?;
-        let text = toml::to_string(&value).map_err(|e| {
-            PyValueError::new_err(format!("the deck cannot be written as TOML: {e}"))
-        })?;
         let base = base_dir.unwrap_or_default();
         let file = base.join("<dict>").display().to_string();
+        let value = ToToml { file: &file }.value(dict.as_any(), "", 0)?;
+        let text = toml::to_string(&value).map_err(|e| {
+            PyValueError::new_err(format!("{file}: the deck cannot be written as TOML: {e}"))
+        })?;
         let mut deck = Deck::parse(&text, &file).map_err(|e| py_err(e.into()))?;
         deck.validate(&file).map_err(|e| py_err(e.into()))?;
         return Ok((deck, file));
@@ -216,12 +292,15 @@ struct Simulation {
     next_frame: f64,
     /// The workers of the steps: results are bitwise repeatable for a given count.
     pool: rayon::ThreadPool,
+    /// `run(until=...)` may go past the limits on steps (as `allow_large=True` asked).
+    allow_large: bool,
 }
 
 impl Simulation {
     /// Steps to `until` (or one step when `until` is None) with the deck's step policy;
     /// returns the steps taken. The steps run on the simulation's worker pool with the GIL
-    /// released, and Ctrl-C stops between steps.
+    /// released; Ctrl-C (any signal whose handler raises) stops them after the step in
+    /// progress and raises, the simulation whole and able to go on.
     fn advance(&mut self, py: Python<'_>, until: Option<f64>) -> PyResult<u64> {
         let clock = Clock {
             end: until.unwrap_or(f64::INFINITY),
@@ -234,26 +313,70 @@ impl Simulation {
         // The loop runs on a worker of the pool, as `pmpm run` does: the many short parallel
         // loops of a step then start without waking a sleeping thread from outside the pool
         // each time (twice the speed on 2 cores).
-        let taken = py.detach(|| {
-            pool.install(|| -> PyResult<u64> {
-                let mut taken = 0;
-                loop {
-                    if until.is_some() && with_sim!(&*inner, s => driver.finished(s.as_ref())) {
-                        return Ok(taken);
-                    }
-                    with_sim!(&mut *inner, s => step_toward(&mut driver, s.as_mut(), toward))
-                        .map_err(py_err)?;
-                    taken += 1;
-                    if until.is_none() {
-                        return Ok(taken);
-                    }
-                    Python::attach(|py| py.check_signals())?;
+        let (taken, signal) = interruptible(py, pool, |stop| -> Result<u64, Error> {
+            let mut taken = 0;
+            loop {
+                if until.is_some() && with_sim!(&*inner, s => driver.finished(s.as_ref())) {
+                    return Ok(taken);
                 }
-            })
+                with_sim!(&mut *inner, s => step_toward(&mut driver, s.as_mut(), toward))?;
+                taken += 1;
+                if until.is_none() || stop.load(Ordering::SeqCst) {
+                    return Ok(taken);
+                }
+            }
         });
         self.next_frame = driver.next_frame;
-        taken
+        let taken = taken.map_err(py_err)?;
+        match signal {
+            Some(e) => Err(e),
+            None => Ok(taken),
+        }
     }
+}
+
+/// How often the Python thread looks for a signal while the workers step.
+const SIGNAL_POLL: Duration = Duration::from_millis(20);
+
+/// Runs `work` on a worker of `pool` while this thread, the interpreter's, releases the GIL
+/// and runs Python's signal handlers every [`SIGNAL_POLL`]: Python runs them only on its main
+/// thread, never on a worker, so a check there let Ctrl-C go unseen. When a handler raises
+/// (KeyboardInterrupt), `work`'s stop flag is set, and its exception is returned beside
+/// `work`'s result once `work` has stopped at a step.
+fn interruptible<T: Send>(
+    py: Python<'_>,
+    pool: &rayon::ThreadPool,
+    work: impl FnOnce(&Arc<AtomicBool>) -> T + Send,
+) -> (T, Option<PyErr>) {
+    /// Marks the work done, even when it panics (the scope then raises the panic).
+    struct Done<'a>(&'a AtomicBool, std::thread::Thread);
+    impl Drop for Done<'_> {
+        fn drop(&mut self) {
+            self.0.store(true, Ordering::SeqCst);
+            self.1.unpark();
+        }
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    let done = AtomicBool::new(false);
+    let mut out = None;
+    let mut signal = None;
+    pool.in_place_scope(|scope| {
+        let caller = std::thread::current();
+        scope.spawn(|_| {
+            let _done = Done(&done, caller);
+            out = Some(work(&stop));
+        });
+        while !done.load(Ordering::SeqCst) {
+            py.detach(|| std::thread::park_timeout(SIGNAL_POLL));
+            if signal.is_none() {
+                if let Err(e) = py.check_signals() {
+                    stop.store(true, Ordering::SeqCst);
+                    signal = Some(e);
+                }
+            }
+        }
+    });
+    (out.expect("the work ran to its end"), signal)
 }
 
 /// One step of the driver's size, except on the way to a time `until` other than the deck's
@@ -288,10 +411,20 @@ fn step_toward<const D: usize>(
     driver.step_by(sim, dt).map(|_| ())
 }
 
-/// A pool of `threads` workers (all cores by default), as `--threads` makes.
+/// A pool of `threads` workers (all cores by default), as `--threads` makes, and within its
+/// limit: at most 8 a core and at least 64 (starting a million threads took minutes).
 fn pool(threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
     if threads == Some(0) {
         return Err(PyValueError::new_err("threads: must be at least 1"));
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let most = (8 * cores).max(64);
+    if let Some(n) = threads.filter(|&n| n > most) {
+        return Err(PyValueError::new_err(format!(
+            "threads: {n}: at most {most} on this machine ({cores} cores; up to 8 threads a \
+             core, at least 64, so that a run made elsewhere with more threads can be repeated \
+             bit for bit)"
+        )));
     }
     let mut builder = rayon::ThreadPoolBuilder::new();
     if let Some(n) = threads {
@@ -300,6 +433,19 @@ fn pool(threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
     builder
         .build()
         .map_err(|e| PyRuntimeError::new_err(format!("cannot start the worker threads: {e}")))
+}
+
+/// Refuses, as `pmpm run` does without `--allow-large`, a deck that needs more memory than
+/// the machine has or its address-space limit allows, or more than 1e9 steps to its end
+/// time, before anything is allocated; run on `pool` to count its threads' address space.
+fn check_limits(
+    pool: &rayon::ThreadPool,
+    deck: &Deck,
+    file: &str,
+    allow_large: bool,
+) -> PyResult<()> {
+    pool.install(|| pmpm::limits::refuse_beyond_limits(deck, file, allow_large))
+        .map_err(py_err)
 }
 
 /// `(n, D)` of a D-vector per particle.
@@ -440,13 +586,16 @@ fn grid_field<'py>(
 #[pymethods]
 impl Simulation {
     #[new]
-    #[pyo3(signature = (deck, *, base_dir = None, threads = None))]
+    #[pyo3(signature = (deck, *, base_dir = None, threads = None, allow_large = false))]
     fn new(
         deck: &Bound<'_, PyAny>,
         base_dir: Option<PathBuf>,
         threads: Option<usize>,
+        allow_large: bool,
     ) -> PyResult<Self> {
+        let pool = pool(threads)?;
         let (deck, file) = load_deck(deck, base_dir)?;
+        check_limits(&pool, &deck, &file, allow_large)?;
         let build_err = |e: Error| py_err(e.with_file(&file));
         let inner = match deck.simulation.dimension {
             2 => Inner::Two(Box::new(Sim::<2>::new(&deck).map_err(build_err)?)),
@@ -459,7 +608,8 @@ impl Simulation {
             deck,
             file,
             clock,
-            pool: pool(threads)?,
+            pool,
+            allow_large,
         })
     }
 
@@ -548,6 +698,21 @@ impl Simulation {
                 "until: must be a finite time, got {until}"
             )));
         }
+        if until > self.deck.simulation.end_time && !self.allow_large {
+            // the steps to `until`, as the deck's end time is checked when it is built
+            let mut deck = self.deck.clone();
+            deck.simulation.end_time = until;
+            let steps = pmpm::limits::estimate(&deck).steps;
+            if steps > pmpm::limits::MAX_STEPS {
+                return Err(PyValueError::new_err(format!(
+                    "until: {}: the run needs about {} steps to get there, more than {:.0e}; \
+                     Simulation(..., allow_large=True) runs it anyway",
+                    pmpm::limits::short(until),
+                    pmpm::limits::short(steps),
+                    pmpm::limits::MAX_STEPS
+                )));
+            }
+        }
         self.advance(py, Some(until))
     }
 
@@ -597,10 +762,13 @@ impl Simulation {
 /// Runs a deck to its end time into a run directory, as `pmpm run` does: frames, series.csv,
 /// probes, gauges, checkpoints and run.toml. `output` is the directory (the deck's
 /// `output.directory` by default); `force` writes over an earlier run there; `threads` as
-/// for `Simulation`. Returns the
-/// run's summary as a dict: steps, frames, particles, time, wall_seconds.
+/// for `Simulation`; `allow_large` runs a deck past the limits on memory and steps; `resume`
+/// goes on from a checkpoint (`OUTDIR/checkpoint.bin`) as `pmpm run --resume` does. Ctrl-C
+/// finishes the step, writes a frame and a checkpoint and raises `KeyboardInterrupt`.
+/// Returns the run's summary as a dict: steps, frames, particles, time, wall_seconds.
 #[pyfunction]
-#[pyo3(signature = (deck, output = None, *, force = false, base_dir = None, threads = None))]
+#[pyo3(signature = (deck, output = None, *, force = false, base_dir = None, threads = None, allow_large = false, resume = None))]
+#[allow(clippy::too_many_arguments)] // Python's keyword arguments
 fn run<'py>(
     py: Python<'py>,
     deck: &Bound<'py, PyAny>,
@@ -608,8 +776,12 @@ fn run<'py>(
     force: bool,
     base_dir: Option<PathBuf>,
     threads: Option<usize>,
+    allow_large: bool,
+    resume: Option<PathBuf>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let workers = pool(threads)?;
     let (deck, file) = load_deck(deck, base_dir)?;
+    check_limits(&workers, &deck, &file, allow_large)?;
     let dir = match output {
         Some(dir) => dir,
         None if !deck.output.directory.is_empty() => PathBuf::from(&deck.output.directory),
@@ -619,16 +791,26 @@ fn run<'py>(
         )))
         }
     };
-    let opts = RunOptions {
-        force,
-        ..RunOptions::default()
+    let (summary, signal) = interruptible(py, &workers, |stop| {
+        let opts = RunOptions {
+            force,
+            resume,
+            interrupt: Some(Arc::clone(stop)),
+            ..RunOptions::default()
+        };
+        pmpm::run::run(&deck, &file, Path::new(&dir), &opts, &mut Silent)
+    });
+    let run_err = |e| py_err_as(e, |m| python_resume(m, &file, &dir));
+    let summary = match (summary, signal) {
+        // stopped at a step, its frame and checkpoint written: the run's message says so
+        (Err(e @ Error::Interrupted(_)), Some(signal))
+            if signal.is_instance_of::<PyKeyboardInterrupt>(py) =>
+        {
+            return Err(run_err(e))
+        }
+        (_, Some(signal)) => return Err(signal),
+        (summary, None) => summary.map_err(run_err)?,
     };
-    let workers = pool(threads)?;
-    let summary = py
-        .detach(|| {
-            workers.install(|| pmpm::run::run(&deck, &file, Path::new(&dir), &opts, &mut Silent))
-        })
-        .map_err(py_err)?;
     let out = PyDict::new(py);
     out.set_item("steps", summary.steps)?;
     out.set_item("frames", summary.frames)?;
@@ -637,6 +819,20 @@ fn run<'py>(
     out.set_item("wall_seconds", summary.wall_seconds)?;
     out.set_item("directory", dir)?;
     Ok(out)
+}
+
+/// A run's message with the command that goes on from its checkpoint, which ends it
+/// (`pmpm run FILE --resume CHECKPOINT [--output DIR]`), as the call that does so from Python.
+fn python_resume(message: String, file: &str, dir: &Path) -> String {
+    match message.find(&format!("pmpm run {file} --resume ")) {
+        Some(at) => format!(
+            "{}pmpm.run(deck, {:?}, resume={:?})",
+            &message[..at],
+            dir.display().to_string(),
+            dir.join("checkpoint.bin").display().to_string()
+        ),
+        None => message,
+    }
 }
 
 /// Reads a deck file into a dict of its keys as written (no defaults filled in), to change

@@ -7,8 +7,12 @@ Run from anywhere after `pip install ./python`: `python -m pytest python/tests`.
 from __future__ import annotations
 
 import csv
+import os
+import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -201,3 +205,157 @@ def test_vtk_reads_the_grid_frame_as_grid_field(tmp_path):
     assert image.GetDimensions()[:2] == pressure.shape
     from_vtk = vtk_to_numpy(data.GetArray("pressure"))
     np.testing.assert_allclose(from_vtk, pressure.ravel(order="F"), rtol=1e-6, atol=1e-6)
+
+
+# --- robustness: Ctrl-C, limits up front, deep and odd dicts, threads --------------------
+
+
+def test_a_deeply_nested_dict_is_refused_naming_where():
+    # 20,000 levels used to overflow the conversion's stack: SIGSEGV
+    deck = pmpm.read_deck(EXAMPLES / "dam_break_2d.toml")
+    deep: dict = {}
+    node = deep
+    for _ in range(20_000):
+        node["a"] = {}
+        node = node["a"]
+    with pytest.raises(pmpm.DeckError, match=r"extra\.a\.a\.a.*nested more than 64 deep"):
+        pmpm.Simulation({**deck, "extra": deep})
+    looped: list = []
+    looped.append(looped)
+    with pytest.raises(pmpm.DeckError, match=r"grid\.size\[0\]\[0\].*nested"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"grid.size": looped}))
+
+
+def test_values_errors_name_their_key_and_numpy_is_taken():
+    deck = pmpm.read_deck(EXAMPLES / "dam_break_2d.toml")
+    with pytest.raises(pmpm.DeckError, match=r"simulation\.dimension: integer 1180591620717411303424 out of range"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"simulation.dimension": 2**70}))
+    with pytest.raises(pmpm.DeckError, match=r"materials\[0\]\.density: integer of 16610 bits out of range"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"materials[0].density": 10**5000}))
+    # NumPy arrays and scalars mean the lists and numbers they hold
+    changes = {
+        "simulation.gravity": np.array([0.0, -9.81]),
+        "grid.size": np.array([0.4572, 0.17145], dtype=np.float64),
+        "bodies[0].shape.max": (np.float32(0.05715), np.array(0.1143)),
+        "bodies[0].particles_per_cell": np.uint8(2),
+        "simulation.end_time": np.float64(0.01),
+    }
+    sim = pmpm.Simulation(pmpm.with_changes(deck, changes))
+    assert sim.deck["simulation"]["gravity"] == [0.0, -9.81]
+    assert sim.deck["bodies"][0]["particles_per_cell"] == 2
+    # what means neither is refused naming its key
+    with pytest.raises(TypeError, match=r"grid\.size\[0\]: a complex cannot be written"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"grid.size": np.array([0.4572, 1j])}))
+    with pytest.raises(pmpm.DeckError, match=r"grid\.size"):
+        pmpm.Simulation(pmpm.with_changes(deck, {"grid.size": np.zeros((2, 2))}))
+
+
+def test_a_deck_needing_too_many_steps_is_refused_up_front(tmp_path):
+    # 4e14 steps used to start, and run for years; now refused as `pmpm run` refuses it
+    deck = pmpm.with_changes(
+        pmpm.read_deck(EXAMPLES / "dam_break_2d.toml"), {"simulation.dt": 1e-15, "simulation.cfl": None}
+    )
+    with pytest.raises(pmpm.DeckError, match=r"4\.000e14 steps .*allow_large=True"):
+        pmpm.Simulation(deck)
+    with pytest.raises(pmpm.DeckError, match="steps"):
+        pmpm.run(deck, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    sim = pmpm.Simulation(deck, allow_large=True)
+    assert sim.step() == pytest.approx(1e-15)
+    # and so is a time to run to that needs them
+    sim = pmpm.Simulation(EXAMPLES / "dam_break_2d.toml")
+    with pytest.raises(ValueError, match=r"until: 1000000000: the run needs about .* steps"):
+        sim.run(until=1e9)
+    assert sim.steps == 0
+
+
+def test_a_deck_larger_than_the_machine_is_refused_before_allocating(tmp_path):
+    # h / 300: about 460 GB; refused at once, naming the memory and allow_large
+    deck = pmpm.read_deck(EXAMPLES / "dam_break_2d.toml")
+    huge = pmpm.with_changes(deck, {"grid.cell_size": deck["grid"]["cell_size"] / 300})
+    start = time.monotonic()
+    with pytest.raises(pmpm.DeckError, match=r"needs about [\d.]+ [GT]B of memory.*allow_large=True"):
+        pmpm.Simulation(huge)
+    with pytest.raises(pmpm.DeckError, match="of memory"):
+        pmpm.run(huge, tmp_path / "out")
+    assert time.monotonic() - start < 5.0
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="RLIMIT_AS")
+def test_a_deck_beyond_ulimit_v_is_refused_not_aborted():
+    # 50 GB under a 4 GB address-space limit used to abort the interpreter (status 134)
+    script = f"""
+import resource, pmpm
+resource.setrlimit(resource.RLIMIT_AS, (4 << 30, resource.RLIM_INFINITY))
+deck = pmpm.read_deck({str(EXAMPLES / "dam_break_2d.toml")!r})
+deck = pmpm.with_changes(deck, {{"grid.cell_size": deck["grid"]["cell_size"] / 100}})
+try:
+    pmpm.Simulation(deck, threads=2)
+except pmpm.DeckError as e:
+    print(e)
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "ulimit -v" in done.stdout and "allow_large=True" in done.stdout, done.stdout
+
+
+def test_threads_beyond_the_limit_are_refused():
+    # a million threads used to hang for minutes, starting them
+    deck = EXAMPLES / "dam_break_2d.toml"
+    with pytest.raises(ValueError, match=r"threads: 1000000: at most \d+"):
+        pmpm.Simulation(deck, threads=10**6)
+    with pytest.raises(ValueError, match="threads"):
+        pmpm.run(deck, "unused", threads=10**6)
+
+
+def interrupt_after(seconds: float) -> threading.Timer:
+    """A timer that sends SIGINT to this process, as Ctrl-C does, after `seconds`."""
+    timer = threading.Timer(seconds, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    return timer
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to itself")
+def test_ctrl_c_stops_simulation_run_after_the_step_in_progress():
+    # The signal used to be checked on a worker thread, where Python never runs its
+    # handlers: Ctrl-C went unseen until the whole run was over (here about 40 s).
+    sim = pmpm.Simulation(EXAMPLES / "dam_break_2d.toml", threads=2)
+    timer = interrupt_after(1.0)
+    start = time.monotonic()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            sim.run(until=1.0)
+    finally:
+        timer.cancel()
+    assert time.monotonic() - start < 4.0
+    # stopped at a step, the simulation whole: a later run goes on from there
+    steps, t = sim.steps, sim.time
+    assert 0 < t < 1.0 and steps > 0
+    sim.run(until=t + 0.01)
+    assert sim.steps > steps
+    assert sim.time == pytest.approx(t + 0.01, abs=1e-12)
+    assert np.all(np.isfinite(sim.particle_field("velocity")))
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to itself")
+def test_ctrl_c_stops_pmpm_run_with_a_checkpoint(tmp_path):
+    # As `pmpm run` does: the step in progress finishes, a frame and a checkpoint are
+    # written, and the message says so and how to go on (resume=).
+    deck = pmpm.with_changes(pmpm.read_deck(EXAMPLES / "dam_break_2d.toml"), {"simulation.end_time": 1.0})
+    timer = interrupt_after(1.0)
+    start = time.monotonic()
+    try:
+        with pytest.raises(KeyboardInterrupt, match="checkpoint") as stopped:
+            pmpm.run(deck, tmp_path / "out", threads=2)
+    finally:
+        timer.cancel()
+    assert time.monotonic() - start < 4.0
+    checkpoint = tmp_path / "out" / "checkpoint.bin"
+    assert checkpoint.stat().st_size > 0
+    # the message gives the call that goes on; here to 0.02 s past where it stopped
+    message = str(stopped.value)
+    assert f'resume="{checkpoint}"' in message, message
+    t = float(message.split(", t = ")[1].split(" s")[0])
+    summary = pmpm.run(pmpm.with_changes(deck, {"simulation.end_time": t + 0.02}), tmp_path / "out", threads=2, resume=checkpoint)
+    assert summary["time"] == pytest.approx(t + 0.02, abs=1e-12)

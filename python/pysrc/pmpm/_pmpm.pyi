@@ -30,6 +30,7 @@ class Simulation:
         *,
         base_dir: Union[str, "PathLike[str]", None] = None,
         threads: int | None = None,
+        allow_large: bool = False,
     ) -> None: ...
     @property
     def time(self) -> float:
@@ -73,6 +74,8 @@ def run(
     force: bool = False,
     base_dir: Union[str, "PathLike[str]", None] = None,
     threads: int | None = None,
+    allow_large: bool = False,
+    resume: Union[str, "PathLike[str]", None] = None,
 ) -> dict[str, Any]:
     """Runs a deck to its end into a run directory, as ``pmpm run`` does; returns the summary."""
 
