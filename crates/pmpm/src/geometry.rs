@@ -684,7 +684,7 @@ impl Solid {
                 Some(format!(
                     "reaches {x:e} m along {axis}, past {FAR:e} m from the origin"
                 ))
-            } else if !(ext >= THIN) {
+            } else if ext.is_nan() || ext < THIN {
                 Some(format!(
                     "is {ext:e} m across along {axis}, under {THIN:e} m"
                 ))

@@ -305,7 +305,7 @@ impl Shaped {
         let dim = self.dim;
         let mut out = Vec::new();
         let (lo, hi) = within;
-        if (0..dim).any(|d| !(hi[d] > lo[d])) {
+        if (0..dim).any(|d| hi[d].is_nan() || lo[d].is_nan() || hi[d] <= lo[d]) {
             return out;
         }
         for axis in 0..dim {
