@@ -851,10 +851,22 @@ fn output_and_memory<const D: usize>(
         bytes(n * checkpoint + 8.0 * geo.node_count() as f64)
     );
     let k = usize::from(D == 3);
+    let triangles = deck.mesh_triangles as f64;
+    let meshes = if triangles > 0.0 {
+        format!(
+            ", {} B per mesh triangle ({triangles} triangles)",
+            pmpm::limits::BYTES_PER_TRIANGLE
+        )
+    } else {
+        String::new()
+    };
     *out += &format!(
-        "  memory           about {} ({} MB, {} B per particle and {} B per grid node, from \
-         the benchmarks)\n",
-        bytes(pmpm::limits::memory(D, n, geo.node_count() as f64)),
+        "  memory           about {} ({} MB, {} B per particle and {} B per grid node{meshes}, \
+         from the benchmarks)\n",
+        bytes(
+            pmpm::limits::memory(D, n, geo.node_count() as f64)
+                + triangles * pmpm::limits::BYTES_PER_TRIANGLE
+        ),
         pmpm::limits::BYTES_BASE / 1e6,
         pmpm::limits::BYTES_PER_PARTICLE[k],
         pmpm::limits::BYTES_PER_NODE[k],

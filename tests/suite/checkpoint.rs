@@ -424,3 +424,74 @@ fn a_checkpoint_written_by_an_earlier_build_still_resumes() {
         assert_eq!(p[6], q[6], "particle {}: mass", p[0]);
     }
 }
+
+/// A resume after a mesh file the deck reads changed on disk is refused naming the file: the
+/// run records each mesh file's length and CRC-32 with its deck. It used to resume with the
+/// changed file (a body moved 6 cm between the checkpoint and the next step).
+#[test]
+fn a_resume_after_a_mesh_file_changed_is_refused() {
+    let dir = scratch_dir("resume-mesh");
+    let stl = dir.join("part.stl");
+    let write = |lo: f32| {
+        crate::geometry::write_binary_stl(
+            &stl,
+            "part",
+            &crate::geometry::box_triangles([lo, lo, 0.0], [lo + 0.06, lo + 0.06, 0.06]),
+        )
+    };
+    write(0.02);
+    let text = r#"
+[simulation]
+dimension = 3
+end_time = 0.004
+cfl = 0.5
+gravity = [0.0, 0.0, -9.81]
+
+[grid]
+size = [0.1, 0.1, 0.1]
+cell_size = 0.02
+
+[[materials]]
+name = "water"
+density = 1000.0
+
+[[bodies]]
+material = "water"
+shape = { type = "mesh", file = "part.stl" }
+
+[output]
+interval = 0.002
+formats = ["csv"]
+"#;
+    let half = write_deck(&dir, "half.toml", text);
+    let full = write_deck(&dir, "full.toml", &text.replace("0.004", "0.008"));
+    let out = dir.join("out");
+    let out = out.to_str().unwrap();
+    run_ok(&["run", &half, "-o", out, "-q"]);
+    let checkpoint = format!("{out}/checkpoint.bin");
+    // the same bytes: the resume goes on
+    let again = dir.join("again");
+    let again = again.to_str().unwrap();
+    run_ok(&["run", &half, "-o", again, "-q"]);
+    run_ok(&[
+        "run",
+        &full,
+        "-o",
+        again,
+        "-q",
+        "--resume",
+        &format!("{again}/checkpoint.bin"),
+    ]);
+    // the part moved by a cell: refused
+    write(0.04);
+    let (status, line) = failure(&["run", &full, "-o", out, "-q", "--resume", &checkpoint]);
+    assert_eq!(status, 2, "{line}");
+    let file = std::fs::canonicalize(&stl).unwrap();
+    assert!(
+        line.contains(&format!(
+            "the mesh file {} changed since the run began",
+            file.display()
+        )),
+        "{line}"
+    );
+}

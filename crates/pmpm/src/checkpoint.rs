@@ -75,7 +75,11 @@ struct State<const D: usize> {
     volume_over_density: Vec<f64>,
 }
 
-/// The deck as a TOML tree without the keys a resume may change.
+/// The key of the fingerprint that holds the mesh files' digests (not a deck key).
+const MESH_FILES: &str = "mesh_files";
+
+/// The deck as a TOML tree without the keys a resume may change, and with the digests of the
+/// mesh files it read under [`MESH_FILES`].
 fn fingerprint(deck: &Deck) -> toml::Table {
     let mut d = deck.clone();
     d.pmpm = None;
@@ -86,7 +90,63 @@ fn fingerprint(deck: &Deck) -> toml::Table {
             s.remove(name);
         }
     }
+    if !deck.mesh_files.is_empty() {
+        let files: toml::Table = deck
+            .mesh_files
+            .iter()
+            .map(|(path, digest)| (path.clone(), digest.as_str().into()))
+            .collect();
+        t.insert(MESH_FILES.into(), files.into());
+    }
     t
+}
+
+/// Refuses a resume whose deck differs from the checkpoint's fingerprint `theirs` (`ours`,
+/// the deck's) in a mesh file's bytes or in a key that a resume may not change.
+fn same_deck(path: &Path, mut theirs: toml::Table, mut ours: toml::Table) -> Result<(), Error> {
+    if let Some((file, was, now)) = changed_mesh_file(&mut theirs, &mut ours) {
+        return Err(refuse(
+            path,
+            format!(
+                "the mesh file {file} changed since the run began (it was {was}, it is {now}): \
+                 the bodies it shapes would not be the ones the run moved; put the file back, \
+                 or start a new run"
+            ),
+        ));
+    }
+    theirs.remove(MESH_FILES);
+    ours.remove(MESH_FILES);
+    if let Some((key, was, now)) =
+        first_difference("", &toml::Value::Table(theirs), &toml::Value::Table(ours))
+    {
+        return Err(refuse(
+            path,
+            format!(
+                "it was written with a different deck: {key} was {was}, the deck has {now} \
+                 (only {} may change on resume)",
+                RESUMABLE_KEYS.join(", ")
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The first mesh file whose digest differs between the checkpoint's fingerprint and the
+/// deck's, as (path, then, now), the digests taken out of both. A checkpoint written before
+/// the digests were recorded has none, and is taken as it is.
+fn changed_mesh_file(
+    theirs: &mut toml::Table,
+    ours: &mut toml::Table,
+) -> Option<(String, String, String)> {
+    let then = theirs.remove(MESH_FILES)?;
+    let now = ours.remove(MESH_FILES)?;
+    let (toml::Value::Table(then), toml::Value::Table(now)) = (then, now) else {
+        return None;
+    };
+    now.iter().find_map(|(path, digest)| {
+        let was = then.get(path)?;
+        (was != digest).then(|| (path.clone(), was.to_string(), digest.to_string()))
+    })
 }
 
 /// Fills in the keys a checkpoint's deck lacks because the build that wrote it had no such
@@ -390,19 +450,7 @@ pub fn read<const D: usize>(
         .parse()
         .map_err(|e| refuse(path, format!("its deck cannot be read ({e})")))?;
     as_run_then(&mut theirs);
-    let ours = fingerprint(deck);
-    if let Some((key, was, now)) =
-        first_difference("", &toml::Value::Table(theirs), &toml::Value::Table(ours))
-    {
-        return Err(refuse(
-            path,
-            format!(
-                "it was written with a different deck: {key} was {was}, the deck has {now} \
-                 (only {} may change on resume)",
-                RESUMABLE_KEYS.join(", ")
-            ),
-        ));
-    }
+    same_deck(path, theirs, fingerprint(deck))?;
     // with open boundaries the count changes as material enters and leaves
     let open = deck.has_open_flow();
     let flow =

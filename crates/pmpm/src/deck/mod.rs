@@ -771,6 +771,14 @@ pub struct Deck {
     /// `[output]`
     #[serde(default)]
     pub output: OutputDeck,
+    /// The mesh files the shapes read, by path, with their length and CRC-32 as the check
+    /// read them ([`crate::geometry::MeshSource::digest`]): a checkpoint records them, and a
+    /// resume after a file changed is refused. Not a key of the deck.
+    #[serde(skip)]
+    pub mesh_files: std::collections::BTreeMap<String, String>,
+    /// The triangles of the meshes the shapes read, all together (for the memory estimate).
+    #[serde(skip)]
+    pub mesh_triangles: usize,
 }
 
 fn line_col(src: &str, offset: usize) -> (usize, usize) {
@@ -1627,6 +1635,10 @@ impl Deck {
             b.shape
                 .resolve_files(Path::new(c.file).parent().unwrap_or(Path::new("")));
             let solid = shape_solid(&b.shape, &format!("{k}.shape"), dim, c)?;
+            for m in solid.mesh_sources() {
+                self.mesh_files.insert(m.path.clone(), m.digest());
+            }
+            self.mesh_triangles += solid.meshes().map(|m| m.triangles).sum::<usize>();
             let (mn, mx) = solid.bounds();
             let tol = 1e-9 * self.grid.cell_size;
             // a box or a sphere past the grid is a typing slip; a mesh, a half-space or a
@@ -1694,6 +1706,7 @@ impl Deck {
         for r in &mut self.rigid_bodies {
             r.shape.resolve_files(&dir);
         }
+        let (mut files, mut triangles) = (Vec::new(), 0);
         for (i, r) in self.rigid_bodies.iter().enumerate() {
             let k = format!("rigid_bodies[{i}]");
             if r.name.is_empty() || r.name.contains([',', '"', '\n']) {
@@ -1706,6 +1719,8 @@ impl Deck {
                 return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", r.name)));
             }
             let solid = shape_solid(&r.shape, &format!("{k}.shape"), dim, c)?;
+            files.extend(solid.mesh_sources().map(|m| (m.path.clone(), m.digest())));
+            triangles += solid.meshes().map(|m| m.triangles).sum::<usize>();
             if r.is_shaped()
                 || r.motion == RigidMotion::Free
                 || r.density.is_some()
@@ -1730,6 +1745,8 @@ impl Deck {
             }
             rigid_velocity(r, &k, dim, c)?;
         }
+        self.mesh_files.extend(files);
+        self.mesh_triangles += triangles;
         Ok(())
     }
 

@@ -327,7 +327,9 @@ mod tests {
         deck.radius = Some(0.05);
         let solid = deck.solid(2).unwrap();
         let clip = (Vector3::zeros(), Vector3::new(1.0, 1.0, 0.0));
-        let shape = Arc::new(Shaped::new(solid, 2, clip, None, h).unwrap());
+        let shape = Arc::new(
+            Shaped::new(solid, 2, clip, None, h, crate::rigid::Reach::everywhere()).unwrap(),
+        );
         let disc = Body {
             shape: Some(shape),
             pose: Pose::at(Vector3::new(0.62, 0.32, 0.0)),

@@ -32,7 +32,7 @@ mod motion;
 mod shaped;
 
 pub use motion::{Free, FreeState, Motion};
-pub use shaped::{Pose, Shaped};
+pub use shaped::{Pose, Reach, Shaped};
 
 use crate::grid::NodeKind;
 use crate::grid::{Grid, GridGeometry, Vector};

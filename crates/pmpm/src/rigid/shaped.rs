@@ -119,16 +119,67 @@ pub struct Shaped {
 /// Steps per cell of the march along a ray (a feature thinner than this can be missed).
 const MARCH: f64 = 8.0;
 
+/// Where a body's surface can meet the grid over a run, which is where its rays are cast:
+/// the grid's box (in the deck's frame at t = 0) and how far the body may carry a point of it.
+/// A body far larger than the grid (a file in mm without its scale) then costs what its part
+/// in the grid costs, not hours.
+#[derive(Debug, Clone, Copy)]
+pub struct Reach {
+    /// The grid's box, grown by the halo the pressure on the surface reads (a cell or two).
+    pub grid: (Vector3<f64>, Vector3<f64>),
+    /// The farthest the body's reference point travels over the run (m); infinite when
+    /// unknown (a free body, which the walls hold inside the grid).
+    pub travel: f64,
+    /// Whether the body turns: then any of its points within the grid's reach of its
+    /// reference point may come into the grid.
+    pub turns: bool,
+}
+
+impl Reach {
+    /// Everywhere: the whole surface.
+    pub fn everywhere() -> Self {
+        Self {
+            grid: (
+                Vector3::repeat(f64::NEG_INFINITY),
+                Vector3::repeat(f64::INFINITY),
+            ),
+            travel: f64::INFINITY,
+            turns: false,
+        }
+    }
+
+    /// The box of the deck-frame points of a body turning about `reference` that may come
+    /// into the grid.
+    fn box_about(&self, reference: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+        let (lo, hi) = self.grid;
+        if !self.turns {
+            return (lo.add_scalar(-self.travel), hi.add_scalar(self.travel));
+        }
+        // a point y is at c + R (y - y0): in the grid only if |y - y0| is at most the
+        // farthest grid point from c, which is at most y0's farthest plus the travel
+        let far = Vector3::from_fn(|d, _| {
+            (reference[d] - lo[d])
+                .abs()
+                .max((hi[d] - reference[d]).abs())
+        })
+        .norm()
+            + self.travel;
+        (reference.add_scalar(-far), reference.add_scalar(far))
+    }
+}
+
 impl Shaped {
     /// The shape `solid` (of dimension `dim`), cut to the box `clip` where it is unbounded,
     /// turning about `reference` (None: its centroid); its volume, centroid, inertia and
-    /// surface rays are found at the grid's cell size `h`. None when the shape holds no volume.
+    /// surface rays (where it can `reach` the grid) are found at the grid's cell size `h`.
+    /// None when the shape holds no volume.
     pub fn new(
         solid: Solid,
         dim: usize,
         clip: (Vector3<f64>, Vector3<f64>),
         reference: Option<Vector3<f64>>,
         h: f64,
+        reach: Reach,
     ) -> Option<Self> {
         let (lo, hi) = solid.bounds();
         let mut blo = Vector3::zeros();
@@ -161,7 +212,8 @@ impl Shaped {
         // the second moments about the reference point, by the parallel axis theorem
         let r = s.centroid - s.reference;
         s.inertia += (Matrix3::identity() * r.norm_squared() - r * r.transpose()) * s.volume;
-        s.surface = s.rays(h);
+        let (a, z) = reach.box_about(&s.reference);
+        s.surface = s.rays(h, (s.lo.sup(&a), s.hi.inf(&z)));
         Some(s)
     }
 
@@ -185,6 +237,12 @@ impl Shaped {
         let ext = self.hi - self.lo;
         let bulk: f64 = (0..dim).map(|d| ext[d]).product();
         let mut step = (bulk / cap).powf(1.0 / dim as f64).min(0.25 * h);
+        if !(step > 0.0 && step.is_finite()) {
+            // no lattice fits (a shape thinner than round-off): no volume, and the coarsening
+            // below would never end
+            self.volume = 0.0;
+            return;
+        }
         let count = |s: f64| {
             (0..dim)
                 .map(|d| (ext[d] / s).ceil().max(1.0))
@@ -240,12 +298,16 @@ impl Shaped {
         self.inertia = Matrix3::identity() * rr.trace() - rr;
     }
 
-    /// The surface as rays' crossings: along each axis d of the shape, rays through three
-    /// Gauss points per cell of each axis across it, each marched in eighths of a cell and
-    /// each change between outside and inside bisected to round-off.
-    fn rays(&self, h: f64) -> Vec<RayPoint> {
+    /// The surface within the box `within` as rays' crossings: along each axis d of the
+    /// shape, rays through three Gauss points per cell of each axis across it, each marched in
+    /// eighths of a cell and each change between outside and inside bisected to round-off.
+    fn rays(&self, h: f64, within: (Vector3<f64>, Vector3<f64>)) -> Vec<RayPoint> {
         let dim = self.dim;
         let mut out = Vec::new();
+        let (lo, hi) = within;
+        if (0..dim).any(|d| hi[d].is_nan() || lo[d].is_nan() || hi[d] <= lo[d]) {
+            return out;
+        }
         for axis in 0..dim {
             let across: Vec<usize> = (0..dim).filter(|&e| e != axis).collect();
             // the Gauss points and weights along each axis across
@@ -253,7 +315,7 @@ impl Shaped {
                 .iter()
                 .map(|&e| {
                     let mut line = Vec::new();
-                    let (a, z) = (self.lo[e], self.hi[e]);
+                    let (a, z) = (lo[e], hi[e]);
                     let cells = ((z - a) / h).ceil().max(1.0) as usize;
                     let w = (z - a) / cells as f64;
                     for c in 0..cells {
@@ -266,7 +328,7 @@ impl Shaped {
                 })
                 .collect();
             let total: usize = lines.iter().map(Vec::len).product();
-            let (a, z) = (self.lo[axis], self.hi[axis]);
+            let (a, z) = (lo[axis], hi[axis]);
             let margin = h / (2.0 * MARCH);
             let steps = (((z - a) + 2.0 * margin) / (h / MARCH)).ceil().max(2.0) as usize;
             let dz = ((z - a) + 2.0 * margin) / steps as f64;
@@ -640,7 +702,15 @@ mod tests {
             ..ShapeDeck::empty(ShapeKind::Sphere)
         };
         let far = (Vector3::repeat(-10.0), Vector3::repeat(10.0));
-        Shaped::new(deck.solid(2).unwrap(), 2, far, None, 0.01).unwrap()
+        Shaped::new(
+            deck.solid(2).unwrap(),
+            2,
+            far,
+            None,
+            0.01,
+            Reach::everywhere(),
+        )
+        .unwrap()
     }
 
     /// A disc of radius 0.1: area pi r^2, centroid at its centre, polar moment pi r^4 / 2, to
@@ -672,7 +742,15 @@ mod tests {
             Vector3::new(-0.01, -0.01, 0.0),
             Vector3::new(1.01, 1.01, 0.0),
         );
-        let s = Shaped::new(deck.solid(2).unwrap(), 2, grid, None, 0.01).unwrap();
+        let s = Shaped::new(
+            deck.solid(2).unwrap(),
+            2,
+            grid,
+            None,
+            0.01,
+            Reach::everywhere(),
+        )
+        .unwrap();
         let pi = std::f64::consts::PI;
         assert!((s.volume / (pi * 0.01) - 1.0).abs() < 2e-4, "{}", s.volume);
         assert!((s.centroid - Vector3::new(0.0, 0.5, 0.0)).norm() < 1e-9);
@@ -704,6 +782,51 @@ mod tests {
             // three Gauss points per cell across integrate the chord, 2 sqrt(r^2 - y^2), to
             // about 1e-4 (its square-root ends are not polynomial)
             assert!((m / area - 1.0).abs() < 5e-4, "{m} against {area}");
+        }
+    }
+
+    /// A body far larger than the grid (a disc 200 m across over a grid of 0.4 m, cell 1 cm)
+    /// casts its rays only where it can meet the grid: at rest, within the grid and its halo;
+    /// moving, that far further. Over the whole disc they were 6e4 rays of 2e5 steps along each
+    /// axis, hours of work.
+    #[test]
+    fn a_body_far_larger_than_the_grid_casts_rays_only_near_it() {
+        let deck = ShapeDeck {
+            center: Some(vec![0.2, -99.9]),
+            radius: Some(100.0),
+            ..ShapeDeck::empty(ShapeKind::Sphere)
+        };
+        let grid = (Vector3::zeros(), Vector3::new(0.4, 0.4, 0.0));
+        let halo = (grid.0.add_scalar(-0.02), grid.1.add_scalar(0.02));
+        // turning about a point in the grid (about its centre, every point of the disc within
+        // 100 m of it could come into the grid)
+        let about = Vector3::new(0.2, 0.1, 0.0);
+        for (travel, turns) in [(0.0, false), (0.1, false), (0.05, true)] {
+            let reach = Reach {
+                grid: halo,
+                travel,
+                turns,
+            };
+            let start = std::time::Instant::now();
+            let s = Shaped::new(deck.solid(2).unwrap(), 2, grid, Some(about), 0.01, reach).unwrap();
+            assert!(
+                start.elapsed().as_secs_f64() < 10.0,
+                "{:?}",
+                start.elapsed()
+            );
+            let (a, z) = reach.box_about(&s.reference());
+            assert!(!s.surface.is_empty());
+            for r in &s.surface {
+                assert!((0..2).all(|d| r.y[d] >= a[d] - 0.01 && r.y[d] <= z[d] + 0.01));
+            }
+            // the disc's top, y = 0.1 across the grid: its rays along y, one crossing each
+            let top = s.surface.iter().filter(|r| r.axis == 1).count();
+            let cells = if turns {
+                z[0] - a[0]
+            } else {
+                0.44 + 2.0 * travel
+            } / 0.01;
+            assert!((top as f64 - 3.0 * cells).abs() <= 6.0, "{top} {cells}");
         }
     }
 
