@@ -290,13 +290,12 @@ fn a_second_run_on_a_locked_directory_is_refused() {
     let lock_path = out.join(".pmpm-lock");
     assert!(lock_path.exists());
     let series = std::fs::read(out.join("series.csv")).unwrap();
-    // another run's hold on the directory
-    let lock = std::fs::OpenOptions::new()
-        .write(true)
-        .open(&lock_path)
-        .unwrap();
-    lock.try_lock().unwrap();
-    std::fs::write(&lock_path, "4242\n").unwrap();
+    // another run's hold on the directory: this process's
+    let lock = pmpm::output::lock_directory(&out).unwrap();
+    let holder = format!(
+        "another pmpm is running in this output directory (pid {})",
+        std::process::id()
+    );
     let checkpoint = out.join("checkpoint.bin");
     let longer = dir.join("longer.toml");
     std::fs::write(
@@ -318,10 +317,7 @@ fn a_second_run_on_a_locked_directory_is_refused() {
     ] {
         let (status, err, _) = run(&args);
         assert_eq!(status, 2, "{args:?}: {err}");
-        assert!(
-            err.contains("another pmpm is running in this output directory (pid 4242)"),
-            "{args:?}: {err}"
-        );
+        assert!(err.contains(&holder), "{args:?}: {err}");
         assert_eq!(std::fs::read(out.join("series.csv")).unwrap(), series);
     }
     drop(lock);

@@ -615,7 +615,7 @@ impl Solid {
         let hi: Vec<f64> = (0..dim)
             .map(|d| ahi[d].min(bhi[d]).min(within.1[d]))
             .collect();
-        if (0..dim).any(|d| !(hi[d] > lo[d])) {
+        if (0..dim).any(|d| hi[d] <= lo[d] || hi[d].is_nan() || lo[d].is_nan()) {
             return None;
         }
         let n = 9usize;

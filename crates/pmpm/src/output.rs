@@ -59,8 +59,8 @@ pub struct DirectoryLock {
 }
 
 /// Takes the lock of `dir` (creating the directory), or refuses at once (exit status 2) when
-/// another process holds it.
-fn lock_directory(dir: &Path) -> Result<DirectoryLock, Error> {
+/// another process holds it; a run takes it through [`claim_directory`].
+pub fn lock_directory(dir: &Path) -> Result<DirectoryLock, Error> {
     use std::io::{Read, Seek};
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let path = dir.join(LOCK);
@@ -71,9 +71,9 @@ fn lock_directory(dir: &Path) -> Result<DirectoryLock, Error> {
         .truncate(false)
         .open(&path)
         .map_err(|e| Error::io(&path, e))?;
-    match file.try_lock() {
-        Ok(()) => {}
-        Err(std::fs::TryLockError::WouldBlock) => {
+    match try_lock(&file) {
+        Ok(true) => {}
+        Ok(false) => {
             let mut text = String::new();
             let _ = file.read_to_string(&mut text);
             let pid = match text.trim().parse::<u32>() {
@@ -86,13 +86,36 @@ fn lock_directory(dir: &Path) -> Result<DirectoryLock, Error> {
                 dir.display()
             )));
         }
-        Err(std::fs::TryLockError::Error(e)) => return Err(Error::io(&path, e)),
+        Err(e) => return Err(Error::io(&path, e)),
     }
     let io = |e| Error::io(&path, e);
     file.set_len(0).map_err(io)?;
     file.rewind().map_err(io)?;
     writeln!(file, "{}", std::process::id()).map_err(io)?;
     Ok(DirectoryLock { _file: file })
+}
+
+/// Tries an exclusive lock (flock) on `file` without waiting: true when taken, false when
+/// another open file holds it. (std's File::try_lock needs Rust 1.89, past the MSRV.)
+#[cfg(unix)]
+fn try_lock(file: &File) -> std::io::Result<bool> {
+    use std::os::unix::io::AsRawFd;
+    // SAFETY: flock on the descriptor `file` owns, open for the whole call.
+    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+        return Ok(true);
+    }
+    let e = std::io::Error::last_os_error();
+    if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+        Ok(false)
+    } else {
+        Err(e)
+    }
+}
+
+/// Elsewhere no lock is taken.
+#[cfg(not(unix))]
+fn try_lock(_: &File) -> std::io::Result<bool> {
+    Ok(true)
 }
 
 /// Whether `name`, a file directly in a run directory, is one pmpm writes.
