@@ -137,26 +137,6 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
             }
         }
     }
-    // a free body that starts inside another rigid body: the contact parts bodies that meet
-    // as they move, not one placed through another
-    let free = |r: &pmpm::deck::RigidBodyDeck| r.motion == pmpm::deck::RigidMotion::Free;
-    for (a, ra) in deck.rigid_bodies.iter().enumerate() {
-        let Ok(solid) = ra.shape.solid(deck.simulation.dimension) else {
-            continue;
-        };
-        for (b, rb) in deck.rigid_bodies.iter().enumerate().skip(a + 1) {
-            if !(free(ra) || free(rb)) {
-                continue;
-            }
-            if let Some(x) = overlap_point(&solid, &rb.shape, (&glo, &ghi)) {
-                let at: Vec<String> = x.iter().map(|c| format!("{c}")).collect();
-                w.push(format!(
-                    "rigid_bodies[{a}] and rigid_bodies[{b}] overlap at the start (for example at ({})): a free body is parted from the bodies it meets, not from one it starts inside; place them apart",
-                    at.join(", ")
-                ));
-            }
-        }
-    }
     w
 }
 
@@ -240,36 +220,15 @@ fn inflow_at_no_slip(deck: &Deck, w: &mut Vec<String>) {
     }
 }
 
-/// A point inside both a body's shape and a rigid body's box, if the two overlap (tested on a
-/// lattice of 9^D points over the common part of the box and the body's bounds).
+/// A point inside both a body's shape and a rigid body's, if the two overlap within the grid.
 fn overlap_point(
     body: &pmpm::geometry::Solid,
     rigid: &pmpm::deck::ShapeDeck,
     grid: (&[f64], &[f64]),
 ) -> Option<Vec<f64>> {
-    let (blo, bhi) = body.bounds();
-    let dim = blo.len();
-    let rigid = rigid.solid(dim).ok()?;
-    let (rlo, rhi) = rigid.bounds();
-    let lo: Vec<f64> = (0..dim)
-        .map(|d| blo[d].max(rlo[d]).max(grid.0[d]))
-        .collect();
-    let hi: Vec<f64> = (0..dim)
-        .map(|d| bhi[d].min(rhi[d]).min(grid.1[d]))
-        .collect();
-    if (0..dim).any(|d| hi[d] <= lo[d]) {
-        return None;
-    }
-    let n = 9usize;
-    (0..n.pow(dim as u32)).find_map(|k| {
-        let x: Vec<f64> = (0..dim)
-            .map(|d| {
-                let i = (k / n.pow(d as u32)) % n;
-                lo[d] + (hi[d] - lo[d]) * (i as f64 + 0.5) / n as f64
-            })
-            .collect();
-        (body.contains(&x) && rigid.contains(&x)).then_some(x)
-    })
+    let (lo, _) = body.bounds();
+    let rigid = rigid.solid(lo.len()).ok()?;
+    body.common_point(&rigid, grid)
 }
 
 /// The summary `pmpm check` prints: what the deck sets up and what a run will cost.

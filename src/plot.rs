@@ -339,6 +339,12 @@ impl View {
                 p.name()
             )));
         }
+        if opts.field == Some(Field::Velocity(2)) && info.dim == Some(2) {
+            return Err(Error::Usage(
+                "--field vz: a 2D run has no z velocity; its fields are pressure, speed, material, vx and vy"
+                    .into(),
+            ));
+        }
         let Some(text) = &opts.slice else {
             let plane = opts.plane.unwrap_or_else(|| {
                 let g = info.gravity.as_deref().unwrap_or(&[]);
@@ -377,6 +383,18 @@ impl View {
             .ok()
             .filter(|v: &f64| v.is_finite())
             .ok_or_else(|| bad("the value is a number (m)"))?;
+        if let Some((o, size)) = &info.grid {
+            let (lo, hi) = (o[axis], o[axis] + size[axis]);
+            let tol = 1e-9 * size[axis];
+            if value < lo - tol || value > hi + tol {
+                return Err(bad(&format!(
+                    "the value lies outside the grid, which spans {} = [{}, {}] m",
+                    ["x", "y", "z"][axis],
+                    pmpm::limits::short(lo),
+                    pmpm::limits::short(hi)
+                )));
+            }
+        }
         let plane = by_depth(axis);
         if let Some(p) = opts.plane.filter(|&p| p != plane) {
             return Err(bad(&format!(
@@ -795,6 +813,30 @@ fn plot_line(
         .split_once(':')
         .ok_or_else(|| bad("give two points A:B, as X0,Y0:X1,Y1"))?;
     let (a, b) = (point(a)?, point(b)?);
+    if let Some((o, size)) = &info.grid {
+        let outside = |p: &[f64; 3]| {
+            (0..f.dim.min(o.len())).any(|d| {
+                let tol = 1e-9 * size[d];
+                p[d] < o[d] - tol || p[d] > o[d] + size[d] + tol
+            })
+        };
+        if let Some((which, _)) = [("A", &a), ("B", &b)].into_iter().find(|(_, p)| outside(p)) {
+            let spans: Vec<String> = (0..f.dim.min(o.len()))
+                .map(|d| {
+                    format!(
+                        "{} = [{}, {}]",
+                        ["x", "y", "z"][d],
+                        pmpm::limits::short(o[d]),
+                        pmpm::limits::short(o[d] + size[d])
+                    )
+                })
+                .collect();
+            return Err(bad(&format!(
+                "the point {which} lies outside the grid, which spans {} m",
+                spans.join(", ")
+            )));
+        }
+    }
     let length = (0..3).map(|d| (b[d] - a[d]).powi(2)).sum::<f64>().sqrt();
     if length == 0.0 {
         return Err(bad("the two points are the same"));

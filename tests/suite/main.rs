@@ -4,6 +4,7 @@
 
 mod bad_decks;
 mod bingham;
+mod bodies_flows;
 mod checkpoint;
 mod common;
 mod elastic;

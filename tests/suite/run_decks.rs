@@ -646,11 +646,13 @@ fn a_stable_step_that_collapses_stops_the_run_as_a_blow_up() {
     assert_eq!(sim.time, 0.0, "no step was taken");
 }
 
-/// `pmpm check` warns of a free body placed through another rigid body (the contact parts
-/// bodies that meet, not one that starts inside another), and not of bodies that touch.
+/// `pmpm check` refuses a free body placed through another rigid body (the contact parts
+/// bodies that meet, not one that starts inside another; it was a warning), naming both, and
+/// not bodies that touch.
 #[test]
-fn check_warns_of_a_free_body_that_starts_inside_another() {
-    let warning = "rigid_bodies[0] and rigid_bodies[1] overlap at the start";
+fn check_refuses_a_free_body_that_starts_inside_another() {
+    let error =
+        "rigid_bodies[0].shape: the free body \"box\" overlaps rigid_bodies[1] (\"pier\") at t = 0";
     let dir = scratch_dir("check-free-overlap");
     let deck = dir.join("floating.toml");
     let text = std::fs::read_to_string(
@@ -659,7 +661,7 @@ fn check_warns_of_a_free_body_that_starts_inside_another() {
     .unwrap();
     let block = "\n[[rigid_bodies]]\nname = \"pier\"\nshape = { type = \"box\", min = [LO, 0.0], max = [HI, 0.5] }\n";
     let (cx, half) = (1.5, 0.15); // the box spans x 1.35 to 1.65
-    for (lo, hi, warned) in [(cx + half - 0.05, 1.8, true), (cx + half, 1.8, false)] {
+    for (lo, hi, refused) in [(cx + half - 0.05, 1.8, true), (cx + half, 1.8, false)] {
         let with = format!(
             "{text}{}",
             block
@@ -667,8 +669,14 @@ fn check_warns_of_a_free_body_that_starts_inside_another() {
                 .replace("HI", &hi.to_string())
         );
         std::fs::write(&deck, with).unwrap();
-        let out = check(deck.to_str().unwrap());
-        assert_eq!(out.contains(warning), warned, "pier from x = {lo}: {out}");
+        let o = pmpm(&["check", deck.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(
+            o.status.code(),
+            Some(if refused { 2 } else { 0 }),
+            "pier from x = {lo}: {err}"
+        );
+        assert_eq!(err.contains(error), refused, "pier from x = {lo}: {err}");
     }
 }
 

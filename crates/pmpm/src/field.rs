@@ -199,6 +199,15 @@ impl CompiledField {
         })
     }
 
+    /// Whether a component names x, y or z (as exmex recorded its variables when it parsed
+    /// the expression: `0*x` names x, a sampled value would not show it).
+    pub fn uses_position(&self) -> bool {
+        self.comps.iter().any(|c| match c {
+            Compiled::Constant(_) => false,
+            Compiled::Expression { vars, .. } => vars.iter().any(|&v| v < 3),
+        })
+    }
+
     /// The value at position `x` and time `t` (a component that fails to evaluate is NaN,
     /// which the blow-up guard reports).
     pub fn eval<const D: usize>(&self, x: &Vector<D>, t: f64) -> Vector<D> {
@@ -270,6 +279,16 @@ mod tests {
         let v = f.eval(&Vector::<2>::new(0.5, 0.0), 0.0);
         assert!((v[0] + 1.0).abs() < 1e-15 && v[1].abs() < 1e-15);
         assert!(!f.is_constant());
+    }
+
+    #[test]
+    fn the_variables_an_expression_names_are_known() {
+        let t_only = field(&["2.5", "sin(t)*exp(-t)"]).compile().unwrap();
+        assert!(!t_only.uses_position());
+        for space in ["sin(pi*y)", "0*x + t", "z"] {
+            let f = field(&["t", space]).compile().unwrap();
+            assert!(f.uses_position(), "{space}");
+        }
     }
 
     #[test]

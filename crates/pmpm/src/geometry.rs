@@ -748,6 +748,34 @@ impl Solid {
         })
     }
 
+    /// A point inside both this shape and `other`, within the box `within` (lower, upper
+    /// corner), if they overlap: tested on a lattice of 9^D points over the common part of
+    /// their bounds and the box (shapes that only touch do not overlap).
+    pub fn common_point(&self, other: &Solid, within: (&[f64], &[f64])) -> Option<Vec<f64>> {
+        let dim = self.dim;
+        let (alo, ahi) = self.bounds();
+        let (blo, bhi) = other.bounds();
+        let lo: Vec<f64> = (0..dim)
+            .map(|d| alo[d].max(blo[d]).max(within.0[d]))
+            .collect();
+        let hi: Vec<f64> = (0..dim)
+            .map(|d| ahi[d].min(bhi[d]).min(within.1[d]))
+            .collect();
+        if (0..dim).any(|d| hi[d] <= lo[d] || hi[d].is_nan() || lo[d].is_nan()) {
+            return None;
+        }
+        let n = 9usize;
+        (0..n.pow(dim as u32)).find_map(|k| {
+            let x: Vec<f64> = (0..dim)
+                .map(|d| {
+                    let i = (k / n.pow(d as u32)) % n;
+                    lo[d] + (hi[d] - lo[d]) * (i as f64 + 0.5) / n as f64
+                })
+                .collect();
+            (self.contains(&x) && other.contains(&x)).then_some(x)
+        })
+    }
+
     /// A box (lower, upper corner; `dim` components) holding the shape; infinite along the
     /// axes where the shape is unbounded (a half-space).
     pub fn bounds(&self) -> (Vec<f64>, Vec<f64>) {

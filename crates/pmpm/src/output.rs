@@ -45,6 +45,79 @@ pub struct OutputWriter {
 /// pmpm writes.
 pub const MARKER: &str = ".pmpm-run";
 
+/// The file a run holds an exclusive lock on (flock) while it writes into its directory, with
+/// its process id in it: a second run on the directory is refused while the first holds it.
+/// It is never removed (removing a locked file would let a third run lock a new one beside
+/// it), and is not part of a run's files: a directory holding only it is empty.
+pub const LOCK: &str = ".pmpm-lock";
+
+/// A run's hold on its output directory ([`LOCK`]), released when dropped (or when the
+/// process ends, however it ends).
+#[derive(Debug)]
+pub struct DirectoryLock {
+    _file: File,
+}
+
+/// Takes the lock of `dir` (creating the directory), or refuses at once (exit status 2) when
+/// another process holds it; a run takes it through [`claim_directory`].
+pub fn lock_directory(dir: &Path) -> Result<DirectoryLock, Error> {
+    use std::io::{Read, Seek};
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let path = dir.join(LOCK);
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| Error::io(&path, e))?;
+    match try_lock(&file) {
+        Ok(true) => {}
+        Ok(false) => {
+            let mut text = String::new();
+            let _ = file.read_to_string(&mut text);
+            let pid = match text.trim().parse::<u32>() {
+                Ok(pid) => format!(" (pid {pid})"),
+                Err(_) => String::new(),
+            };
+            return Err(Error::Usage(format!(
+                "{}: another pmpm is running in this output directory{pid}; wait for it to \
+                 end or stop it, or write elsewhere with --output",
+                dir.display()
+            )));
+        }
+        Err(e) => return Err(Error::io(&path, e)),
+    }
+    let io = |e| Error::io(&path, e);
+    file.set_len(0).map_err(io)?;
+    file.rewind().map_err(io)?;
+    writeln!(file, "{}", std::process::id()).map_err(io)?;
+    Ok(DirectoryLock { _file: file })
+}
+
+/// Tries an exclusive lock (flock) on `file` without waiting: true when taken, false when
+/// another open file holds it. (std's File::try_lock needs Rust 1.89, past the MSRV.)
+#[cfg(unix)]
+fn try_lock(file: &File) -> std::io::Result<bool> {
+    use std::os::unix::io::AsRawFd;
+    // SAFETY: flock on the descriptor `file` owns, open for the whole call.
+    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+        return Ok(true);
+    }
+    let e = std::io::Error::last_os_error();
+    if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+        Ok(false)
+    } else {
+        Err(e)
+    }
+}
+
+/// Elsewhere no lock is taken.
+#[cfg(not(unix))]
+fn try_lock(_: &File) -> std::io::Result<bool> {
+    Ok(true)
+}
+
 /// Whether `name`, a file directly in a run directory, is one pmpm writes.
 fn run_file(name: &str) -> bool {
     let name = name.strip_suffix(".partial").unwrap_or(name);
@@ -97,7 +170,8 @@ enum Holds {
 }
 
 fn holds(dir: &Path) -> Result<Holds, Error> {
-    let names = entries(dir)?;
+    let mut names = entries(dir)?;
+    names.retain(|n| n != LOCK);
     if names.is_empty() {
         return Ok(Holds::Nothing);
     }
@@ -137,8 +211,14 @@ fn remove_run_files(dir: &Path) -> Result<(), Error> {
 /// one holding an earlier run, whose files it removes first; a resumed run (`resume`, its
 /// checkpoint) writes into the checkpoint's own directory, or into a new or empty one that first
 /// receives a copy of the checkpoint's run. A directory holding files pmpm did not write is
-/// refused (exit status 2), `force` or not. Leaves the marker in `dir`.
-pub fn claim_directory(dir: &Path, force: bool, resume: Option<&Path>) -> Result<(), Error> {
+/// refused (exit status 2), `force` or not, and so is one another run holds ([`LOCK`]), before
+/// anything in it is removed or written. Leaves the marker in `dir`, and returns the lock,
+/// which the run holds to its end.
+pub fn claim_directory(
+    dir: &Path,
+    force: bool,
+    resume: Option<&Path>,
+) -> Result<DirectoryLock, Error> {
     let own = resume.and_then(|ck| {
         let ck_dir = ck.parent().filter(|p| !p.as_os_str().is_empty())?;
         let a = std::fs::canonicalize(ck_dir).ok()?;
@@ -152,29 +232,33 @@ pub fn claim_directory(dir: &Path, force: bool, resume: Option<&Path>) -> Result
             dir.display()
         )));
     }
-    match holds(dir)? {
-        Holds::Other(name) => {
-            return Err(Error::Usage(format!(
-                "{}: the output directory holds {name:?}, which pmpm did not write; run into a \
-                 new or empty directory (--output), or into an earlier pmpm run's",
-                dir.display()
-            )))
-        }
-        Holds::Run if resume.is_none() && !force => {
-            return Err(Error::Usage(format!(
-                "{}: the output directory holds an earlier run; pass --force to replace it or \
-                 --output to write elsewhere",
-                dir.display()
-            )))
-        }
+    // what is refused is refused before the lock file is put in the directory, and again
+    // under the lock (another run may have written into it meanwhile)
+    let refused = |held: &Holds| match held {
+        Holds::Other(name) => Some(other_files(dir, name)),
+        Holds::Run if resume.is_none() && !force => Some(Error::Usage(format!(
+            "{}: the output directory holds an earlier run; pass --force to replace it or \
+             --output to write elsewhere",
+            dir.display()
+        ))),
+        Holds::Run if resume.is_some() && own != Some(true) => Some(Error::Usage(format!(
+            "{}: the output directory holds another run; resume into the checkpoint's own \
+             directory or into a new or empty one",
+            dir.display()
+        ))),
+        _ => None,
+    };
+    if let Some(e) = refused(&holds(dir)?) {
+        return Err(e);
+    }
+    let lock = lock_directory(dir)?;
+    let held = holds(dir)?;
+    if let Some(e) = refused(&held) {
+        return Err(e);
+    }
+    match held {
+        Holds::Other(_) => {}
         Holds::Run if resume.is_none() => remove_run_files(dir)?,
-        Holds::Run if own != Some(true) => {
-            return Err(Error::Usage(format!(
-                "{}: the output directory holds another run; resume into the checkpoint's own \
-                 directory or into a new or empty one",
-                dir.display()
-            )))
-        }
         Holds::Run => {}
         Holds::Nothing => {
             if let Some(ck) = resume {
@@ -188,7 +272,17 @@ pub fn claim_directory(dir: &Path, force: bool, resume: Option<&Path>) -> Result
     write_atomic(&marker, |w| {
         w.write_all(b"This directory holds a pmpm run; pmpm run --force replaces it.\n")
     })
-    .map_err(|e| Error::io(&marker, e))
+    .map_err(|e| Error::io(&marker, e))?;
+    Ok(lock)
+}
+
+/// The refusal of a directory that holds `name`, a file pmpm did not write.
+fn other_files(dir: &Path, name: &str) -> Error {
+    Error::Usage(format!(
+        "{}: the output directory holds {name:?}, which pmpm did not write; run into a new or \
+         empty directory (--output), or into an earlier pmpm run's",
+        dir.display()
+    ))
 }
 
 /// Copies the files pmpm writes from the run directory `from` into the new directory `to`.

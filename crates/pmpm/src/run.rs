@@ -155,7 +155,9 @@ fn run_dim<const D: usize>(
     // small next to the frames
     let checkpoint_interval = deck.output.checkpoint_interval.unwrap_or(interval);
     let checkpoint_path = dir.join("checkpoint.bin");
-    let (out, driver) = open_output(deck, &mut sim, file, dir, opts, checkpoint_interval, eps)?;
+    // the directory's lock is held to the run's end: a second run on it is refused
+    let (out, driver, _lock) =
+        open_output(deck, &mut sim, file, dir, opts, checkpoint_interval, eps)?;
     let wall_before = driver.wall_seconds;
     let mut w = Writing {
         out,
@@ -169,6 +171,7 @@ fn run_dim<const D: usize>(
         start_steps: sim.steps,
         // a resumed run's last good state is the checkpoint it started from
         last_checkpoint: opts.resume.as_ref().map(|_| sim.time),
+        room: RoomGuard::of(deck, &sim),
     };
     observer.started(&status(&sim, end, w.start_steps, 0.0, w.out.frames, 0.0));
     let mut driver = if opts.resume.is_some() {
@@ -289,6 +292,53 @@ struct Writing {
     start_steps: u64,
     /// The time of the last checkpoint written (a resumed run: the one it started from).
     last_checkpoint: Option<f64>,
+    /// The guard against inflows that fill a closed grid.
+    room: Option<RoomGuard>,
+}
+
+/// Stops a run whose inflows have filled a closed grid ([`crate::deck::room`]): the
+/// particles' lattice volume (what the run started with, and what entered since, from the
+/// ledger) against the room the rigid bodies leave in the grid.
+struct RoomGuard {
+    /// The room (m^3; m^2 in 2D).
+    room: f64,
+    /// The particles' lattice volume when the run started, less the ledger's volume in then.
+    base: f64,
+}
+
+impl RoomGuard {
+    /// The guard of a run starting from `sim` (None when material can leave or none enters).
+    fn of<const D: usize>(deck: &Deck, sim: &Simulation<D>) -> Option<Self> {
+        let room = crate::deck::room::run_room(deck)?;
+        let held: f64 = sim.particles.volume0.iter().sum();
+        Some(Self {
+            room,
+            base: held - sim.ledger.volume_in,
+        })
+    }
+
+    /// An error once the material `sim` holds is more than the room, by 1 % (the room is
+    /// measured on a lattice).
+    fn check<const D: usize>(&self, deck: &Deck, sim: &Simulation<D>) -> Result<(), Error> {
+        let held = self.base + sim.ledger.volume_in;
+        if held <= 1.01 * self.room {
+            return Ok(());
+        }
+        let names: Vec<String> = (0..deck.inflows.len())
+            .map(|i| format!("inflows[{i}]"))
+            .collect();
+        let unit = if D == 3 { "m3" } else { "m2" };
+        Err(Error::BlowUp(format!(
+            "run stopped at t = {:.6} s: the inflow ({}) has filled the domain: the material \
+             holds {:.3e} {unit} (its particles' volume as placed), more than the {:.3e} {unit} the \
+             grid leaves beside its rigid bodies, and no face is open or an outflow for it to \
+             leave by; make a face \"outflow\", slow the inflow or shorten the run",
+            sim.time,
+            names.join(", "),
+            held,
+            self.room
+        )))
+    }
 }
 
 impl Writing {
@@ -309,6 +359,9 @@ impl Writing {
         interrupted: bool,
         observer: &mut dyn Observer,
     ) -> Result<(), Error> {
+        if let Some(guard) = &self.room {
+            guard.check(deck, sim)?;
+        }
         let eps = self.eps;
         let at_end = sim.time >= self.end - eps;
         if scheduled || last || interrupted {
@@ -363,13 +416,13 @@ fn open_output<const D: usize>(
     opts: &RunOptions,
     checkpoint_interval: f64,
     eps: f64,
-) -> Result<(OutputWriter, DriverState), Error> {
+) -> Result<(OutputWriter, DriverState, crate::output::DirectoryLock), Error> {
     let end = deck.simulation.end_time;
     Ok(match &opts.resume {
         None => {
             // the directory is taken only once the run can start: a deck that cannot build
             // its simulation, or a bad checkpoint, leaves an earlier run as it was
-            crate::output::claim_directory(dir, opts.force, None)?;
+            let lock = crate::output::claim_directory(dir, opts.force, None)?;
             let out = OutputWriter::new(dir, deck)?;
             let driver = DriverState {
                 next_frame: 0.0,
@@ -379,7 +432,7 @@ fn open_output<const D: usize>(
                 iterations: (0, 0),
                 wall_seconds: 0.0,
             };
-            (out, driver)
+            (out, driver, lock)
         }
         Some(path) => {
             let driver = checkpoint::read(path, deck, sim)?;
@@ -391,10 +444,10 @@ fn open_output<const D: usize>(
                     sim.time
                 )));
             }
-            crate::output::claim_directory(dir, opts.force, Some(path))?;
+            let lock = crate::output::claim_directory(dir, opts.force, Some(path))?;
             crate::output::remove_frames_from(dir, driver.frames)?;
             let out = OutputWriter::resume(dir, deck, sim, &driver)?;
-            (out, driver)
+            (out, driver, lock)
         }
     })
 }

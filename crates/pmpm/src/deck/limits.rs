@@ -37,6 +37,72 @@ pub struct Estimate {
     /// Steps to the end time: [`Self::flow_steps`], and no fewer than the wave and viscous
     /// limits ask for.
     pub steps: f64,
+    /// The fastest prescribed rigid body over the run, which bounds the step with `cfl`.
+    pub rigid: Option<RigidPace>,
+}
+
+/// The fastest a prescribed rigid body moves over the run (its velocity and angular velocity
+/// sampled over [0, end_time]): its fastest point's speed, its index, when, and the key that
+/// gives the larger part of the speed.
+#[derive(Debug, Clone, Copy)]
+pub struct RigidPace {
+    /// |V| + |omega| R (m/s), R the farthest the body reaches from its centre.
+    pub speed: f64,
+    /// The body's index in `rigid_bodies`.
+    pub body: usize,
+    /// When (s).
+    pub time: f64,
+    /// "velocity" or "angular_velocity".
+    pub key: &'static str,
+}
+
+/// The prescribed bodies' fastest speed at each of [`super::motion_times`] (empty without a
+/// moving body), and the [`RigidPace`] of the fastest of all (None without a moving one).
+pub fn prescribed_speeds(deck: &Deck) -> (Vec<f64>, Option<RigidPace>) {
+    use super::RigidMotion;
+    let end = deck.simulation.end_time;
+    let mut best: Option<RigidPace> = None;
+    let mut speeds: Vec<f64> = Vec::new();
+    for (b, r) in deck.rigid_bodies.iter().enumerate() {
+        if r.motion != RigidMotion::Prescribed {
+            continue;
+        }
+        let v = r.velocity.as_ref().and_then(|v| v.compile().ok());
+        let w = r
+            .angular_velocity
+            .as_ref()
+            .and_then(|w| w.field().compile().ok());
+        if v.is_none() && w.is_none() {
+            continue;
+        }
+        let radius = match w {
+            Some(_) => crate::build::rigid_shape(deck, r).map_or(0.0, |s| s.radius()),
+            None => 0.0,
+        };
+        if speeds.is_empty() {
+            speeds = vec![0.0; super::motion_times(end).count()];
+        }
+        for (k, t) in super::motion_times(end).enumerate() {
+            let lin = v.as_ref().map_or(0.0, |v| v.eval_t(t).norm());
+            let rot = w.as_ref().map_or(0.0, |w| w.eval_t(t).norm() * radius);
+            let speed = lin + rot;
+            speeds[k] = speeds[k].max(speed);
+            if best.is_none_or(|p| speed > p.speed) {
+                let key = if rot > lin {
+                    "angular_velocity"
+                } else {
+                    "velocity"
+                };
+                best = Some(RigidPace {
+                    speed,
+                    body: b,
+                    time: t,
+                    key,
+                });
+            }
+        }
+    }
+    (speeds, best.filter(|p| p.speed > 0.0))
 }
 
 /// Estimates a validated deck's cost without building anything.
@@ -82,13 +148,15 @@ pub fn estimate(deck: &Deck) -> Estimate {
         })
         .sum();
     let memory = memory(dim, particles, nodes) + deck.mesh_triangles as f64 * BYTES_PER_TRIANGLE;
-    let (flow_steps, steps) = steps(deck);
+    let (speeds, rigid) = prescribed_speeds(deck);
+    let (flow_steps, steps) = steps(deck, &speeds);
     Estimate {
         particles,
         nodes,
         memory,
         flow_steps,
         steps,
+        rigid,
     }
 }
 
@@ -98,8 +166,11 @@ pub fn memory(dimension: usize, particles: f64, nodes: f64) -> f64 {
     BYTES_BASE + particles * BYTES_PER_PARTICLE[k] + nodes * BYTES_PER_NODE[k]
 }
 
-/// [`Estimate::flow_steps`] and [`Estimate::steps`].
-fn steps(deck: &Deck) -> (f64, f64) {
+/// [`Estimate::flow_steps`] and [`Estimate::steps`], with `rigid` the fastest prescribed
+/// rigid body's speed (m/s) at each of [`super::motion_times`] (or empty), which the adaptive
+/// step follows: the steps are the integral over the run of the faster of it and the flow's
+/// speed, over cfl h.
+fn steps(deck: &Deck, rigid: &[f64]) -> (f64, f64) {
     let s = &deck.simulation;
     let (_, viscous) = deck.dt_limits();
     let limited = s.end_time / viscous.0;
@@ -116,7 +187,16 @@ fn steps(deck: &Deck) -> (f64, f64) {
                 .map(|(a, size)| (a / gnorm.max(1e-300)).abs() * size)
                 .sum();
             let speed = (2.0 * gnorm * height).sqrt() + deck.max_wave_speed();
-            let flow = s.end_time * speed / (cfl * h);
+            // the trapezoidal rule over the samples
+            let n = rigid.len().saturating_sub(1);
+            let mean = match n {
+                0 => speed,
+                _ => {
+                    let at = |k: usize| rigid[k].max(speed);
+                    ((1..n).map(at).sum::<f64>() + 0.5 * (at(0) + at(n))) / n as f64
+                }
+            };
+            let flow = s.end_time * mean / (cfl * h);
             // (the wave limit is in the speed already)
             (flow, flow.max(limited))
         }
@@ -207,6 +287,25 @@ pub fn refuse_beyond_limits(deck: &Deck, file: &str, allow_large: bool) -> Resul
             short(e.nodes),
             bytes(have)
         ));
+    }
+    if let (Some(p), Some(cfl)) = (e.rigid, deck.simulation.cfl) {
+        let h = deck.grid.cell_size;
+        // the body is what asks for too many steps: without it the run would take fewer
+        if e.steps > MAX_STEPS && steps(deck, &[]).1 <= MAX_STEPS {
+            return refuse(format!(
+                "rigid_bodies[{}].{}: the body's fastest point moves at {} m/s at t = {} s, \
+                 and the step follows it (cfl h / speed, simulation.cfl = {cfl}, \
+                 grid.cell_size = {h}): about {} steps to simulation.end_time = {} s, more \
+                 than {:.0e}; slow the body, or pass --allow-large to run it anyway",
+                p.body,
+                p.key,
+                short(p.speed),
+                short(p.time),
+                short(e.steps),
+                short(deck.simulation.end_time),
+                MAX_STEPS
+            ));
+        }
     }
     if e.steps > MAX_STEPS {
         return refuse(format!(

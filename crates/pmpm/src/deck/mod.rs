@@ -8,6 +8,7 @@
 //! estimates what a checked deck will cost before anything is allocated.
 
 pub mod limits;
+pub mod room;
 
 use crate::field::{Component, VectorField};
 use serde::{Deserialize, Serialize};
@@ -202,6 +203,11 @@ fn default_viscosity_max_iterations() -> usize {
 }
 
 pub use crate::scheme::MAX_PARTICLE_CELLS;
+
+/// The largest value of a material parameter (Pa, Pa s, kg/m^3, ...): far past any material
+/// (the stiffest solids' moduli are about 1e12 Pa, the mantle's viscosity 1e22 Pa s), and
+/// low enough that a stress's square stays finite.
+pub const MAX_MATERIAL_PARAMETER: f64 = 1e100;
 pub use crate::viscosity::ViscosityTreatment;
 
 /// The most frames, or checkpoints, a deck may ask for over its run: a million frames of even a
@@ -443,6 +449,50 @@ impl MaterialDeck {
             return Err(c.err(format!("{k}.{key}"), format!("{why}{hint}")));
         }
         Ok(())
+    }
+
+    /// Every parameter is at most [`MAX_MATERIAL_PARAMETER`]: a stress computed from one
+    /// past it overflows when squared (a yield test, an energy), and the run would stop on a
+    /// NaN blamed on a blow-up.
+    fn check_magnitudes(&self, k: &str, c: &Check) -> Result<(), DeckError> {
+        for (key, v) in [
+            ("density", Some(self.density)),
+            ("viscosity", Some(self.viscosity)),
+            ("bulk_modulus", self.bulk_modulus),
+            ("yield_stress", self.yield_stress),
+            ("papanastasiou_exponent", self.papanastasiou_exponent),
+            ("consistency", self.consistency),
+            ("flow_index", self.flow_index),
+            ("shear_modulus", self.shear_modulus),
+            ("undrained_shear_strength", self.undrained_shear_strength),
+        ] {
+            if let Some(v) = v.filter(|&v| v > MAX_MATERIAL_PARAMETER) {
+                return Err(c.err(
+                    format!("{k}.{key}"),
+                    format!(
+                        "{} is beyond what a run can compute with: at most {MAX_MATERIAL_PARAMETER:e} (a stress from it overflows double precision when squared)",
+                        crate::limits::short(v)
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The key that sets the largest viscosity of the model ([`crate::material::Constitutive::max_viscosity`]),
+    /// for messages.
+    fn viscosity_key(&self) -> &'static str {
+        match self.model {
+            Model::HerschelBulkley => "consistency",
+            Model::Bingham
+                if self.yield_stress.unwrap_or(0.0)
+                    * self.papanastasiou_exponent.unwrap_or(0.0)
+                    > self.viscosity =>
+            {
+                "papanastasiou_exponent"
+            }
+            _ => "viscosity",
+        }
     }
 
     /// One line for `pmpm check`: name, model, density and the model's parameters.
@@ -1237,9 +1287,11 @@ impl Deck {
         self.check_bodies(&c)?;
         self.check_rigid_bodies(&c)?;
         self.check_inflows(&c)?;
+        self.check_inflows_uncovered(&c)?;
         self.check_damping_zones(&c)?;
         self.check_output(&c)?;
         self.check_time_step(&c)?;
+        self.check_inflow_room(&c)?;
         Ok(())
     }
 
@@ -1589,6 +1641,7 @@ impl Deck {
             c.positive(&format!("{k}.density"), m.density)?;
             c.non_negative(&format!("{k}.viscosity"), m.viscosity)?;
             m.check_model_keys(&k, c)?;
+            m.check_magnitudes(&k, c)?;
             match m.bulk_modulus {
                 Some(b) => c.positive(&format!("{k}.bulk_modulus"), b)?,
                 None if explicit => {
@@ -1743,10 +1796,47 @@ impl Deck {
                     format!("must exceed min along {}: {} <= {}", AXES[d], mx[d], mn[d]),
                 ));
             }
-            rigid_velocity(r, &k, dim, c)?;
+            rigid_velocity(r, &k, dim, self.simulation.end_time, c)?;
         }
+        self.check_free_apart(c)?;
         self.mesh_files.extend(files);
         self.mesh_triangles += triangles;
+        Ok(())
+    }
+
+    /// A free body starts apart from every other rigid body: the contact parts bodies that
+    /// meet as they move, not one placed through another.
+    fn check_free_apart(&self, c: &Check) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
+        let (lo, hi) = self.domain();
+        let solids: Vec<_> = self
+            .rigid_bodies
+            .iter()
+            .map(|r| r.shape.solid(dim).ok())
+            .collect();
+        let free = |r: &RigidBodyDeck| r.motion == RigidMotion::Free;
+        for (b, rb) in self.rigid_bodies.iter().enumerate() {
+            for (a, ra) in self.rigid_bodies[..b].iter().enumerate() {
+                if !(free(ra) || free(rb)) {
+                    continue;
+                }
+                let (Some(sa), Some(sb)) = (&solids[a], &solids[b]) else {
+                    continue;
+                };
+                if let Some(x) = sa.common_point(sb, (&lo, &hi)) {
+                    let (f, o) = if free(rb) { (b, a) } else { (a, b) };
+                    return Err(c.err(
+                        format!("rigid_bodies[{f}].shape"),
+                        format!(
+                            "the free body \"{}\" overlaps rigid_bodies[{o}] (\"{}\") at t = 0 (for example at ({})): a free body must start apart from the other bodies (the contact parts bodies that meet, not one placed inside another); place them apart",
+                            self.rigid_bodies[f].name,
+                            self.rigid_bodies[o].name,
+                            point(&x)
+                        ),
+                    ));
+                }
+            }
+        }
         Ok(())
     }
 
@@ -1785,9 +1875,9 @@ impl Deck {
                 ));
             }
             let g = f.compile().map_err(|e| c.err(key.clone(), e))?;
-            time_only(&g, &key, "turns", c)?;
+            time_only(&g, &key, "turns", self.simulation.end_time, c)?;
         }
-        rigid_velocity(r, k, dim, c)?;
+        rigid_velocity(r, k, dim, self.simulation.end_time, c)?;
         let free = r.motion == RigidMotion::Free;
         if let Some(x) = &r.centre {
             c.vector(&format!("{k}.centre"), x, dim)?;
@@ -2098,6 +2188,77 @@ impl Deck {
         Ok(())
     }
 
+    /// No rigid body covers an inflow's patch at t = 0: the patch's nodes would hold the
+    /// inflow's velocity inside the solid, and the particles it emits would enter the solid.
+    /// Tested at the first row of the particles it emits (half a spacing in front of the
+    /// patch), at each lane's centre.
+    fn check_inflows_uncovered(&self, c: &Check) -> Result<(), DeckError> {
+        for (i, q) in self.inflows.iter().enumerate() {
+            let axis = FACE_NAMES.iter().position(|n| *n == q.face).unwrap_or(0) / 2;
+            self.check_inflow_uncovered(q, &format!("inflows[{i}]"), axis, c)?;
+        }
+        Ok(())
+    }
+
+    /// [`Deck::check_inflows_uncovered`] for one inflow, `k` its key, on a face normal to
+    /// `axis`.
+    fn check_inflow_uncovered(
+        &self,
+        q: &InflowDeck,
+        k: &str,
+        axis: usize,
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
+        let s = self.grid.cell_size / q.particles_per_cell as f64;
+        let inward = if q.min[axis] <= self.grid.origin[axis] {
+            1.0
+        } else {
+            -1.0
+        };
+        let lanes: Vec<usize> = (0..dim)
+            .map(|d| {
+                if d == axis {
+                    1
+                } else {
+                    ((q.max[d] - q.min[d]) / s).round().max(1.0) as usize
+                }
+            })
+            .collect();
+        let total: usize = lanes.iter().product();
+        for (r, rigid) in self.rigid_bodies.iter().enumerate() {
+            let Ok(solid) = rigid.shape.solid(dim) else {
+                continue;
+            };
+            for m in 0..total {
+                let mut rem = m;
+                let x: Vec<f64> = (0..dim)
+                    .map(|d| {
+                        let i = rem % lanes[d];
+                        rem /= lanes[d];
+                        if d == axis {
+                            q.min[d] + inward * 0.5 * s
+                        } else {
+                            q.min[d] + (q.max[d] - q.min[d]) * (i as f64 + 0.5) / lanes[d] as f64
+                        }
+                    })
+                    .collect();
+                if solid.contains(&x) {
+                    return Err(c.err(
+                        format!("{k}.min"),
+                        format!(
+                            "the patch on the face {} is covered by rigid_bodies[{r}] (\"{}\") at t = 0 (for example at ({})): material would enter through the solid; move the patch or the body",
+                            q.face,
+                            rigid.name,
+                            point(&x)
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// The `[[output.gauges]]`.
     fn check_gauges(&self, c: &Check) -> Result<(), DeckError> {
         let dim = self.simulation.dimension;
@@ -2273,8 +2434,36 @@ impl Deck {
         Ok(())
     }
 
+    /// A material the implicit viscous solve takes must keep its inertia above round-off next
+    /// to its viscous stiffness over the longest step the run can take (a fixed dt, else an
+    /// output interval): past 2 D mu dt / (rho h^2) = 1 / eps the solve's matrix is singular
+    /// in double precision (it does not converge, and the run stopped as if it blew up).
+    fn check_implicit_viscosity(&self, c: &Check) -> Result<(), DeckError> {
+        let s = &self.simulation;
+        let dt =
+            s.dt.unwrap_or_else(|| self.output.interval.unwrap_or(s.end_time).min(s.end_time));
+        let (limit, i) = self.lifted_viscous_limit();
+        let stiffness = dt / limit;
+        if stiffness * f64::EPSILON <= 1.0 {
+            return Ok(());
+        }
+        let m = &self.materials[i];
+        Err(c.err(
+            format!("materials[{i}].{}", m.viscosity_key()),
+            format!(
+                "\"{}\" is too viscous for the implicit viscous solve: its largest viscosity mu = {} Pa s gives 2 D mu dt / (rho h^2) = {} over a step of up to {} s, past 1 / eps = {:.1e}, where the material's inertia is lost to round-off and the solve is singular; lower it (a rigid body models a solid that does not deform)",
+                m.name,
+                crate::limits::short(crate::material::Constitutive::max_viscosity(&m.params().law)),
+                crate::limits::short(stiffness),
+                crate::limits::short(dt),
+                1.0 / f64::EPSILON
+            ),
+        ))
+    }
+
     /// A fixed `simulation.dt` against the explicit limits.
     fn check_time_step(&self, c: &Check) -> Result<(), DeckError> {
+        self.check_implicit_viscosity(c)?;
         let explicit = self.simulation.scheme == Scheme::Explicit;
         if let Some(dt) = self.simulation.dt {
             let (wave, viscous) = self.dt_limits();
@@ -2411,31 +2600,75 @@ fn check_body_material(
     Ok(())
 }
 
-/// A rigid body's `velocity`: `dim` components, numbers or expressions of t only.
-fn rigid_velocity(r: &RigidBodyDeck, k: &str, dim: usize, c: &Check) -> Result<(), DeckError> {
+/// A rigid body's `velocity`: `dim` components, numbers or expressions of t only, finite
+/// over the run.
+fn rigid_velocity(
+    r: &RigidBodyDeck,
+    k: &str,
+    dim: usize,
+    end_time: f64,
+    c: &Check,
+) -> Result<(), DeckError> {
     let Some(v) = &r.velocity else {
         return Ok(());
     };
     let key = format!("{k}.velocity");
     c.field(&key, v, dim)?;
-    time_only(&v.compile().expect("checked above"), &key, "moves", c)
+    time_only(
+        &v.compile().expect("checked above"),
+        &key,
+        "moves",
+        end_time,
+        c,
+    )
 }
 
-/// A rigid body moves and turns as a whole: the field `f` of `key` may depend on t only.
+/// Samples of a run's time span [0, end_time] at which a prescribed rigid body's motion is
+/// looked at (its ends and 2047 points between): where it must be finite, and the fastest it
+/// goes for the step estimate.
+pub fn motion_times(end_time: f64) -> impl Iterator<Item = f64> {
+    const N: usize = 2048;
+    (0..=N).map(move |k| end_time * k as f64 / N as f64)
+}
+
+/// A rigid body moves and turns as a whole: the field `f` of `key` may depend on t only (no
+/// expression names x, y or z), and is a finite number over the run, [0, end_time] (what it
+/// gives after the end is never used).
 fn time_only(
     f: &crate::field::CompiledField,
     key: &str,
     verb: &str,
+    end_time: f64,
     c: &Check,
 ) -> Result<(), DeckError> {
-    let at = |x: f64, t: f64| f.eval_at(&[x, x, x], t);
-    if at(0.0, 0.0) != at(1.0, 0.0) || at(0.0, 1.0) != at(1.0, 1.0) {
+    if f.uses_position() {
         return Err(c.err(
             key,
             format!("may depend on t only (a rigid body {verb} as a whole): remove x, y and z from the expressions"),
         ));
     }
+    for t in motion_times(end_time) {
+        let v = f.eval_at(&[], t);
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(c.err(
+                key,
+                format!(
+                    "is not a finite number at t = {} s, within the run (simulation.end_time = {} s): {v:?}",
+                    crate::limits::short(t),
+                    crate::limits::short(end_time)
+                ),
+            ));
+        }
+    }
     Ok(())
+}
+
+/// A point as `0.1, 0.2` in a message.
+fn point(x: &[f64]) -> String {
+    x.iter()
+        .map(|c| crate::limits::short(*c))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// A body's shape has the keys its type takes, and a box has positive extent.
