@@ -144,47 +144,29 @@ particles_per_cell = 2
     );
 }
 
+/// What `pmpm check` prints (stdout, then stderr) for the tank with one box of water from the
+/// origin to `max`; it must succeed.
+fn check_box(dir: &std::path::Path, name: &str, max: &str) -> String {
+    let deck = dir.join(format!("{name}.toml"));
+    let body = format!(
+        "[[bodies]]\nmaterial = \"water\"\nshape = {{ type = \"box\", min = [0.0, 0.0], max = {max} }}\nparticles_per_cell = 2\n"
+    );
+    std::fs::write(&deck, tank("[3.24, 1.0]", &body)).unwrap();
+    let o = pmpm(&["check", deck.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{text}");
+    text
+}
+
 /// `check` prints the shape's volume and warns where the lattice is off by more than 0.5 %,
 /// and says nothing where it fits.
 #[test]
 fn check_says_when_the_lattice_differs_from_the_shape() {
     let dir = scratch_dir("seeding-check");
-    let off = dir.join("off.toml");
-    std::fs::write(
-        &off,
-        tank(
-            "[3.24, 1.0]",
-            r#"
-[[bodies]]
-material = "water"
-shape = { type = "box", min = [0.0, 0.0], max = [1.228, 0.55] }
-particles_per_cell = 2
-"#,
-        ),
-    )
-    .unwrap();
-    let o = pmpm(&["check", off.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{text}");
+    let text = check_box(&dir, "off", "[1.228, 0.55]");
     assert!(text.contains("volume 6.754000e-1"), "{text}");
     assert!(text.contains("+1.15 % of its shape's"), "{text}");
-    let fits = dir.join("fits.toml");
-    std::fs::write(
-        &fits,
-        tank(
-            "[3.24, 1.0]",
-            r#"
-[[bodies]]
-material = "water"
-shape = { type = "box", min = [0.0, 0.0], max = [1.22, 0.56] }
-particles_per_cell = 2
-"#,
-        ),
-    )
-    .unwrap();
-    let o = pmpm(&["check", fits.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{text}");
+    let text = check_box(&dir, "fits", "[1.22, 0.56]");
     assert!(!text.contains("of its shape's"), "{text}");
 }
 
