@@ -60,25 +60,7 @@ fn a_mesh_with_a_hole_is_refused() {
         facet normal 0 0 0\nouter loop\nvertex 0 0 0\nvertex 0 0.1 0\nvertex 0 0 0.1\nendloop\nendfacet\n\
         endsolid t\n";
     std::fs::write(dir.join("open.stl"), stl).unwrap();
-    let deck = r#"
-[simulation]
-dimension = 3
-end_time = 0.01
-cfl = 0.5
-gravity = [0.0, 0.0, -9.81]
-
-[grid]
-size = [0.2, 0.2, 0.2]
-cell_size = 0.02
-
-[[materials]]
-name = "water"
-density = 1000.0
-
-[[bodies]]
-material = "water"
-shape = { type = "mesh", file = "open.stl" }
-"#;
+    let deck = mesh_deck(r#"{ type = "mesh", file = "open.stl" }"#, "");
     std::fs::write(dir.join("deck.toml"), deck).unwrap();
     let (deck, out) = (dir.join("deck.toml"), dir.join("out"));
     let (deck, out) = (deck.to_str().unwrap(), out.to_str().unwrap());
