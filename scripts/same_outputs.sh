@@ -31,7 +31,7 @@ for deck in "${decks[@]}"; do
     fi
   done
   differs=()
-  for f in $(cd "$work/old-$name" && find . -type f ! -name series.csv ! -name checkpoint.bin | sort); do
+  for f in $(cd "$work/old-$name" && find . -type f ! -name series.csv ! -name checkpoint.bin ! -name .pmpm-lock | sort); do
     cmp -s "$work/old-$name/$f" "$work/new-$name/$f" || differs+=("$f")
   done
   if [ ${#differs[@]} -eq 0 ]; then
