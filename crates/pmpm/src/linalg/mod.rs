@@ -86,7 +86,14 @@ impl EllMatrix {
                     .zip(cols)
                     .all(|(&v, &c)| v == 0.0 || (c as usize == r && v == 1.0));
                 if lone {
-                    let k = cols.iter().position(|&c| c as usize == r);
+                    // the centre slot where it holds the diagonal: rows laid out on the grid
+                    // keep each column at its geometric slot (the multigrid relies on it)
+                    let centre = (w - 1) / 2;
+                    let k = if cols[centre] as usize == r {
+                        Some(centre)
+                    } else {
+                        cols.iter().position(|&c| c as usize == r)
+                    };
                     if let Some(k) = k {
                         if vals.iter().all(|&v| v == 0.0) || vals[k] == 1.0 {
                             vals[k] = 1.0;

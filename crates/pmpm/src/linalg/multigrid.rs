@@ -97,7 +97,9 @@ impl GridLayout {
         Some(out)
     }
 
-    /// Slot of column node `j` in the row of node `i`, for rows `2 reach + 1` wide per axis.
+    /// Slot of column node `j` in the row of node `i`, for rows `2 reach + 1` wide per axis
+    /// (the numbering [`slot_table`] tabulates; the tests check the two agree).
+    #[cfg(test)]
     fn slot(&self, i: &[u32; 3], j: &[u32; 3]) -> usize {
         let span = 2 * self.reach + 1;
         let mut s = 0;
@@ -128,6 +130,8 @@ struct Level {
     /// Per row here, its 3^D children on the finer level and their weights.
     children: Vec<u32>,
     child_weights: Vec<f64>,
+    /// The Galerkin product's slot table ([`slot_table`]).
+    slots: Vec<u32>,
     x: Vec<f64>,
     b: Vec<f64>,
     r: Vec<f64>,
@@ -186,6 +190,7 @@ fn coarsen(
     }
     link_parents(fine_layout, &lay, coarse);
     link_children(fine_layout, fine_row_of, &lay, coarse);
+    slot_table(fine_layout, &lay, &mut coarse.slots);
     galerkin(fine_a, &lay, coarse);
     inverse_diagonal(&coarse.a, &mut coarse.inverse_diagonal);
     for v in [&mut coarse.x, &mut coarse.b, &mut coarse.r] {
@@ -350,6 +355,51 @@ fn link_children(
         });
 }
 
+/// The coarse slot, per child k (of 3^D), fine slot s and parent corner q (of 2^D), of the
+/// parent q of the fine row's column in slot s: `table[(k * fine width + s) * 2^D + q]`
+/// (`u32::MAX` where that corner is no parent). The rows' slots are geometric (slot s holds the
+/// node at offset s - reach per axis, axis 0 fastest, as [`GridLayout::slot`] numbers them),
+/// and the child k of coarse node I is the fine node 2 I + delta_k, so the column's fine
+/// offset from 2 I, and with it its parents' offsets from I, depend on k, s and q alone: the
+/// Galerkin product looks its slots up instead of working each one out from the nodes.
+fn slot_table(fine_layout: &GridLayout, lay: &GridLayout, table: &mut Vec<u32>) {
+    let dim = lay.dim;
+    let (corners, kids) = (1usize << dim, 3usize.pow(dim as u32));
+    let fine_span = 2 * fine_layout.reach + 1;
+    let fine_width = fine_span.pow(dim as u32);
+    let span = 2 * lay.reach + 1;
+    table.clear();
+    table.resize(kids * fine_width * corners, u32::MAX);
+    for k in 0..kids {
+        for s in 0..fine_width {
+            for q in 0..corners {
+                let (mut slot, mut stride) = (0usize, 1usize);
+                let mut valid = true;
+                for d in 0..dim {
+                    let delta = (k / 3usize.pow(d as u32) % 3) as isize - 1;
+                    let off = (s / fine_span.pow(d as u32) % fine_span) as isize
+                        - fine_layout.reach as isize;
+                    // the column's fine offset from 2 I, and its parent's coarse offset from I
+                    let v = delta + off;
+                    let bit = ((q >> d) & 1) as isize;
+                    let p = if v % 2 == 0 {
+                        valid &= bit == 0;
+                        v / 2
+                    } else {
+                        (v - 1).div_euclid(2) + bit
+                    };
+                    valid &= p.unsigned_abs() <= lay.reach;
+                    slot += (p + lay.reach as isize) as usize * stride;
+                    stride *= span;
+                }
+                if valid {
+                    table[(k * fine_width + s) * corners + q] = slot as u32;
+                }
+            }
+        }
+    }
+}
+
 /// The Galerkin operator A_c = P^T A P, gathered per coarse row.
 fn galerkin(fine_a: &EllMatrix, lay: &GridLayout, coarse: &mut Level) {
     let corners = 1usize << lay.dim;
@@ -361,6 +411,12 @@ fn galerkin(fine_a: &EllMatrix, lay: &GridLayout, coarse: &mut Level) {
     let (children, child_weights) = (&coarse.children, &coarse.child_weights);
     let (parents, parent_weights) = (&coarse.parents, &coarse.parent_weights);
     let fw = fine_a.width;
+    let table = &coarse.slots;
+    debug_assert_eq!(
+        table.len(),
+        kids * fw * corners,
+        "rows' slots are not geometric"
+    );
     coarse
         .a
         .cols
@@ -368,7 +424,6 @@ fn galerkin(fine_a: &EllMatrix, lay: &GridLayout, coarse: &mut Level) {
         .zip(coarse.a.vals.par_chunks_mut(width))
         .enumerate()
         .for_each(|(row, (cols, vals))| {
-            let i = &lay.index[row];
             // slots start unused (column = row, value 0)
             cols.fill(row as u32);
             vals.fill(0.0);
@@ -389,9 +444,8 @@ fn galerkin(fine_a: &EllMatrix, lay: &GridLayout, coarse: &mut Level) {
                         if wc == 0.0 {
                             continue;
                         }
-                        let jr = parents[c * corners + q];
-                        let slot = lay.slot(i, &lay.index[jr as usize]);
-                        cols[slot] = jr;
+                        let slot = table[(k * fw + s) * corners + q] as usize;
+                        cols[slot] = parents[c * corners + q];
                         vals[slot] += wr * a * wc;
                     }
                 }
@@ -664,19 +718,29 @@ mod tests {
     /// The bilinear-element Laplacian on an n x n cell grid, unknowns at the interior nodes
     /// (p = 0 on the boundary), nodes at padded indices 2 ..= n + 2.
     fn laplacian(n: usize) -> (EllMatrix, GridLayout) {
+        laplacian_periodic(n, false)
+    }
+
+    /// The same, periodic along x when `periodic` (then the n nodes 2 ..= n + 1 of a row are
+    /// all unknowns, and node n + 2 is node 2's image).
+    fn laplacian_periodic(n: usize, periodic: bool) -> (EllMatrix, GridLayout) {
         let pad = 2;
         let m = n - 1; // unknowns per axis
+        let mx = if periodic { n } else { m };
         let mut a = EllMatrix::default();
-        a.reshape(m * m, 9);
-        let row = |i: usize, j: usize| (j * m + i) as u32;
+        a.reshape(mx * m, 9);
+        let row = |i: usize, j: usize| (j * mx + i) as u32;
         for j in 0..m {
-            for i in 0..m {
+            for i in 0..mx {
                 let r = row(i, j) as usize;
                 let mut s = 0;
                 for dj in -1isize..=1 {
                     for di in -1isize..=1 {
-                        let (ii, jj) = (i as isize + di, j as isize + dj);
-                        let inside = ii >= 0 && jj >= 0 && ii < m as isize && jj < m as isize;
+                        let (mut ii, jj) = (i as isize + di, j as isize + dj);
+                        if periodic {
+                            ii = ii.rem_euclid(n as isize);
+                        }
+                        let inside = ii >= 0 && jj >= 0 && ii < mx as isize && jj < m as isize;
                         let v = if di == 0 && dj == 0 {
                             8.0 / 3.0
                         } else {
@@ -694,18 +758,50 @@ mod tests {
                 }
             }
         }
+        let first_x = if periodic { pad } else { pad + 1 };
         let layout = GridLayout {
             dim: 2,
             nodes: [n + 1 + 2 * pad, n + 1 + 2 * pad, 1],
             offset: [pad, pad, 0],
             cells: [n, n, 0],
-            periodic: [false; 3],
+            periodic: [periodic, false, false],
             reach: 1,
-            index: (0..m * m)
-                .map(|r| [(pad + 1 + r % m) as u32, (pad + 1 + r / m) as u32, 0])
+            index: (0..mx * m)
+                .map(|r| [(first_x + r % mx) as u32, (pad + 1 + r / mx) as u32, 0])
                 .collect(),
         };
         (a, layout)
+    }
+
+    /// Every slot the Galerkin products fill from their table holds the column the nodes
+    /// place there ([`GridLayout::slot`]), on every level, with and without a periodic axis.
+    #[test]
+    fn galerkin_slots_are_the_nodes_slots() {
+        for periodic in [false, true] {
+            let (a, layout) = laplacian_periodic(64, periodic);
+            let mut mg = Multigrid::default();
+            mg.setup(&System {
+                matrix: &a,
+                layout: &layout,
+                singular: false,
+            });
+            // a periodic axis coarsens while its first node's index is even: once from PAD = 2
+            assert!(mg.levels() >= 2, "levels {:?}", mg.sizes());
+            let mut filled = 0;
+            for level in &mg.levels[..mg.used] {
+                let (lay, c) = (&level.layout, &level.a);
+                for r in 0..c.n {
+                    for s in 0..c.width {
+                        let col = c.cols[r * c.width + s] as usize;
+                        if c.vals[r * c.width + s] != 0.0 {
+                            assert_eq!(s, lay.slot(&lay.index[r], &lay.index[col]));
+                            filled += 1;
+                        }
+                    }
+                }
+            }
+            assert!(filled > 1000, "{filled} slots filled");
+        }
     }
 
     fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
