@@ -832,21 +832,26 @@ fn output_and_memory<const D: usize>(
     );
 }
 
-/// The table `pmpm bench` prints: per phase seconds, ms per step and share of the wall time;
-/// particle updates per second; pressure iterations; peak memory per particle. The last line,
+/// The table `pmpm bench` prints: per phase seconds, ms per step, ns per particle and step
+/// (what compares across problem sizes and with a floor set by memory traffic) and share of the
+/// wall time; particle updates per second; pressure iterations; peak memory per particle. The last line,
 /// `BENCH key=value ...`, is for scripts.
 pub fn bench_report(deck: &Deck, file: &str, r: &RunSummary, threads: usize) -> String {
     use std::fmt::Write;
     let steps = r.steps.max(1) as f64;
     let total = r.timers.total();
+    let ns_per_update = |sec: f64| 1e9 * sec / (steps * r.particles.max(1) as f64);
     let mut t = String::new();
     let _ = writeln!(
         t,
         "pmpm bench {file}: {}D {:?}, {} particles, {} steps to t = {:.6} s, {threads} thread(s)\n",
         deck.simulation.dimension, deck.simulation.scheme, r.particles, r.steps, r.time
     );
-    let _ = writeln!(t, "| phase | seconds | ms/step | share |");
-    let _ = writeln!(t, "|---|---:|---:|---:|");
+    let _ = writeln!(
+        t,
+        "| phase | seconds | ms/step | ns/particle/step | share |"
+    );
+    let _ = writeln!(t, "|---|---:|---:|---:|---:|");
     for p in Phase::ALL {
         let sec = r.timers.seconds(p);
         if sec == 0.0 {
@@ -854,17 +859,19 @@ pub fn bench_report(deck: &Deck, file: &str, r: &RunSummary, threads: usize) -> 
         }
         let _ = writeln!(
             t,
-            "| {} | {:.3} | {:.3} | {:.1}% |",
+            "| {} | {:.3} | {:.3} | {:.1} | {:.1}% |",
             p.name(),
             sec,
             1e3 * sec / steps,
+            ns_per_update(sec),
             100.0 * sec / total.max(1e-300)
         );
     }
     let _ = writeln!(
         t,
-        "| **step loop** | **{total:.3}** | **{:.3}** | 100% |\n",
-        1e3 * total / steps
+        "| **step loop** | **{total:.3}** | **{:.3}** | **{:.1}** | 100% |\n",
+        1e3 * total / steps,
+        ns_per_update(total)
     );
     let updates = r.particles as f64 * r.steps as f64 / total.max(1e-300);
     let _ = writeln!(t, "particle updates per second: {updates:.3e}");
@@ -893,13 +900,14 @@ pub fn bench_report(deck: &Deck, file: &str, r: &RunSummary, threads: usize) -> 
     }
     let _ = write!(
         t,
-        "BENCH dim={} scheme={:?} particles={} steps={} sim_time={:.6} threads={threads} wall_s={total:.4} ms_per_step={:.4} updates_per_s={updates:.4e} pressure_iterations={iters} max_iterations={max_iters} peak_bytes={} bytes_per_particle={}",
+        "BENCH dim={} scheme={:?} particles={} steps={} sim_time={:.6} threads={threads} wall_s={total:.4} ms_per_step={:.4} ns_per_particle_step={:.1} updates_per_s={updates:.4e} pressure_iterations={iters} max_iterations={max_iters} peak_bytes={} bytes_per_particle={}",
         deck.simulation.dimension,
         deck.simulation.scheme,
         r.particles,
         r.steps,
         r.time,
         1e3 * total / steps,
+        ns_per_update(total),
         mem.map_or(0, |m| m.0),
         mem.map_or(0.0, |m| m.1).round()
     );

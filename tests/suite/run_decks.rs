@@ -443,6 +443,15 @@ fn bench_reports_every_phase_and_the_figures() {
         field(k);
     }
     assert!((phases - field("wall_s")).abs() < 1e-3, "{bench}");
+    // ns per particle and step: the step loop's seconds over steps x particles (wall_s is
+    // rounded to 1e-4 s)
+    let per = 1e9 * field("wall_s") / (5.0 * field("particles"));
+    let slack = 1e9 * 1e-4 / (5.0 * field("particles")) + 0.1;
+    assert!(
+        (field("ns_per_particle_step") - per).abs() <= slack,
+        "{bench}"
+    );
+    assert!(stdout.contains("| ns/particle/step |"), "{stdout}");
     assert!(!dir.join("out").exists());
 }
 
