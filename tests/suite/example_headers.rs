@@ -475,11 +475,19 @@ fn examples(slow: bool) -> Vec<PathBuf> {
 }
 
 /// Runs each example and checks its figures; panics listing every figure that drifted, with
-/// what the run gave.
+/// what the run gave. `PMPM_EXAMPLES=a,b` (file stems) checks only those, when working on them.
 fn check_examples(slow: bool) {
+    let only = std::env::var("PMPM_EXAMPLES").ok();
     let mut failures = Vec::new();
     for path in examples(slow) {
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let stem = path.file_stem().unwrap().to_string_lossy().into_owned();
+        if only
+            .as_ref()
+            .is_some_and(|o| !o.split(',').any(|s| s == stem))
+        {
+            continue;
+        }
         let text = std::fs::read_to_string(&path).unwrap();
         let figs = match figures(&text) {
             Ok(f) => f,
