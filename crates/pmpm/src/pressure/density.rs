@@ -57,7 +57,6 @@ pub struct PositionCorrection<const D: usize> {
     max_iterations: usize,
     surface: Surface,
     unknowns: Unknowns,
-    solver: LinearSolver,
     bins: CellBins,
     gauss: GaussPoints<D>,
     /// sum_p V_p N_ip per node (the particles' volume at the node).
@@ -109,21 +108,14 @@ impl<const D: usize> PositionCorrection<D> {
         (PACE * dt * max_speed / h).max(fall).min(1.0)
     }
 
-    /// The correction with the pressure's solver settings and free surface, on a grid of
-    /// `cells` cells.
-    pub fn new(
-        pd: &PressureSettings,
-        shape: ShapeFunction,
-        boundary: &Boundary<D>,
-        cells: usize,
-    ) -> Self {
+    /// The correction with the pressure's solver settings and free surface.
+    pub fn new(pd: &PressureSettings, shape: ShapeFunction, boundary: &Boundary<D>) -> Self {
         Self {
             shape,
             tolerance: pd.tolerance,
             max_iterations: pd.max_iterations,
             surface: Surface::new(pd, boundary),
             unknowns: Unknowns::default(),
-            solver: super::linear_solver(pd, cells),
             bins: CellBins::default(),
             gauss: GaussPoints::default(),
             weight: Vec::new(),
@@ -153,13 +145,16 @@ impl<const D: usize> PositionCorrection<D> {
 
     /// Moves the particles (positions, F and J) so that their volumes return the share `rate`
     /// (0 to 1) of the way to V0, in the stages of the projection: free surface, unknowns,
-    /// assembly, solve, correction.
+    /// assembly, solve, correction. `solver` is the projection's: the two solves run one after
+    /// the other, so they share its work vectors and multigrid levels instead of keeping two
+    /// sets (it is set up again for this system).
     pub fn correct(
         &mut self,
         ps: &mut Particles<D>,
         geo: &GridGeometry<D>,
         boundary: &Boundary<D>,
         rate: f64,
+        solver: &mut LinearSolver,
     ) -> Result<SolveStats, SolveError> {
         let shape = self.shape;
         let rate = rate.clamp(0.0, 1.0);
@@ -237,9 +232,7 @@ impl<const D: usize> PositionCorrection<D> {
             tolerance: self.tolerance,
             max_iterations: self.max_iterations,
         };
-        self.stats = self
-            .solver
-            .solve(&system, &self.rhs, &mut self.solution, params)?;
+        self.stats = solver.solve(&system, &self.rhs, &mut self.solution, params)?;
         for (r, &i) in self.unknowns.node_of_row.iter().enumerate() {
             self.potential[i as usize] = self.solution[r];
         }
@@ -460,16 +453,13 @@ mod tests {
             ps.jacobian[p] = 1.0 + 0.03 * (std::f64::consts::PI * x[0]).cos() * (3.0 * x[1]).sin();
         }
         let cells = sim.grid.geo.cells.iter().product();
-        let mut c = PositionCorrection::<2>::new(
-            &deck.pressure,
-            ShapeFunction::Linear,
-            &sim.boundary,
-            cells,
-        );
+        let mut solver = super::super::linear_solver(&deck.pressure, cells);
+        let mut c =
+            PositionCorrection::<2>::new(&deck.pressure, ShapeFunction::Linear, &sim.boundary);
         let (max0, mean0) = errors(&ps);
         let mut last = max0;
         for pass in 0..5 {
-            c.correct(&mut ps, &sim.grid.geo, &sim.boundary, 1.0)
+            c.correct(&mut ps, &sim.grid.geo, &sim.boundary, 1.0, &mut solver)
                 .unwrap();
             let (max, mean) = errors(&ps);
             assert!(max < last, "pass {pass}: max |J - 1| = {max} after {last}");
@@ -536,9 +526,10 @@ particles_per_cell = 2
             let (deck, sim) = pool(name);
             let mut ps = sim.particles.clone();
             let cells = sim.grid.geo.cells.iter().product();
-            let mut c = PositionCorrection::<2>::new(&deck.pressure, shape, &sim.boundary, cells);
+            let mut solver = super::super::linear_solver(&deck.pressure, cells);
+            let mut c = PositionCorrection::<2>::new(&deck.pressure, shape, &sim.boundary);
             for _ in 0..3 {
-                c.correct(&mut ps, &sim.grid.geo, &sim.boundary, 1.0)
+                c.correct(&mut ps, &sim.grid.geo, &sim.boundary, 1.0, &mut solver)
                     .unwrap();
             }
             for p in 0..ps.len() {

@@ -245,7 +245,7 @@ impl<const D: usize> Projection<D> {
                 .then(|| cell::CellProjection::new(shape)),
             density: (pd.unknowns == PressureUnknowns::Nodes
                 && pd.density_correction == Some(DensityCorrection::Positions))
-            .then(|| density::PositionCorrection::new(pd, shape, boundary, cells)),
+            .then(|| density::PositionCorrection::new(pd, shape, boundary)),
         }
     }
 
@@ -299,7 +299,9 @@ impl<const D: usize> Projection<D> {
         rate: f64,
     ) -> Result<usize, SolveError> {
         match &mut self.density {
-            Some(d) => Ok(d.correct(ps, geo, boundary, rate)?.iterations),
+            Some(d) => Ok(d
+                .correct(ps, geo, boundary, rate, &mut self.solver)?
+                .iterations),
             None => Ok(0),
         }
     }
