@@ -779,12 +779,7 @@ mod tests {
     fn galerkin_slots_are_the_nodes_slots() {
         for periodic in [false, true] {
             let (a, layout) = laplacian_periodic(64, periodic);
-            let mut mg = Multigrid::default();
-            mg.setup(&System {
-                matrix: &a,
-                layout: &layout,
-                singular: false,
-            });
+            let mg = set_up(&a, &layout);
             // a periodic axis coarsens while its first node's index is even: once from PAD = 2
             assert!(mg.levels() >= 2, "levels {:?}", mg.sizes());
             let mut filled = 0;
@@ -804,6 +799,17 @@ mod tests {
         }
     }
 
+    /// The multigrid set up for a non-singular system.
+    fn set_up(a: &EllMatrix, layout: &GridLayout) -> Multigrid {
+        let mut mg = Multigrid::default();
+        mg.setup(&System {
+            matrix: a,
+            layout,
+            singular: false,
+        });
+        mg
+    }
+
     fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
         let mut rnd = crate::test_random(seed);
         (0..n).map(|_| rnd() - 0.5).collect()
@@ -818,12 +824,7 @@ mod tests {
     #[test]
     fn v_cycle_is_symmetric_positive_definite() {
         let (a, layout) = laplacian(64);
-        let mut mg = Multigrid::default();
-        mg.setup(&System {
-            matrix: &a,
-            layout: &layout,
-            singular: false,
-        });
+        let mut mg = set_up(&a, &layout);
         assert!(mg.levels() >= 3, "levels {:?}", mg.sizes());
         let n = a.n;
         let (x, y) = (pseudo_random(n, 1), pseudo_random(n, 2));
