@@ -382,6 +382,19 @@ impl MaterialDeck {
         self.shear_modulus.is_some()
     }
 
+    /// The model parameters a material may give, each with its key (the keys some models
+    /// require and others refuse).
+    fn model_parameters(&self) -> [(&'static str, Option<f64>); 6] {
+        [
+            ("yield_stress", self.yield_stress),
+            ("papanastasiou_exponent", self.papanastasiou_exponent),
+            ("consistency", self.consistency),
+            ("flow_index", self.flow_index),
+            ("shear_modulus", self.shear_modulus),
+            ("undrained_shear_strength", self.undrained_shear_strength),
+        ]
+    }
+
     /// The model's keys against those given: each given key must be the model's, each required
     /// one given, each value in range.
     fn check_model_keys(&self, k: &str, c: &Check) -> Result<(), DeckError> {
@@ -395,19 +408,14 @@ impl MaterialDeck {
                 .collect::<Vec<_>>()
                 .join(", ")
         };
-        let given: [(&str, Option<f64>); 7] = [
-            (
-                "viscosity",
-                (self.viscosity != 0.0).then_some(self.viscosity),
-            ),
-            ("yield_stress", self.yield_stress),
-            ("papanastasiou_exponent", self.papanastasiou_exponent),
-            ("consistency", self.consistency),
-            ("flow_index", self.flow_index),
-            ("shear_modulus", self.shear_modulus),
-            ("undrained_shear_strength", self.undrained_shear_strength),
-        ];
-        for (key, value) in given {
+        let viscosity = (
+            "viscosity",
+            (self.viscosity != 0.0).then_some(self.viscosity),
+        );
+        let given: Vec<(&str, Option<f64>)> = std::iter::once(viscosity)
+            .chain(self.model_parameters())
+            .collect();
+        for &(key, value) in &given {
             let Some(v) = value else { continue };
             if !own.iter().any(|(o, _)| *o == key) {
                 return Err(c.err(
@@ -455,17 +463,12 @@ impl MaterialDeck {
     /// past it overflows when squared (a yield test, an energy), and the run would stop on a
     /// NaN blamed on a blow-up.
     fn check_magnitudes(&self, k: &str, c: &Check) -> Result<(), DeckError> {
-        for (key, v) in [
+        let common = [
             ("density", Some(self.density)),
             ("viscosity", Some(self.viscosity)),
             ("bulk_modulus", self.bulk_modulus),
-            ("yield_stress", self.yield_stress),
-            ("papanastasiou_exponent", self.papanastasiou_exponent),
-            ("consistency", self.consistency),
-            ("flow_index", self.flow_index),
-            ("shear_modulus", self.shear_modulus),
-            ("undrained_shear_strength", self.undrained_shear_strength),
-        ] {
+        ];
+        for (key, v) in common.into_iter().chain(self.model_parameters()) {
             if let Some(v) = v.filter(|&v| v > MAX_MATERIAL_PARAMETER) {
                 return Err(c.err(
                     format!("{k}.{key}"),
