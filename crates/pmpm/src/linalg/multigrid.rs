@@ -130,8 +130,10 @@ struct Level {
     /// Per row here, its 3^D children on the finer level and their weights.
     children: Vec<u32>,
     child_weights: Vec<f64>,
-    /// The Galerkin product's slot table ([`slot_table`]).
+    /// The Galerkin product's slot table ([`slot_table`]), and the dimension and the fine and
+    /// coarse reaches it was built for (it depends on nothing else).
     slots: Vec<u32>,
+    slots_for: [usize; 3],
     x: Vec<f64>,
     b: Vec<f64>,
     r: Vec<f64>,
@@ -190,7 +192,11 @@ fn coarsen(
     }
     link_parents(fine_layout, &lay, coarse);
     link_children(fine_layout, fine_row_of, &lay, coarse);
-    slot_table(fine_layout, &lay, &mut coarse.slots);
+    let key = [lay.dim, fine_layout.reach, lay.reach];
+    if coarse.slots.is_empty() || coarse.slots_for != key {
+        slot_table(fine_layout, &lay, &mut coarse.slots);
+        coarse.slots_for = key;
+    }
     galerkin(fine_a, &lay, coarse);
     inverse_diagonal(&coarse.a, &mut coarse.inverse_diagonal);
     for v in [&mut coarse.x, &mut coarse.b, &mut coarse.r] {
