@@ -298,7 +298,8 @@ pub struct Grid<const D: usize> {
     pub body: Vec<Vector<D>>,
     /// Mass-weighted particle pressure, sum N m p; divided by m_i after P2G.
     pub pressure: Vec<f64>,
-    /// The damping zones' rate at each node (1/s; [`crate::damping`]), fixed for the run;
+    /// The damping zones' rate at each node (1/s; set from the deck's zones at the start),
+    /// fixed for the run;
     /// empty where the deck has none.
     pub damping: Vec<f64>,
 }

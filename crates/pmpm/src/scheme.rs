@@ -11,13 +11,13 @@ use crate::flow::{has_left, Ledger};
 use crate::grid::CellBins;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::linalg::SolveError;
-use crate::material::{self, MaterialParams};
+use crate::material::{self, in_mask, MaterialParams};
 use crate::particles::{Particles, PermuteScratch};
 use crate::pressure::Projection;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
 use crate::transfer::{self, P2gScratch, StressUpdate, TransferSettings};
-use crate::viscosity::{in_mask, ImplicitViscosity, ViscousError};
+use crate::viscosity::{ImplicitViscosity, ViscousError};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 

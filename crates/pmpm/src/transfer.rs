@@ -95,7 +95,7 @@ pub struct TransferSettings<const D: usize> {
     /// true under the projection.
     pub isochoric_affine: bool,
     /// Bit m set when material m's stress is viscous and taken by the implicit viscous solve
-    /// ([`crate::viscosity`]): P2G leaves it out of the internal force.
+    /// (the implicit viscous solve's mask): P2G leaves it out of the internal force.
     pub implicit_stress: u64,
 }
 
@@ -367,7 +367,7 @@ fn scatter_p2g<const D: usize, const S: u8>(
         for p in range {
             let m = ps.mass[p];
             let vol = ps.volume(p);
-            let implicit = crate::viscosity::in_mask(s.implicit_stress, ps.material[p].into());
+            let implicit = crate::material::in_mask(s.implicit_stress, ps.material[p].into());
             let mut stress = if implicit {
                 Matrix::<D>::zeros()
             } else {

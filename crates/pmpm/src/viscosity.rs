@@ -28,7 +28,7 @@
 
 use crate::boundary::Boundary;
 use crate::grid::{CellBins, Grid, GridGeometry, Vector};
-use crate::material::{deviatoric_strain_rate, Law, MaterialParams};
+use crate::material::{deviatoric_strain_rate, in_mask, Law, MaterialParams};
 use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
 use crate::transfer::{scatter_weighted, Band};
@@ -68,16 +68,6 @@ pub fn implicit_mask(materials: &[MaterialParams]) -> u64 {
         .enumerate()
         .filter(|(_, m)| is_implicit(&m.law))
         .fold(0, |mask, (k, _)| mask | 1 << k)
-}
-
-/// Whether bit `material` of `mask` ([`implicit_mask`]) is set: materials from the 64th on
-/// never are.
-#[inline]
-pub fn in_mask(mask: u64, material: usize) -> bool {
-    u32::try_from(material)
-        .ok()
-        .and_then(|m| mask.checked_shr(m))
-        .is_some_and(|bits| bits & 1 == 1)
 }
 
 /// Apparent viscosity of a particle of material `law` whose velocity gradient is `l`.

@@ -348,6 +348,16 @@ pub fn update<const D: usize>(
         });
 }
 
+/// Whether bit `material` of a set of materials held as a bit mask (bit m for material m, as
+/// the implicit viscosity's mask) is set: materials from the 64th on never are.
+#[inline]
+pub fn in_mask(mask: u64, material: usize) -> bool {
+    u32::try_from(material)
+        .ok()
+        .and_then(|m| mask.checked_shr(m))
+        .is_some_and(|bits| bits & 1 == 1)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
