@@ -518,7 +518,7 @@ fn shaped_rigid_line(deck: &Deck, r: &pmpm::deck::RigidBodyDeck, dim: usize) -> 
     if !r.is_shaped() && r.motion != RigidMotion::Free {
         return None;
     }
-    let shape = pmpm::build::rigid_shape(deck, r)?;
+    let shape = deck.rigid_shape(r)?;
     let unit = if dim == 2 { "m2 (per metre)" } else { "m3" };
     let c: Vec<f64> = shape.centroid.as_slice()[..dim].to_vec();
     let motion = match r.motion {

@@ -13,7 +13,7 @@ use crate::grid::{GridGeometry, Vector};
 use crate::material::MaterialParams;
 use crate::particles::Particles;
 use crate::pressure::{PressureUnknowns, Projection};
-use crate::rigid::{Free, Motion, Pose, Reach, RigidBodies, RigidBox, Shaped, ShapedBody};
+use crate::rigid::{Free, Motion, Pose, RigidBodies, RigidBox, ShapedBody};
 use crate::scheme::{least_density, Parts, Scheme, Simulation, StepPolicy, LIGHT_NODE};
 use crate::seed::Seeding;
 use crate::transfer::TransferSettings;
@@ -318,7 +318,9 @@ pub fn rigid_bodies<const D: usize>(deck: &Deck) -> RigidBodies<D> {
 fn shaped_body<const D: usize>(deck: &Deck, b: &crate::deck::RigidBodyDeck) -> ShapedBody {
     use nalgebra::Vector3;
     let dim = deck.simulation.dimension;
-    let shape = rigid_shape(deck, b).expect("validated: the shape holds a volume");
+    let shape = deck
+        .rigid_shape(b)
+        .expect("validated: the shape holds a volume");
     let compile = |f: &crate::field::VectorField| f.compile().expect("validated expressions");
     let velocity = b.velocity.as_ref().map(compile);
     let spin = b.angular_velocity.as_ref().map(|w| compile(&w.field()));
@@ -349,51 +351,6 @@ fn shaped_body<const D: usize>(deck: &Deck, b: &crate::deck::RigidBodyDeck) -> S
         motion,
         start,
     }
-}
-
-/// A rigid body's shape on the deck's grid (cut to the grid, grown by a cell, where it is
-/// unbounded), with its volume, centroid, inertia and surface; None when it holds no volume
-/// there or is not a valid shape.
-pub fn rigid_shape(deck: &Deck, b: &crate::deck::RigidBodyDeck) -> Option<Shaped> {
-    use nalgebra::Vector3;
-    let dim = deck.simulation.dimension;
-    let h = deck.grid.cell_size;
-    let v3 = |x: &[f64]| Vector3::from_fn(|d, _| x.get(d).copied().unwrap_or(0.0));
-    let (lo, hi) = deck.domain();
-    let clip = (v3(&lo).add_scalar(-h), v3(&hi).add_scalar(h));
-    let solid = b.shape.solid(dim).ok()?;
-    // the pressure on the surface is read from the nodes up to two cells away
-    let reach = Reach {
-        grid: (clip.0.add_scalar(-2.0 * h), clip.1.add_scalar(2.0 * h)),
-        travel: travel(deck, b),
-        turns: b.angular_velocity.is_some() || b.motion == RigidMotion::Free,
-    };
-    Shaped::new(solid, dim, clip, b.centre.as_deref().map(v3), h, reach)
-}
-
-/// How far a rigid body's reference point may travel over the run (m): none at rest; for a
-/// prescribed velocity V(t), the end time times the greatest |V| at 4096 times over the run,
-/// doubled (a velocity that peaks between the times); infinite for a free body and for a
-/// velocity that is not finite somewhere.
-fn travel(deck: &Deck, b: &crate::deck::RigidBodyDeck) -> f64 {
-    if b.motion == RigidMotion::Free {
-        return f64::INFINITY;
-    }
-    let Some(Ok(v)) = b.velocity.as_ref().map(|f| f.compile()) else {
-        return 0.0;
-    };
-    let end = deck.simulation.end_time;
-    const TIMES: usize = 4096;
-    let fastest = (0..=TIMES)
-        .map(|k| v.eval_t(end * k as f64 / TIMES as f64).norm())
-        .fold(0.0, |a: f64, s| {
-            if s.is_finite() {
-                a.max(s)
-            } else {
-                f64::INFINITY
-            }
-        });
-    2.0 * fastest * end
 }
 
 /// A free body's mass and inertia (from its `volume` and its second moments `moments` about

@@ -1,7 +1,7 @@
 //! The time loop every run goes through: the size of each step, landing on frame times, and
-//! the end. `pmpm run` ([`crate::run`]) adds frames, checkpoints and progress to it; the
-//! validation suite and the tests step through it as it is, so that they test the steps a
-//! user's run takes.
+//! the end. `pmpm run` (the `run` module, a layer above) adds frames, checkpoints and progress
+//! to it; the validation suite and the tests step through it as it is, so that they test the
+//! steps a user's run takes.
 //!
 //! ```text
 //! while not finished:

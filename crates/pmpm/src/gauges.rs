@@ -40,30 +40,11 @@ pub enum Gauge {
     },
 }
 
-/// The vertical axis: the one gravity points along (the last axis without gravity).
-pub fn vertical_axis(gravity: &[f64], dim: usize) -> usize {
-    let mut up = dim - 1;
-    let mut most = 0.0;
-    for (d, g) in gravity.iter().enumerate().take(dim) {
-        if g.abs() > most {
-            most = g.abs();
-            up = d;
-        }
-    }
-    up
-}
-
 impl Gauge {
     /// The deck's gauges (validated).
     pub fn from_deck(deck: &Deck) -> Vec<Self> {
         let dim = deck.simulation.dimension;
-        let g = deck
-            .simulation
-            .gravity
-            .compile()
-            .expect("validated expressions")
-            .eval_t(0.0);
-        let up = vertical_axis(g.as_slice(), dim);
+        let up = deck.simulation.vertical_axis();
         let faces = deck.grid.boundary.faces();
         deck.output
             .gauges

@@ -76,7 +76,7 @@ pub fn prescribed_speeds(deck: &Deck) -> (Vec<f64>, Option<RigidPace>) {
             continue;
         }
         let radius = match w {
-            Some(_) => crate::build::rigid_shape(deck, r).map_or(0.0, |s| s.radius()),
+            Some(_) => deck.rigid_shape(r).map_or(0.0, |s| s.radius()),
             None => 0.0,
         };
         if speeds.is_empty() {

@@ -21,7 +21,7 @@ pub use crate::pressure::PressureUnknowns;
 pub use crate::pressure::Quadrature;
 pub use crate::pressure::RigidFaces;
 pub use crate::pressure::{DensityCorrection, Preconditioner, PressureSettings, Solver};
-pub use crate::rigid::RigidSides;
+pub use crate::rigid::{RigidBodyDeck, RigidMotion, RigidSides, Spin};
 pub use crate::scheme::{ProbeSample, Scheme};
 pub use crate::shape::ShapeFunction;
 pub use crate::transfer::StressUpdate;
@@ -240,6 +240,27 @@ pub struct GridDeck {
     /// The sizes validation rounded up, as (axis, the size the deck gave); `check` says so.
     #[serde(skip)]
     pub rounded: Vec<(usize, f64)>,
+}
+
+impl SimulationDeck {
+    /// The vertical axis: the one gravity (at t = 0, at the origin) points along most, or the
+    /// last axis where there is no gravity (or it does not compile).
+    pub fn vertical_axis(&self) -> usize {
+        let g = self
+            .gravity
+            .compile()
+            .map(|f| f.eval_t(0.0))
+            .unwrap_or_default();
+        let mut up = self.dimension - 1;
+        let mut most = 0.0;
+        for (d, g) in g.iter().enumerate().take(self.dimension) {
+            if g.abs() > most {
+                most = g.abs();
+                up = d;
+            }
+        }
+        up
+    }
 }
 
 impl GridDeck {
@@ -587,7 +608,7 @@ pub struct ProbeDeck {
     pub radius: Option<f64>,
 }
 
-/// What a gauge reads ([`crate::gauges`]).
+/// What a gauge reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum GaugeKind {
@@ -657,92 +678,6 @@ fn default_formats() -> Vec<Format> {
 pub struct ProgramInfo {
     /// Version of pmpm that wrote the file.
     pub version: String,
-}
-
-/// `[[rigid_bodies]]`: a body that moves through the material along a prescribed path (a
-/// footing, a gate, a paddle, a mixer's blade) or freely under the material's push and gravity
-/// (a floating box); its nodes take its velocity and the force on it is written to
-/// rigid_bodies.csv.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RigidBodyDeck {
-    /// Name, for the columns of rigid_bodies.csv.
-    pub name: String,
-    /// Its shape at t = 0 (docs/deck.md, "Shapes").
-    pub shape: ShapeDeck,
-    /// "prescribed" (default: moved by `velocity` and `angular_velocity`) or "free".
-    #[serde(default)]
-    pub motion: RigidMotion,
-    /// Velocity (m/s): numbers, or expressions of t (a gate lifted at a given pace); default
-    /// at rest. A free body's velocity at t = 0 (numbers).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub velocity: Option<VectorField>,
-    /// Angular velocity (rad/s) about `centre`: in 2D one number or expression of t
-    /// (counter-clockwise), in 3D a vector of them. A free body's at t = 0.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub angular_velocity: Option<Spin>,
-    /// The point it turns about at t = 0 (default: its centroid; a free body turns about its
-    /// centroid).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub centre: Option<Vec<f64>>,
-    /// A free body's density (kg/m^3).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub density: Option<f64>,
-    /// A free body's motions that are held: any of "x", "y", "z" (its velocity along the
-    /// axis stays as it started) and "rotation".
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub fixed: Vec<String>,
-    /// Contact on the faces that do not lead the motion (a footing's sides).
-    #[serde(default)]
-    pub sides: RigidSides,
-}
-
-/// How a rigid body moves.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum RigidMotion {
-    /// Along the path `velocity` and `angular_velocity` give.
-    #[default]
-    Prescribed,
-    /// Moved by the material's force and torque and by gravity.
-    Free,
-}
-
-/// An angular velocity: one component (2D) or a vector (3D).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum Spin {
-    /// About z (2D).
-    About(crate::field::Component),
-    /// A vector (3D).
-    Vector(VectorField),
-}
-
-impl Spin {
-    /// As a field of one component (2D) or three.
-    pub fn field(&self) -> VectorField {
-        match self {
-            Spin::About(c) => VectorField(vec![c.clone()]),
-            Spin::Vector(v) => v.clone(),
-        }
-    }
-}
-
-impl RigidBodyDeck {
-    /// Whether it turns: its angle, angular velocity and torque are written.
-    pub fn turns(&self) -> bool {
-        match self.motion {
-            RigidMotion::Free => !self.fixed.iter().any(|f| f == "rotation"),
-            RigidMotion::Prescribed => self.angular_velocity.is_some(),
-        }
-    }
-
-    /// Whether it takes the general path of [`crate::rigid`] (any shape, turning, or free to
-    /// turn) rather than the axis-aligned box's, whose faces cut the cells where they lie (a
-    /// box that moves freely without turning keeps the box's path).
-    pub fn is_shaped(&self) -> bool {
-        !self.shape.is_plain_box() || self.turns()
-    }
 }
 
 /// `[[inflows]]`: a patch of a wall face through which material enters at a given velocity
@@ -1956,7 +1891,7 @@ impl Deck {
                 return Err(c.err(format!("{k}.fixed"), "is for motion = \"free\""));
             }
         }
-        let Some(shape) = crate::build::rigid_shape(self, r) else {
+        let Some(shape) = self.rigid_shape(r) else {
             return Err(c.err(
                 format!("{k}.shape"),
                 "holds no volume inside the grid (a shape thinner than a quarter cell, or one wholly outside)",
@@ -2270,13 +2205,7 @@ impl Deck {
         if let Some(i) = o.gauge_interval {
             c.positive("output.gauge_interval", i)?;
         }
-        let g = self
-            .simulation
-            .gravity
-            .compile()
-            .map(|f| f.eval_t(0.0))
-            .unwrap_or_default();
-        let up = crate::gauges::vertical_axis(g.as_slice(), dim);
+        let up = self.simulation.vertical_axis();
         let faces = self.grid.boundary.faces();
         for (i, q) in o.gauges.iter().enumerate() {
             let k = format!("output.gauges[{i}]");
@@ -2509,6 +2438,14 @@ impl Deck {
         let g = &self.grid;
         let hi = g.origin.iter().zip(&g.size).map(|(o, s)| o + s).collect();
         (g.origin.clone(), hi)
+    }
+
+    /// Rigid body `b`'s shape on this deck's grid ([`RigidBodyDeck::shape_on_grid`]); None
+    /// when it holds no volume there or is not a valid shape.
+    pub fn rigid_shape(&self, b: &RigidBodyDeck) -> Option<crate::rigid::Shaped> {
+        let (lo, hi) = self.domain();
+        let (dim, h) = (self.simulation.dimension, self.grid.cell_size);
+        b.shape_on_grid(dim, h, (&lo, &hi), self.simulation.end_time)
     }
 
     /// Largest wave speed the scheme integrates explicitly, over the materials: the sound

@@ -29,9 +29,11 @@
 
 mod contact;
 mod motion;
+mod settings;
 mod shaped;
 
 pub use motion::{Free, FreeState, Motion};
+pub use settings::{RigidBodyDeck, RigidMotion, Spin};
 pub use shaped::{Pose, Reach, Shaped};
 
 use crate::grid::NodeKind;
