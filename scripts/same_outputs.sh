@@ -23,13 +23,24 @@ for deck in "${decks[@]}"; do
   else
     cp "$deck" "$copy"
   fi
+  # the deck's neighbouring folders (meshes/ its shapes name by relative path) beside the copy
+  for folder in "$(dirname "$deck")"/*/; do
+    link="$work/$(basename "$folder")"
+    [ -e "$link" ] || ln -s "$(realpath "$folder")" "$link"
+  done
+  failed=0
   for which in old new; do
     bin=$old; [ $which = new ] && bin=$new
     if ! "$bin" run "$copy" --output "$work/$which-$name" --threads 1 --quiet --force \
         > "$work/$which-$name.log" 2>&1; then
       echo "$name: the $which binary failed: $(tail -1 "$work/$which-$name.log")"
+      failed=1
     fi
   done
+  if [ $failed = 1 ]; then
+    status=1
+    continue
+  fi
   differs=()
   for f in $(cd "$work/old-$name" && find . -type f ! -name series.csv ! -name checkpoint.bin ! -name .pmpm-lock | sort); do
     cmp -s "$work/old-$name/$f" "$work/new-$name/$f" || differs+=("$f")
