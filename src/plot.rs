@@ -13,6 +13,7 @@
 //! read), so that every frame of a run is drawn at the same place and scale.
 
 use crate::validation::plot::{self as vplot, colors, Panel, Series};
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
@@ -162,6 +163,67 @@ pub struct PlotOptions {
 /// unreadable CSV file) are [`Error::Usage`] (exit status 2); a PNG that cannot be written is
 /// [`Error::Io`].
 pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
+    check_request(dir, opts)?;
+    vplot::register();
+    if opts.series {
+        let out = png_path(opts.out.as_deref(), dir, "plot_series.png")?;
+        plot_series(dir, &out)?;
+        return Ok(vec![out]);
+    }
+    let field = opts.field.unwrap_or(Field::Pressure);
+    let frames = list_frames(dir)?;
+    let info = RunInfo::read(dir);
+    let mut view = View::of(opts, &info)?;
+    if field == Field::Pressure && info.scheme.as_deref() == Some("explicit") {
+        view.smooth = (!opts.particle_pressure).then(|| Hat::of(&info)).flatten();
+    }
+    let times = read_times(dir);
+    let bodies = Bodies::read(dir, &info);
+    if opts.all || opts.movie {
+        let (range, extent) = range_and_extent_of_all(&frames, &view, field, &info, opts)?;
+        let scene = Scene {
+            field,
+            range,
+            info: &info,
+            extent,
+            view: &view,
+            bodies: &bodies,
+        };
+        if opts.movie {
+            return Ok(vec![plot_movie(&scene, &frames, &times, dir, opts)?]);
+        }
+        return plot_every_frame(&scene, &frames, &times, dir, opts);
+    }
+    let (n, path) = chosen_frame(dir, &frames, opts.frame)?;
+    if let Some(text) = &opts.line {
+        let f = Frame::read_all(&path)?;
+        let time = times.iter().find(|t| t.0 == n).map(|t| t.1);
+        return plot_line(dir, &f, n, time, field, text, &info, opts.out.as_deref());
+    }
+    let f = Frame::read(&path, &view)?;
+    let range = color_range(field, &f.range(field), opts);
+    let out = png_path(opts.out.as_deref(), dir, &frame_png_name(field, n))?;
+    let extent = picture_extent(
+        &info,
+        &view,
+        f.extent(view.plane, 0.0),
+        f.extent(view.plane, 0.5),
+    );
+    let scene = Scene {
+        field,
+        range,
+        info: &info,
+        extent,
+        view: &view,
+        bodies: &bodies,
+    };
+    let time = times.iter().find(|t| t.0 == n).map(|t| t.1);
+    scene.sketch(&f, n, time).png(&out)?;
+    Ok(vec![out])
+}
+
+/// Checks the output directory `dir` and the colour range that `opts` gives (usage errors).
+fn check_request(dir: &Path, opts: &PlotOptions) -> Result<(), Error> {
     if !dir.exists() {
         return Err(Error::Usage(format!(
             "{}: no such directory",
@@ -188,92 +250,110 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
             )));
         }
     }
-    vplot::register();
-    if opts.series {
-        let out = png_path(opts.out.as_deref(), dir, "plot_series.png")?;
-        plot_series(dir, &out)?;
-        return Ok(vec![out]);
+    Ok(())
+}
+
+/// The file name of frame `n`'s picture of `field`.
+fn frame_png_name(field: Field, n: usize) -> String {
+    format!("plot_{}_{n:06}.png", field.name())
+}
+
+/// The colour range and the drawn rectangle over every frame (`--all`, `--movie`).
+fn range_and_extent_of_all(
+    frames: &[(usize, PathBuf)],
+    view: &View,
+    field: Field,
+    info: &RunInfo,
+    opts: &PlotOptions,
+) -> Result<((f64, f64), Extent), Error> {
+    let stats = frames
+        .par_iter()
+        .map(|(_, path)| {
+            let f = Frame::read(path, view)?;
+            Ok((
+                f.range(field),
+                f.extent(view.plane, 0.0),
+                f.extent(view.plane, 0.5),
+            ))
+        })
+        .collect::<Result<Vec<_>, Error>>()?;
+    let mut all = Stats::empty();
+    let (mut raw, mut grown) = (Extent::empty(), Extent::empty());
+    for (r, e, g) in &stats {
+        all = all.union(r);
+        raw = raw.union(e);
+        grown = grown.union(g);
     }
-    let field = opts.field.unwrap_or(Field::Pressure);
-    let frames = list_frames(dir)?;
-    let info = RunInfo::read(dir);
-    let mut view = View::of(opts, &info)?;
-    if field == Field::Pressure && info.scheme.as_deref() == Some("explicit") {
-        view.smooth = (!opts.particle_pressure).then(|| Hat::of(&info)).flatten();
+    let range = color_range(field, &all, opts);
+    let extent = picture_extent(info, view, raw, grown);
+    Ok((range, extent))
+}
+
+/// Every frame into one movie (`--movie`): a GIF, or an MP4 through ffmpeg; returns its path.
+fn plot_movie(
+    scene: &Scene<'_>,
+    frames: &[(usize, PathBuf)],
+    times: &[(usize, f64)],
+    dir: &Path,
+    opts: &PlotOptions,
+) -> Result<PathBuf, Error> {
+    let time_of = |n: usize| times.iter().find(|t| t.0 == n).map(|t| t.1);
+    let out = match &opts.out {
+        Some(o) => o.clone(),
+        None => dir.join(format!("plot_{}.gif", scene.field.name())),
+    };
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_lowercase);
+    if !matches!(ext.as_deref(), Some("gif" | "mp4")) {
+        return Err(Error::Usage(format!(
+            "--out {}: a movie is a .gif file (or .mp4, with ffmpeg on the PATH)",
+            out.display()
+        )));
     }
-    let times = read_times(dir);
-    let bodies = Bodies::read(dir, &info);
-    let name = |n: usize| format!("plot_{}_{n:06}.png", field.name());
-    if opts.all || opts.movie {
-        // first pass: the colour range and the extent over every frame
-        let stats = frames
-            .par_iter()
-            .map(|(_, path)| {
-                let f = Frame::read(path, &view)?;
-                Ok((
-                    f.range(field),
-                    f.extent(view.plane, 0.0),
-                    f.extent(view.plane, 0.5),
-                ))
-            })
-            .collect::<Result<Vec<_>, Error>>()?;
-        let mut all = Stats::empty();
-        let (mut raw, mut grown) = (Extent::empty(), Extent::empty());
-        for (r, e, g) in &stats {
-            all = all.union(r);
-            raw = raw.union(e);
-            grown = grown.union(g);
-        }
-        let range = color_range(field, &all, opts);
-        let extent = picture_extent(&info, &view, raw, grown);
-        let scene = Scene {
-            field,
-            range,
-            info: &info,
-            extent,
-            view: &view,
-            bodies: &bodies,
-        };
-        let time_of = |n: usize| times.iter().find(|t| t.0 == n).map(|t| t.1);
-        if opts.movie {
-            let out = match &opts.out {
-                Some(o) => o.clone(),
-                None => dir.join(format!("plot_{}.gif", field.name())),
-            };
-            let ext = out
-                .extension()
-                .and_then(|e| e.to_str())
-                .map(str::to_lowercase);
-            if !matches!(ext.as_deref(), Some("gif" | "mp4")) {
-                return Err(Error::Usage(format!(
-                    "--out {}: a movie is a .gif file (or .mp4, with ffmpeg on the PATH)",
-                    out.display()
-                )));
-            }
-            let shot = |(n, path): &(usize, PathBuf)| -> Result<Vec<u8>, Error> {
-                let f = Frame::read(path, &view)?;
-                scene.sketch(&f, *n, time_of(*n)).pixels(&out)
-            };
-            if ext.as_deref() == Some("mp4") {
-                write_mp4(&out, &frames, extent, view.three_d(&info), shot)?;
-            } else {
-                write_movie(&out, &frames, extent, view.three_d(&info), shot)?;
-            }
-            return Ok(vec![out]);
-        }
-        let out_dir = opts.out.clone().unwrap_or_else(|| dir.to_path_buf());
-        std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
-        return frames
-            .par_iter()
-            .map(|(n, path)| {
-                let f = Frame::read(path, &view)?;
-                let out = out_dir.join(name(*n));
-                scene.sketch(&f, *n, time_of(*n)).png(&out)?;
-                Ok(out)
-            })
-            .collect();
+    let shot = |(n, path): &(usize, PathBuf)| -> Result<Vec<u8>, Error> {
+        let f = Frame::read(path, scene.view)?;
+        scene.sketch(&f, *n, time_of(*n)).pixels(&out)
+    };
+    let three_d = scene.view.three_d(scene.info);
+    if ext.as_deref() == Some("mp4") {
+        write_mp4(&out, frames, scene.extent, three_d, shot)?;
+    } else {
+        write_movie(&out, frames, scene.extent, three_d, shot)?;
     }
-    let (n, path) = match opts.frame {
+    Ok(out)
+}
+
+/// One PNG per frame (`--all`), into `--out` or the output directory; returns their paths.
+fn plot_every_frame(
+    scene: &Scene<'_>,
+    frames: &[(usize, PathBuf)],
+    times: &[(usize, f64)],
+    dir: &Path,
+    opts: &PlotOptions,
+) -> Result<Vec<PathBuf>, Error> {
+    let time_of = |n: usize| times.iter().find(|t| t.0 == n).map(|t| t.1);
+    let out_dir = opts.out.clone().unwrap_or_else(|| dir.to_path_buf());
+    std::fs::create_dir_all(&out_dir).map_err(|e| Error::io(&out_dir, e))?;
+    frames
+        .par_iter()
+        .map(|(n, path)| {
+            let f = Frame::read(path, scene.view)?;
+            let out = out_dir.join(frame_png_name(scene.field, *n));
+            scene.sketch(&f, *n, time_of(*n)).png(&out)?;
+            Ok(out)
+        })
+        .collect()
+}
+
+/// The frame `--frame` names (default: the last), as (number, CSV file).
+fn chosen_frame(
+    dir: &Path,
+    frames: &[(usize, PathBuf)],
+    frame: Option<usize>,
+) -> Result<(usize, PathBuf), Error> {
+    Ok(match frame {
         None => frames.last().cloned().expect("list_frames returns frames"),
         Some(n) => match frames.iter().find(|f| f.0 == n) {
             Some(f) => f.clone(),
@@ -286,32 +366,7 @@ pub fn plot(dir: &Path, opts: &PlotOptions) -> Result<Vec<PathBuf>, Error> {
                 )))
             }
         },
-    };
-    if let Some(text) = &opts.line {
-        let f = Frame::read_all(&path)?;
-        let time = times.iter().find(|t| t.0 == n).map(|t| t.1);
-        return plot_line(dir, &f, n, time, field, text, &info, opts.out.as_deref());
-    }
-    let f = Frame::read(&path, &view)?;
-    let range = color_range(field, &f.range(field), opts);
-    let out = png_path(opts.out.as_deref(), dir, &name(n))?;
-    let extent = picture_extent(
-        &info,
-        &view,
-        f.extent(view.plane, 0.0),
-        f.extent(view.plane, 0.5),
-    );
-    let scene = Scene {
-        field,
-        range,
-        info: &info,
-        extent,
-        view: &view,
-        bodies: &bodies,
-    };
-    let time = times.iter().find(|t| t.0 == n).map(|t| t.1);
-    scene.sketch(&f, n, time).png(&out)?;
-    Ok(vec![out])
+    })
 }
 
 /// How the frames are seen: the plane a 3D run is projected onto, and the slab of it kept.
@@ -1678,6 +1733,9 @@ impl Bodies {
 
 type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 type DrawResult = Result<(), Box<dyn std::error::Error>>;
+/// A frame picture's chart: metres on the plotting area.
+type Chart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
 #[allow(clippy::too_many_arguments)]
 fn draw_particles(
@@ -1692,49 +1750,9 @@ fn draw_particles(
     walls: &[(Vec<(f64, f64)>, &str)],
     area: &Area<'_>,
 ) -> DrawResult {
-    let build = |x: (f64, f64), y: (f64, f64)| {
-        ChartBuilder::on(area)
-            .margin(MARGIN)
-            .x_label_area_size(X_LABELS)
-            .y_label_area_size(Y_LABELS)
-            .build_cartesian_2d(x.0..x.1, y.0..y.1)
-    };
-    // equal scale: widen the range on the side with room to spare, at the true pixel size
-    let (pw, ph) = build(extent.x, extent.y)?.plotting_area().dim_in_pixel();
-    let (pw, ph) = (pw.max(2) as f64 - 1.0, ph.max(2) as f64 - 1.0);
-    let ppm = (pw / extent.width()).min(ph / extent.height());
-    let grow = |(lo, hi): (f64, f64), pixels: f64| {
-        let pad = 0.5 * (pixels / ppm - (hi - lo));
-        (lo - pad, hi + pad)
-    };
-    let xr = grow(extent.x, pw);
-    let yr = grow(extent.y, ph);
-    let mut chart = build(xr, yr)?;
-    let axis = ["x (m)", "y (m)", "z (m)"];
-    chart
-        .configure_mesh()
-        .x_desc(axis[a])
-        .y_desc(axis[b])
-        .x_label_formatter(&vplot::tick)
-        .y_label_formatter(&vplot::tick)
-        .label_style(("sans-serif", 15))
-        .axis_desc_style(("sans-serif", 17))
-        .light_line_style(RGBColor(240, 240, 240))
-        .bold_line_style(RGBColor(218, 218, 218))
-        .draw()?;
-    // draw order: in 3D the particles nearest the viewer last
-    let mut order: Vec<usize> = (0..f.x.len()).collect();
-    if f.dim == 3 {
-        let (_, _, depth, towards) = plane.axes();
-        order.sort_by(|&p, &q| {
-            let (u, v) = (f.x[p][depth], f.x[q][depth]);
-            if towards {
-                u.total_cmp(&v)
-            } else {
-                v.total_cmp(&u)
-            }
-        });
-    }
+    let (mut chart, ppm) = equal_scale_chart(area, extent)?;
+    draw_mesh(&mut chart, a, b)?;
+    let order = draw_order(f, plane);
     let span = range.1 - range.0;
     let color = |p: usize| -> RGBColor {
         match field {
@@ -1776,6 +1794,77 @@ fn draw_particles(
         [(extent.x.0, extent.y.0), (extent.x.1, extent.y.1)],
         RGBColor(90, 90, 90).stroke_width(1),
     )))?;
+    draw_walls(&mut chart, walls)?;
+    // the rigid bodies' outlines
+    chart.draw_series(
+        outlines
+            .iter()
+            .map(|o| PathElement::new(o.clone(), RGBColor(200, 30, 30).stroke_width(2))),
+    )?;
+    Ok(())
+}
+
+/// The chart on `area` holding `extent` at one scale on both axes, and that scale (pixels/m).
+fn equal_scale_chart<'a, 'b>(
+    area: &'a Area<'b>,
+    extent: Extent,
+) -> Result<(Chart<'a, 'b>, f64), Box<dyn std::error::Error>> {
+    let build = |x: (f64, f64), y: (f64, f64)| {
+        ChartBuilder::on(area)
+            .margin(MARGIN)
+            .x_label_area_size(X_LABELS)
+            .y_label_area_size(Y_LABELS)
+            .build_cartesian_2d(x.0..x.1, y.0..y.1)
+    };
+    // equal scale: widen the range on the side with room to spare, at the true pixel size
+    let (pw, ph) = build(extent.x, extent.y)?.plotting_area().dim_in_pixel();
+    let (pw, ph) = (pw.max(2) as f64 - 1.0, ph.max(2) as f64 - 1.0);
+    let ppm = (pw / extent.width()).min(ph / extent.height());
+    let grow = |(lo, hi): (f64, f64), pixels: f64| {
+        let pad = 0.5 * (pixels / ppm - (hi - lo));
+        (lo - pad, hi + pad)
+    };
+    let xr = grow(extent.x, pw);
+    let yr = grow(extent.y, ph);
+    Ok((build(xr, yr)?, ppm))
+}
+
+/// The chart's axes, labelled by the axes (a, b) of the plane, and its grid lines.
+fn draw_mesh(chart: &mut Chart<'_, '_>, a: usize, b: usize) -> DrawResult {
+    let axis = ["x (m)", "y (m)", "z (m)"];
+    chart
+        .configure_mesh()
+        .x_desc(axis[a])
+        .y_desc(axis[b])
+        .x_label_formatter(&vplot::tick)
+        .y_label_formatter(&vplot::tick)
+        .label_style(("sans-serif", 15))
+        .axis_desc_style(("sans-serif", 17))
+        .light_line_style(RGBColor(240, 240, 240))
+        .bold_line_style(RGBColor(218, 218, 218))
+        .draw()?;
+    Ok(())
+}
+
+/// The order the particles are drawn in: as they come, or in 3D the nearest the viewer last.
+fn draw_order(f: &Frame, plane: Plane) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..f.x.len()).collect();
+    if f.dim == 3 {
+        let (_, _, depth, towards) = plane.axes();
+        order.sort_by(|&p, &q| {
+            let (u, v) = (f.x[p][depth], f.x[q][depth]);
+            if towards {
+                u.total_cmp(&v)
+            } else {
+                v.total_cmp(&u)
+            }
+        });
+    }
+    order
+}
+
+/// Draws the grid's walls seen edge-on, each as its kind looks, and the inflow patches.
+fn draw_walls(chart: &mut Chart<'_, '_>, walls: &[(Vec<(f64, f64)>, &str)]) -> DrawResult {
     // the walls by kind: no-slip thick, slip thin, outflow dashed blue, periodic dashed grey,
     // open not drawn; inflow patches green
     for (line, kind) in walls {
@@ -1802,12 +1891,6 @@ fn draw_particles(
             _ => continue,
         }?;
     }
-    // the rigid bodies' outlines
-    chart.draw_series(
-        outlines
-            .iter()
-            .map(|o| PathElement::new(o.clone(), RGBColor(200, 30, 30).stroke_width(2))),
-    )?;
     Ok(())
 }
 
