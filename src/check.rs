@@ -10,10 +10,23 @@ use pmpm::timing::Phase;
 
 /// Warnings about a valid deck that is likely to go wrong.
 pub fn warnings(deck: &Deck) -> Vec<String> {
-    use pmpm::deck::{ShapeFunction, Transfer};
-    let s = &deck.simulation;
     let mut w = Vec::new();
     rounded_grid(deck, &mut w);
+    unstable_transfers(deck, &mut w);
+    creeping_or_locking_solids(deck, &mut w);
+    long_output_interval(deck, &mut w);
+    thin_rigid_bodies(deck, &mut w);
+    // an inflow patch whose edge lies on a no-slip wall with a velocity there: the wall
+    // holds the flow at rest, and the buffer's particles at the edge run ahead of it
+    inflow_at_no_slip(deck, &mut w);
+    bodies_in_rigid_bodies(deck, &mut w);
+    w
+}
+
+/// Warns of a transfer that turns unstable or noisy with the deck's scheme and shape functions.
+fn unstable_transfers(deck: &Deck, w: &mut Vec<String>) {
+    use pmpm::deck::{ShapeFunction, Transfer};
+    let s = &deck.simulation;
     if s.transfer == Some(Transfer::Apic)
         && s.scheme == pmpm::deck::Scheme::Explicit
         && matches!(
@@ -58,6 +71,11 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
             ));
         }
     }
+}
+
+/// Warns of a solid that locks under the explicit scheme or creeps under the nodal pressure.
+fn creeping_or_locking_solids(deck: &Deck, w: &mut Vec<String>) {
+    let s = &deck.simulation;
     // a nearly incompressible solid under the explicit scheme without the nodal averaging:
     // one volume constraint per particle locks the grid (the strip footing's load 38% high at
     // K = 100 G, and a thin layer on a no-slip floor held still)
@@ -89,6 +107,11 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
     {
         w.push("every material is a solid and the projection's pressure sits on the nodes: a solid under a steady load creeps with it (docs/method.md, \"One pressure per cell\"); set pressure.unknowns = \"cells\" with simulation.stress_update = \"usl\"".into());
     }
+}
+
+/// Warns of an output interval longer than the run: only its first and last frame are written.
+fn long_output_interval(deck: &Deck, w: &mut Vec<String>) {
+    let s = &deck.simulation;
     if let Some(interval) = deck.output.interval {
         if interval > s.end_time {
             w.push(format!(
@@ -97,6 +120,10 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
             ));
         }
     }
+}
+
+/// Warns of a rigid body too thin for the grid to hold water back.
+fn thin_rigid_bodies(deck: &Deck, w: &mut Vec<String>) {
     // a rigid body thinner than two cells between two faces inside the grid: no node row or
     // one lies inside it, and water passes it or is squeezed next to it (a plate 0.4 cells
     // thick let water through at the floor, or lost 3.5 % of the volume passing over it)
@@ -117,9 +144,10 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
             }
         }
     }
-    // an inflow patch whose edge lies on a no-slip wall with a velocity there: the wall
-    // holds the flow at rest, and the buffer's particles at the edge run ahead of it
-    inflow_at_no_slip(deck, &mut w);
+}
+
+/// Warns of a body that reaches into a rigid body, where none of its particles is placed.
+fn bodies_in_rigid_bodies(deck: &Deck, w: &mut Vec<String>) {
     // material that starts inside a rigid body: the body's nodes take its velocity, and the
     // particles inside are squeezed out (or held) in the first steps
     let (glo, ghi) = deck.domain();
@@ -137,7 +165,6 @@ pub fn warnings(deck: &Deck) -> Vec<String> {
             }
         }
     }
-    w
 }
 
 /// A tank that is not a whole number of cells: what the grid took instead.
