@@ -1826,71 +1826,7 @@ impl Deck {
                 ));
             }
         }
-        if free {
-            match r.density {
-                None => {
-                    return Err(c.err(
-                        format!("{k}.density"),
-                        "a free body needs its density (kg/m^3)",
-                    ))
-                }
-                Some(rho) => c.positive(&format!("{k}.density"), rho)?,
-            }
-            if r.centre.is_some() {
-                return Err(c.err(
-                    format!("{k}.centre"),
-                    "a free body turns about its centroid: remove centre",
-                ));
-            }
-            for (key, given) in [
-                (
-                    "velocity",
-                    r.velocity.as_ref().map(|v| v.numbers().is_none()),
-                ),
-                (
-                    "angular_velocity",
-                    r.angular_velocity
-                        .as_ref()
-                        .map(|w| w.field().numbers().is_none()),
-                ),
-            ] {
-                if given == Some(true) {
-                    return Err(c.err(
-                        format!("{k}.{key}"),
-                        "of a free body is its value at t = 0: numbers, not expressions",
-                    ));
-                }
-            }
-            let names: &[&str] = if dim == 2 {
-                &["x", "y", "rotation"]
-            } else {
-                &["x", "y", "z", "rotation"]
-            };
-            for (j, f) in r.fixed.iter().enumerate() {
-                if !names.contains(&f.as_str()) {
-                    return Err(c.err(
-                        format!("{k}.fixed[{j}]"),
-                        format!("must be one of {}, got \"{f}\"", names.join(", ")),
-                    ));
-                }
-            }
-            if !r.turns() && r.angular_velocity.is_some() {
-                return Err(c.err(
-                    format!("{k}.angular_velocity"),
-                    "is given for a body held from turning (fixed holds \"rotation\"): remove one of them",
-                ));
-            }
-        } else {
-            if r.density.is_some() {
-                return Err(c.err(
-                    format!("{k}.density"),
-                    "is for motion = \"free\" (a prescribed body's motion does not depend on its mass)",
-                ));
-            }
-            if !r.fixed.is_empty() {
-                return Err(c.err(format!("{k}.fixed"), "is for motion = \"free\""));
-            }
-        }
+        motion_keys(r, k, dim, c)?;
         let Some(shape) = self.rigid_shape(r) else {
             return Err(c.err(
                 format!("{k}.shape"),
@@ -2073,54 +2009,67 @@ impl Deck {
                 ));
             }
             c.field(&format!("{k}.velocity"), &q.velocity, dim)?;
-            // the material must enter: the velocity at t = 0 on a lattice over the patch (its
-            // corners, its edges, the face's nodes on it) is finite and points inwards
-            let field = q.velocity.compile().expect("checked above");
-            let steps: Vec<usize> = (0..dim)
+            self.check_inflow_enters(q, &k, f, c)?;
+        }
+        Ok(())
+    }
+
+    /// The material of inflow `q` (key `k`, on face `f`) enters: its velocity at t = 0 on a
+    /// lattice over the patch (its corners, its edges, the face's nodes on it) is finite and
+    /// points inwards.
+    fn check_inflow_enters(
+        &self,
+        q: &InflowDeck,
+        k: &str,
+        f: usize,
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        let (dim, h, axis) = (self.simulation.dimension, self.grid.cell_size, f / 2);
+        let field = q.velocity.compile().expect("checked before");
+        let steps: Vec<usize> = (0..dim)
+            .map(|d| {
+                if d == axis {
+                    0
+                } else {
+                    ((q.max[d] - q.min[d]) / h).round() as usize
+                }
+            })
+            .collect();
+        let total: usize = steps.iter().map(|n| n + 1).product();
+        for m in 0..total {
+            let mut rem = m;
+            let x: Vec<f64> = (0..dim)
                 .map(|d| {
-                    if d == axis {
-                        0
+                    let i = rem % (steps[d] + 1);
+                    rem /= steps[d] + 1;
+                    if steps[d] == 0 {
+                        q.min[d]
                     } else {
-                        ((q.max[d] - q.min[d]) / h).round() as usize
+                        q.min[d] + (q.max[d] - q.min[d]) * i as f64 / steps[d] as f64
                     }
                 })
                 .collect();
-            let total: usize = steps.iter().map(|n| n + 1).product();
-            for m in 0..total {
-                let mut rem = m;
-                let x: Vec<f64> = (0..dim)
-                    .map(|d| {
-                        let i = rem % (steps[d] + 1);
-                        rem /= steps[d] + 1;
-                        if steps[d] == 0 {
-                            q.min[d]
-                        } else {
-                            q.min[d] + (q.max[d] - q.min[d]) * i as f64 / steps[d] as f64
-                        }
-                    })
-                    .collect();
-                let v = field.eval_at(&x, 0.0);
-                let at = x
-                    .iter()
-                    .map(|c| format!("{c}"))
-                    .collect::<Vec<_>>()
-                    .join(", ");
-                if v.iter().any(|c| !c.is_finite()) {
-                    return Err(c.err(
-                        format!("{k}.velocity"),
-                        format!("is not a finite number at ({at}) at t = 0: {v:?}"),
-                    ));
-                }
-                let inward = if f % 2 == 0 { v[axis] } else { -v[axis] };
-                if inward < 0.0 {
-                    return Err(c.err(
-                        format!("{k}.velocity"),
-                        format!(
-                            "points out of the domain at ({at}) at t = 0 (its {} component is {} on the face {}): an inflow's velocity points into the grid",
-                            AXES[axis], v[axis], q.face
-                        ),
-                    ));
-                }
+            let v = field.eval_at(&x, 0.0);
+            let at = x
+                .iter()
+                .map(|c| format!("{c}"))
+                .collect::<Vec<_>>()
+                .join(", ");
+            if v.iter().any(|c| !c.is_finite()) {
+                return Err(c.err(
+                    format!("{k}.velocity"),
+                    format!("is not a finite number at ({at}) at t = 0: {v:?}"),
+                ));
+            }
+            let inward = if f % 2 == 0 { v[axis] } else { -v[axis] };
+            if inward < 0.0 {
+                return Err(c.err(
+                    format!("{k}.velocity"),
+                    format!(
+                        "points out of the domain at ({at}) at t = 0 (its {} component is {} on the face {}): an inflow's velocity points into the grid",
+                        AXES[axis], v[axis], q.face
+                    ),
+                ));
             }
         }
         Ok(())
@@ -2536,6 +2485,78 @@ fn check_body_material(
                 .join(", ")
         );
         return Err(c.err(format!("{k}.material"), msg));
+    }
+    Ok(())
+}
+
+/// The keys of rigid body `r` (key `k`) that only one kind of motion takes: a free body's
+/// density, its velocities at t = 0 as numbers, and the motions it holds (`fixed`); none of
+/// them for a prescribed body.
+fn motion_keys(r: &RigidBodyDeck, k: &str, dim: usize, c: &Check) -> Result<(), DeckError> {
+    if r.motion == RigidMotion::Free {
+        match r.density {
+            None => {
+                return Err(c.err(
+                    format!("{k}.density"),
+                    "a free body needs its density (kg/m^3)",
+                ))
+            }
+            Some(rho) => c.positive(&format!("{k}.density"), rho)?,
+        }
+        if r.centre.is_some() {
+            return Err(c.err(
+                format!("{k}.centre"),
+                "a free body turns about its centroid: remove centre",
+            ));
+        }
+        for (key, given) in [
+            (
+                "velocity",
+                r.velocity.as_ref().map(|v| v.numbers().is_none()),
+            ),
+            (
+                "angular_velocity",
+                r.angular_velocity
+                    .as_ref()
+                    .map(|w| w.field().numbers().is_none()),
+            ),
+        ] {
+            if given == Some(true) {
+                return Err(c.err(
+                    format!("{k}.{key}"),
+                    "of a free body is its value at t = 0: numbers, not expressions",
+                ));
+            }
+        }
+        let names: &[&str] = if dim == 2 {
+            &["x", "y", "rotation"]
+        } else {
+            &["x", "y", "z", "rotation"]
+        };
+        for (j, f) in r.fixed.iter().enumerate() {
+            if !names.contains(&f.as_str()) {
+                return Err(c.err(
+                    format!("{k}.fixed[{j}]"),
+                    format!("must be one of {}, got \"{f}\"", names.join(", ")),
+                ));
+            }
+        }
+        if !r.turns() && r.angular_velocity.is_some() {
+            return Err(c.err(
+                format!("{k}.angular_velocity"),
+                "is given for a body held from turning (fixed holds \"rotation\"): remove one of them",
+            ));
+        }
+    } else {
+        if r.density.is_some() {
+            return Err(c.err(
+                format!("{k}.density"),
+                "is for motion = \"free\" (a prescribed body's motion does not depend on its mass)",
+            ));
+        }
+        if !r.fixed.is_empty() {
+            return Err(c.err(format!("{k}.fixed"), "is for motion = \"free\""));
+        }
     }
     Ok(())
 }

@@ -83,7 +83,7 @@ pub enum Quadrature {
 pub enum RigidFaces {
     /// The body's nodes hold its velocity: the face acts at node resolution.
     Nodes,
-    /// Cut cells: a face acts where it lies (crates/pmpm/src/rigid.rs). Needs linear or GIMP shape
+    /// Cut cells: a face acts where it lies ([`crate::rigid`]). Needs linear or GIMP shape
     /// functions, the level-set free surface and nodal unknowns.
     Cut,
 }
@@ -1040,6 +1040,30 @@ struct FluidDomain<'a, const D: usize> {
 }
 
 impl<const D: usize> FluidDomain<'_, D> {
+    /// The share of the open part of cut cell `idx` (padded multi-index) the fluid fills:
+    /// w / open, `w` the cell's fluid fraction and `open` the part no body covers, or wholly
+    /// where the cell lies inside the fluid (its corners all unknowns). Its particles cannot
+    /// fill the last sliver against the face (a lattice seeded under a face stops up to a
+    /// particle's spacing short of it), and read as a partial fill the sliver weighed the
+    /// divergence less than the face's flux and set still water moving.
+    fn cut_cell_fill(
+        &self,
+        geo: &crate::grid::GridGeometry<D>,
+        idx: &[usize; D],
+        w: f64,
+        open: f64,
+    ) -> f64 {
+        let inside = (0..1usize << D).all(|k| {
+            let node: [usize; D] = std::array::from_fn(|d| idx[d] + ((k >> d) & 1));
+            self.kinds[geo.canonical(geo.flat(&node))] == NodeKind::Interior
+        });
+        if inside {
+            1.0
+        } else {
+            w.clamp(0.0, open) / open
+        }
+    }
+
     /// Whether a point in cell `idx` (padded multi-index) reaches an unknown: a node of the
     /// cell's corners with linear shape functions, up to one more node either side with the
     /// wider ones (as [`assemble::cell_range`] has it).
@@ -1109,8 +1133,6 @@ impl<const D: usize> GaussPoints<D> {
         domain: Option<FluidDomain<'_, D>>,
     ) {
         use crate::shape::PAD;
-        /// Sub-cells per direction of a cell a rigid body cuts.
-        const SUB: usize = 4;
         self.sub_cells = false;
         self.x.clear();
         self.volume.clear();
@@ -1151,47 +1173,12 @@ impl<const D: usize> GaussPoints<D> {
                     && matrix_share < 1.0 - 1e-12
                     && rigid.box_meets_cell(&lower, geo.h)
                 {
-                    // a cell a body cuts: SUB^D sub-cells, each cut to its open part, a point
-                    // at the part's centroid weighing its volume (the open part's volume is
-                    // exact; the midpoints of the sub-cells in it had it to a sub-cell, and a
-                    // box in still water whose face left 0.6 h of its cell open, short of a
-                    // third midpoint, stirred the water). The fluid fills the open part in the
-                    // share w / open, or wholly where the cell lies inside the fluid (its
-                    // corners all unknowns): its particles cannot fill the last sliver against
-                    // the face (a lattice seeded under a face stops up to a particle's spacing
-                    // short of it), and read as a partial fill the sliver weighed the
-                    // divergence less than the face's flux and set still water moving.
+                    // a cell a body cuts: points on its open part
                     self.sub_cells = true;
-                    let inside = domain.as_ref().is_some_and(|fd| {
-                        (0..corners).all(|k| {
-                            let node: [usize; D] = std::array::from_fn(|d| idx[d] + ((k >> d) & 1));
-                            fd.kinds[geo.canonical(geo.flat(&node))] == NodeKind::Interior
-                        })
-                    });
-                    let fill = if inside {
-                        1.0
-                    } else {
-                        w.clamp(0.0, matrix_share) / matrix_share
-                    };
-                    let half = 0.5 * geo.h / SUB as f64;
-                    for k in 0..SUB.pow(D as u32) {
-                        let mut rem = k;
-                        let x = Vector::<D>::from_fn(|d, _| {
-                            let j = rem % SUB;
-                            rem /= SUB;
-                            lower[d] + (j as f64 + 0.5) / SUB as f64 * geo.h
-                        });
-                        let (open, x) =
-                            rigid.open_part(geo, &x.add_scalar(-half), &x.add_scalar(half));
-                        if open <= 0.0 {
-                            continue;
-                        }
-                        self.x.push(x);
-                        self.volume.push(fill * open);
-                        self.volume_over_density.push(open / rho);
-                        self.cell
-                            .push(std::array::from_fn(|d| (idx[d] - PAD) as u32));
-                    }
+                    let fill = domain
+                        .as_ref()
+                        .map_or(1.0, |fd| fd.cut_cell_fill(geo, &idx, w, matrix_share));
+                    self.push_cut_cell(geo, rigid, &idx, fill, rho);
                     continue;
                 }
             }
@@ -1219,5 +1206,43 @@ impl<const D: usize> GaussPoints<D> {
         self.divergence.resize(n, 0.0);
         self.velocity.resize(n, Vector::<D>::zeros());
         self.bins.sort(geo, &self.x);
+    }
+
+    /// The points of a cell (padded multi-index `idx`) a rigid body cuts: SUB^D sub-cells, each
+    /// cut to its open part, a point at the part's centroid weighing its volume (the open
+    /// part's volume is exact; the midpoints of the sub-cells in it had it to a sub-cell, and a
+    /// box in still water whose face left 0.6 h of its cell open, short of a third midpoint,
+    /// stirred the water). The fluid fills the open part in the share `fill`
+    /// ([`FluidDomain::cut_cell_fill`]); `rho` is the cell's density.
+    fn push_cut_cell(
+        &mut self,
+        geo: &crate::grid::GridGeometry<D>,
+        rigid: &crate::rigid::RigidBodies<D>,
+        idx: &[usize; D],
+        fill: f64,
+        rho: f64,
+    ) {
+        use crate::shape::PAD;
+        /// Sub-cells per direction of a cell a rigid body cuts.
+        const SUB: usize = 4;
+        let lower = geo.node_position(idx);
+        let half = 0.5 * geo.h / SUB as f64;
+        for k in 0..SUB.pow(D as u32) {
+            let mut rem = k;
+            let x = Vector::<D>::from_fn(|d, _| {
+                let j = rem % SUB;
+                rem /= SUB;
+                lower[d] + (j as f64 + 0.5) / SUB as f64 * geo.h
+            });
+            let (open, x) = rigid.open_part(geo, &x.add_scalar(-half), &x.add_scalar(half));
+            if open <= 0.0 {
+                continue;
+            }
+            self.x.push(x);
+            self.volume.push(fill * open);
+            self.volume_over_density.push(open / rho);
+            self.cell
+                .push(std::array::from_fn(|d| (idx[d] - PAD) as u32));
+        }
     }
 }

@@ -950,30 +950,8 @@ impl<const D: usize> RigidBodies<D> {
         if self.is_empty() {
             return;
         }
-        let (lo_grid, hi_grid) = (geo.origin, geo.upper());
-        let grid_box = (to3(&lo_grid), to3(&hi_grid));
-        let eps = 1e-9 * geo.h;
+        self.update_ends(dt);
         let n = x.len();
-        // the shaped bodies where they are at the step's end
-        let mut ends = std::mem::take(&mut self.ends);
-        ends.clear();
-        for b in 0..self.len() {
-            ends.push(self.shaped[b].as_ref().map(|s| {
-                let pose = match s.motion {
-                    Motion::Free(_) => self.pose[b],
-                    Motion::Prescribed { .. } => s
-                        .motion
-                        .pose_at(&s.start, self.time + dt)
-                        .expect("prescribed"),
-                };
-                let (mut lo, mut hi) = s.shape.world_bounds(&pose);
-                for d in D..3 {
-                    (lo[d], hi[d]) = (f64::NEG_INFINITY, f64::INFINITY);
-                }
-                (pose, (lo, hi))
-            }));
-        }
-        self.ends = ends;
         let (mut hits, mut impulses) = (
             std::mem::take(&mut self.hit),
             std::mem::take(&mut self.impulse),
@@ -992,55 +970,9 @@ impl<const D: usize> RigidBodies<D> {
             .for_each(|(x, v, &m, hit, impulse)| {
                 *hit = u32::MAX;
                 for b in 0..this.len() {
-                    if let Some((pose, (lo, hi))) = &this.ends[b] {
-                        let s = this.shaped[b].as_ref().expect("a shaped body");
-                        let mut y = to3(x);
-                        if (0..D).any(|d| y[d] <= lo[d] || y[d] >= hi[d])
-                            || !s.shape.holds(pose, &y)
-                        {
-                            continue;
-                        }
-                        let Some((d, sign)) = s.shape.put_out(pose, geo.h, grid_box, &mut y) else {
-                            continue;
-                        };
-                        *x = from3(&y);
-                        let body = pose.velocity_at(&y)[d];
-                        if (v[d] - body) * sign < 0.0 {
-                            *impulse = Vector::<D>::zeros();
-                            impulse[d] = m * (v[d] - body) / dt;
-                            *hit = b as u32;
-                            v[d] = body;
-                        }
-                        break;
-                    }
-                    let (mut lo, mut hi) = this.bounds(b);
-                    let shift = this.velocity[b] * dt;
-                    lo += shift;
-                    hi += shift;
-                    if (0..D).any(|d| x[d] <= lo[d] || x[d] >= hi[d]) {
-                        continue;
-                    }
-                    // the face of least depth whose reflection stays inside the grid, as
-                    // (depth, axis, outward sign, new coordinate): a face on a wall, or one so
-                    // near it that the reflection would cross it, is no way out
-                    let mut best: Option<(f64, usize, f64, f64)> = None;
-                    for d in 0..D {
-                        for (face, sign) in [(lo[d], -1.0), (hi[d], 1.0)] {
-                            let depth = sign * (face - x[d]);
-                            let to = face + sign * depth.min(0.5 * (hi[d] - lo[d]));
-                            if to <= lo_grid[d] + eps || to >= hi_grid[d] - eps {
-                                continue;
-                            }
-                            if best.is_none_or(|(bd, ..)| depth < bd) {
-                                best = Some((depth, d, sign, to));
-                            }
-                        }
-                    }
-                    let Some((_, d, sign, to)) = best else {
+                    let Some((d, sign, body)) = this.put_out(b, geo, dt, x) else {
                         continue;
                     };
-                    x[d] = to;
-                    let body = this.velocity[b][d];
                     if (v[d] - body) * sign < 0.0 {
                         // the impulse the body gives the particle, the particle's push on it
                         *impulse = Vector::<D>::zeros();
@@ -1064,6 +996,81 @@ impl<const D: usize> RigidBodies<D> {
             }
         }
         (self.hit, self.impulse) = (hits, impulses);
+    }
+
+    /// Where each shaped body is at the end of a step of `dt`, with its bounds (unbounded
+    /// along the axes past D), for [`RigidBodies::push_out`].
+    fn update_ends(&mut self, dt: f64) {
+        let mut ends = std::mem::take(&mut self.ends);
+        ends.clear();
+        for b in 0..self.len() {
+            ends.push(self.shaped[b].as_ref().map(|s| {
+                let pose = match s.motion {
+                    Motion::Free(_) => self.pose[b],
+                    Motion::Prescribed { .. } => s
+                        .motion
+                        .pose_at(&s.start, self.time + dt)
+                        .expect("prescribed"),
+                };
+                let (mut lo, mut hi) = s.shape.world_bounds(&pose);
+                for d in D..3 {
+                    (lo[d], hi[d]) = (f64::NEG_INFINITY, f64::INFINITY);
+                }
+                (pose, (lo, hi))
+            }));
+        }
+        self.ends = ends;
+    }
+
+    /// Moves a particle at `x` that lies inside body `b` at the end of a step of `dt` out
+    /// through one face, and gives that face's axis d, its outward sign and the body's velocity
+    /// along d there; None where the particle is outside or the body has no way out for it.
+    /// A box's way out is its face of least depth whose reflection stays inside the grid (a
+    /// face on a wall, or one so near it that the reflection would cross it, is none).
+    fn put_out(
+        &self,
+        b: usize,
+        geo: &GridGeometry<D>,
+        dt: f64,
+        x: &mut Vector<D>,
+    ) -> Option<(usize, f64, f64)> {
+        let (lo_grid, hi_grid) = (geo.origin, geo.upper());
+        if let Some((pose, (lo, hi))) = &self.ends[b] {
+            let s = self.shaped[b].as_ref().expect("a shaped body");
+            let mut y = to3(x);
+            if (0..D).any(|d| y[d] <= lo[d] || y[d] >= hi[d]) || !s.shape.holds(pose, &y) {
+                return None;
+            }
+            let grid_box = (to3(&lo_grid), to3(&hi_grid));
+            let (d, sign) = s.shape.put_out(pose, geo.h, grid_box, &mut y)?;
+            *x = from3(&y);
+            return Some((d, sign, pose.velocity_at(&y)[d]));
+        }
+        let eps = 1e-9 * geo.h;
+        let (mut lo, mut hi) = self.bounds(b);
+        let shift = self.velocity[b] * dt;
+        lo += shift;
+        hi += shift;
+        if (0..D).any(|d| x[d] <= lo[d] || x[d] >= hi[d]) {
+            return None;
+        }
+        // (depth, axis, outward sign, new coordinate) of the way out
+        let mut best: Option<(f64, usize, f64, f64)> = None;
+        for d in 0..D {
+            for (face, sign) in [(lo[d], -1.0), (hi[d], 1.0)] {
+                let depth = sign * (face - x[d]);
+                let to = face + sign * depth.min(0.5 * (hi[d] - lo[d]));
+                if to <= lo_grid[d] + eps || to >= hi_grid[d] - eps {
+                    continue;
+                }
+                if best.is_none_or(|(bd, ..)| depth < bd) {
+                    best = Some((depth, d, sign, to));
+                }
+            }
+        }
+        let (_, d, sign, to) = best?;
+        x[d] = to;
+        Some((d, sign, self.velocity[b][d]))
     }
 
     /// Adds to each cell's volume fraction the part of it a body covers, so that the
