@@ -126,6 +126,8 @@ impl<const D: usize> Simulation<D> {
                     deck.simulation.viscosity_tolerance,
                     deck.simulation.viscosity_max_iterations,
                     settings.implicit_stress,
+                    settings.shape,
+                    settings.mass_epsilon,
                 )
             }),
         };

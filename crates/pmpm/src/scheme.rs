@@ -304,8 +304,6 @@ impl<const D: usize> Simulation<D> {
                 &mut self.grid,
                 &self.boundary,
                 &self.materials,
-                self.settings.shape,
-                self.settings.mass_epsilon,
                 dt,
             )
             .map_err(|e| {
@@ -763,9 +761,9 @@ impl<const D: usize> Simulation<D> {
     /// sqrt(2 dev D : dev D), over the particles of the materials whose explicit viscous limit
     /// is below `dt`. The viscosity is lagged from the last step's strain rate, so a step that
     /// strains a particle by more than that lets a yield-stress fluid yield or stop a step late,
-    /// and the particles' volume ratios drift with the square of the strain per step (a Bingham
-    /// slump lost 2 % of its volume at a strain of 0.3 a step). Water's viscous limit is
-    /// seconds long and never reaches this.
+    /// and the particles' volume ratios drift with the square of the strain per step
+    /// (docs/method.md, "The time step"). Water's viscous limit is seconds long and never
+    /// reaches this.
     fn strain_limit(&self, cfl: f64, dt: f64) -> f64 {
         let h = self.grid.geo.h;
         let implicit = self.settings.implicit_stress;

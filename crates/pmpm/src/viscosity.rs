@@ -119,6 +119,10 @@ pub enum ViscousError {
 pub struct ImplicitViscosity<const D: usize> {
     tolerance: f64,
     max_iterations: usize,
+    /// The transfers' shape functions, which K is built of.
+    shape: ShapeFunction,
+    /// Nodes of at most this mass hold no equation.
+    mass_epsilon: f64,
     /// Bit m set for each material m whose stress the solve takes ([`implicit_mask`]).
     materials: u64,
     /// Per particle: V_p mu_p (0 for a particle whose stress is explicit).
@@ -153,12 +157,21 @@ pub struct ImplicitViscosity<const D: usize> {
 impl<const D: usize> ImplicitViscosity<D> {
     /// A solve to relative residual `tolerance` in at most `max_iterations` iterations of the
     /// stress of the materials of bit mask `materials` ([`implicit_mask`], the one P2G leaves
-    /// out of the internal force).
-    pub fn new(tolerance: f64, max_iterations: usize, materials: u64) -> Self {
+    /// out of the internal force), with the transfers' `shape` functions, on the nodes of mass
+    /// above `mass_epsilon`.
+    pub fn new(
+        tolerance: f64,
+        max_iterations: usize,
+        materials: u64,
+        shape: ShapeFunction,
+        mass_epsilon: f64,
+    ) -> Self {
         Self {
             tolerance,
             max_iterations,
             materials,
+            shape,
+            mass_epsilon,
             ..Self::default()
         }
     }
@@ -167,19 +180,17 @@ impl<const D: usize> ImplicitViscosity<D> {
     /// (M + dt K) u = M v, the components the walls and bodies hold kept at their values; the
     /// wall conditions are applied again after it (the ghost nodes behind a wall mirror the
     /// new velocity inside).
-    #[allow(clippy::too_many_arguments)]
     pub fn solve(
         &mut self,
         ps: &Particles<D>,
         grid: &mut Grid<D>,
         boundary: &Boundary<D>,
         materials: &[MaterialParams],
-        shape: ShapeFunction,
-        mass_epsilon: f64,
         dt: f64,
     ) -> Result<ViscousStats, ViscousError> {
+        let shape = self.shape;
         boundary.apply(&mut grid.velocity_new);
-        self.prepare(ps, grid, boundary, materials, shape, mass_epsilon, dt);
+        self.prepare(ps, grid, boundary, materials, dt);
         let Grid {
             geo,
             mass,
@@ -213,17 +224,15 @@ impl<const D: usize> ImplicitViscosity<D> {
 
     /// The quadrature weights dt w_q mu_q (mu_p at the last step's strain rate), the free
     /// components (not held by a wall or body, on a node with mass) and the preconditioner.
-    #[allow(clippy::too_many_arguments)]
     fn prepare(
         &mut self,
         ps: &Particles<D>,
         grid: &Grid<D>,
         boundary: &Boundary<D>,
         materials: &[MaterialParams],
-        shape: ShapeFunction,
-        mass_epsilon: f64,
         dt: f64,
     ) {
+        let (shape, mass_epsilon) = (self.shape, self.mass_epsilon);
         self.particle_weight.resize(ps.len(), 0.0);
         let implicit = self.materials;
         self.particle_weight
@@ -385,7 +394,6 @@ impl<const D: usize> ImplicitViscosity<D> {
     }
 
     /// Conjugate gradients on the correction: u += alpha p until |r| <= tolerance |M v*|.
-    #[allow(clippy::too_many_arguments)]
     fn iterate(
         &mut self,
         geo: &GridGeometry<D>,
@@ -626,9 +634,10 @@ particles_per_cell = 2
         ] {
             let sim = block(model, WALLS);
             let (ps, grid, shape) = (&sim.particles, &sim.grid, sim.settings.shape);
-            let mut v = ImplicitViscosity::<2>::new(1e-8, 100, implicit_mask(&sim.materials));
+            let implicit = implicit_mask(&sim.materials);
             let eps = sim.settings.mass_epsilon;
-            v.prepare(ps, grid, &sim.boundary, &sim.materials, shape, eps, 0.01);
+            let mut v = ImplicitViscosity::<2>::new(1e-8, 100, implicit, shape, eps);
+            v.prepare(ps, grid, &sim.boundary, &sim.materials, 0.01);
             let n = grid.geo.node_count();
             let field = |k: f64| -> Vec<Vector<2>> {
                 (0..n)
@@ -705,8 +714,9 @@ particles_per_cell = 2
         let mu = 50.0;
         let mut k = Vec::new();
         for ps in [&sim.particles, &stirred] {
-            let mut v = ImplicitViscosity::<2>::new(1e-8, 100, implicit_mask(&sim.materials));
-            v.prepare(ps, grid, &sim.boundary, &sim.materials, shape, 0.0, 1.0);
+            let implicit = implicit_mask(&sim.materials);
+            let mut v = ImplicitViscosity::<2>::new(1e-8, 100, implicit, shape, 0.0);
+            v.prepare(ps, grid, &sim.boundary, &sim.materials, 1.0);
             v.apply_viscous(&grid.geo, shape, &field);
             k.push(v.q.clone());
         }
@@ -748,13 +758,13 @@ particles_per_cell = 2
         max_iterations: usize,
         dt: f64,
     ) -> Result<ViscousStats, ViscousError> {
-        ImplicitViscosity::<2>::new(tolerance, max_iterations, implicit_mask(&sim.materials)).solve(
+        let implicit = implicit_mask(&sim.materials);
+        let (shape, eps) = (sim.settings.shape, sim.settings.mass_epsilon);
+        ImplicitViscosity::<2>::new(tolerance, max_iterations, implicit, shape, eps).solve(
             &sim.particles,
             &mut sim.grid,
             &sim.boundary,
             &sim.materials,
-            sim.settings.shape,
-            sim.settings.mass_epsilon,
             dt,
         )
     }
