@@ -36,10 +36,8 @@
 //! pressure through each particle's own velocity gradient, which is what P2G computes. With
 //! the particle's own p instead, the force does work on a dilatation that J does not follow,
 //! and J, which each particle carries along, drifts apart from particle to particle where the
-//! flow mixes them. In the explicit Bingham slump (examples/bingham_slump_2d_explicit.toml) the
-//! floor pressure's neighbour-to-neighbour scatter was 0.85 kPa with the strain rate averaged
-//! alone, 0.12 kPa with both (4.3 kPa without averaging; the hydrostatic value is 0.4 kPa).
-//! Each half costs a particle-to-grid and a grid-to-particle pass of a scalar.
+//! flow mixes them (docs/materials.md, "Solids with the explicit scheme", has what each half
+//! gives on a slump). Each half costs a particle-to-grid and a grid-to-particle pass of a scalar.
 //!
 //! The weight is the particle's volume V_p = J_p V_p^0, not its mass: with it the averaging
 //! keeps the body's total rate of volume change, sum_p V_p tr(L_p), and sum_p V_p p_p (the

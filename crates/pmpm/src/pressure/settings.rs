@@ -73,7 +73,7 @@ pub struct PressureSettings {
     pub beta: f64,
     #[serde(default)]
     pub rhs: PoissonRhs,
-    /// Quadrature of L and the right-hand side (default: the particles).
+    /// Quadrature of L and the right-hand side (default: the cells' Gauss points).
     #[serde(default)]
     pub quadrature: Quadrature,
     /// Bubble closing in the free-surface detection: a face-connected set of cells at or below
