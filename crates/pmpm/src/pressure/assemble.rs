@@ -83,6 +83,8 @@ pub struct ParticleQuadrature<'a, const D: usize> {
     pub velocity: &'a [Vector<D>],
     /// Add the wall flux (1/dt) sum_p V_p G_ip . w_p to the right-hand side.
     pub flux: bool,
+    /// The points sorted by cell.
+    pub bins: &'a CellBins,
     /// Points at fixed places in their cells (the cell quadrature's Gauss points): the
     /// places' tables, and each point's cell (padded multi-index, less PAD). Point p is place
     /// p mod the number of places.
@@ -272,9 +274,25 @@ impl<const D: usize> ParticleQuadrature<'_, D> {
     }
 }
 
-/// Assembles the rows of the interior nodes (`node_of_row`) into `a` and the right-hand side
-/// into `rhs`. `row_of[i]` is node i's row, or `u32::MAX` if it is not an unknown; the
-/// free-surface nodes hold the values `dirichlet[i]` (moved to the right-hand side).
+/// The rows of a Poisson system as the assembly reads them: which nodes are unknowns and
+/// which free surface (`kinds`, with its level set `phi` where the free surface is
+/// ghost-fluid), each node's row and each row's node, and the values `dirichlet` the
+/// free-surface nodes hold.
+pub struct Rows<'a> {
+    /// Each node's kind.
+    pub kinds: &'a [NodeKind],
+    /// The level set of the ghost-fluid free surface, per node.
+    pub phi: Option<&'a [f64]>,
+    /// Each node's row (`u32::MAX` where it is not an unknown) and each row's node.
+    pub unknowns: &'a super::Unknowns,
+    /// The value a free-surface node holds.
+    pub dirichlet: &'a [f64],
+}
+
+/// Assembles the rows of the interior nodes (`rows.unknowns.node_of_row`) into `a` and the
+/// right-hand side into `rhs`. `row_of[i]` is node i's row, or `u32::MAX` if it is not an
+/// unknown; the free-surface nodes hold the values `dirichlet[i]` (moved to the right-hand
+/// side).
 ///
 /// With a level set `phi` (the ghost-fluid free surface), the value of a column j outside the
 /// fluid is the ghost value p_i + (d_j - p_i) / theta_ij that puts d_j where phi crosses zero
@@ -283,21 +301,17 @@ impl<const D: usize> ParticleQuadrature<'_, D> {
 /// only grows (L_ij <= 0 for full-cell quadrature), so L stays symmetric positive definite.
 /// A column inside a rigid body ([`NodeKind::Solid`]) takes the row's own value: L_ij joins
 /// the diagonal, which keeps the row diagonally dominant (weakly, as a Neumann row is).
-#[allow(clippy::too_many_arguments)]
 pub fn assemble<const D: usize>(
     geo: &GridGeometry<D>,
     shape: ShapeFunction,
-    bins: &CellBins,
     q: &ParticleQuadrature<D>,
-    kinds: &[NodeKind],
-    phi: Option<&[f64]>,
-    row_of: &[u32],
-    node_of_row: &[u32],
-    dirichlet: &[f64],
+    rows: &Rows,
     dt: f64,
     a: &mut EllMatrix,
     rhs: &mut Vec<f64>,
 ) {
+    let (bins, kinds, phi, dirichlet) = (q.bins, rows.kinds, rows.phi, rows.dirichlet);
+    let (row_of, node_of_row) = (&rows.unknowns.row_of, &rows.unknowns.node_of_row);
     let w = shape.width();
     let span = 2 * w - 1;
     let slots = row_width::<D>(shape);
@@ -375,16 +389,15 @@ pub fn assemble<const D: usize>(
 /// The right-hand side of [`assemble`] alone, -(1/dt) times the source, for rows whose
 /// free-surface values are all 0 (a further pass of the projection solves for an increment that
 /// vanishes there, so no column moves a known value across).
-#[allow(clippy::too_many_arguments)]
 pub fn right_hand_side<const D: usize>(
     geo: &GridGeometry<D>,
     shape: ShapeFunction,
-    bins: &CellBins,
     q: &ParticleQuadrature<D>,
     node_of_row: &[u32],
     dt: f64,
     rhs: &mut Vec<f64>,
 ) {
+    let bins = q.bins;
     rhs.resize(node_of_row.len(), 0.0);
     rhs.par_iter_mut()
         .zip(node_of_row.par_iter())

@@ -200,20 +200,14 @@ impl<const D: usize> PositionCorrection<D> {
         self.potential.resize(geo.node_count(), 0.0);
         let g = &self.gauss;
         let quadrature = g.quadrature(false);
-        super::assemble::assemble(
-            geo,
-            shape,
-            &g.bins,
-            &quadrature,
-            &self.surface.kinds,
-            self.surface.level_set(),
-            &self.unknowns.row_of,
-            &self.unknowns.node_of_row,
-            &self.potential,
-            1.0,
-            &mut self.matrix,
-            &mut self.rhs,
-        );
+        let system_rows = super::assemble::Rows {
+            kinds: &self.surface.kinds,
+            phi: self.surface.level_set(),
+            unknowns: &self.unknowns,
+            dirichlet: &self.potential,
+        };
+        let (matrix, rhs) = (&mut self.matrix, &mut self.rhs);
+        super::assemble::assemble(geo, shape, &quadrature, &system_rows, 1.0, matrix, rhs);
         for (b, &i) in self.rhs.iter_mut().zip(&self.unknowns.node_of_row) {
             *b += self.excess[i as usize];
         }

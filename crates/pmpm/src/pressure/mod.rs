@@ -630,6 +630,7 @@ impl<const D: usize> Projection<D> {
             self.work.gauss.quadrature(flux)
         } else {
             ParticleQuadrature {
+                bins: &self.bins,
                 x: &ps.x,
                 half_width: &ps.half_width,
                 volume: &ps.volume0,
@@ -640,31 +641,19 @@ impl<const D: usize> Projection<D> {
                 templates: None,
             }
         };
-        let bins = if cell {
-            &self.work.gauss.bins
-        } else {
-            &self.bins
-        };
         if first {
-            assemble::assemble(
-                geo,
-                shape,
-                bins,
-                &quadrature,
-                &self.surface.kinds,
-                self.surface.level_set(),
-                &self.system.unknowns.row_of,
-                &self.system.unknowns.node_of_row,
-                &self.node_pressure,
-                dt,
-                &mut self.system.matrix,
-                &mut self.system.rhs,
-            );
+            let rows = assemble::Rows {
+                kinds: &self.surface.kinds,
+                phi: self.surface.level_set(),
+                unknowns: &self.system.unknowns,
+                dirichlet: &self.node_pressure,
+            };
+            let (matrix, rhs) = (&mut self.system.matrix, &mut self.system.rhs);
+            assemble::assemble(geo, shape, &quadrature, &rows, dt, matrix, rhs);
         } else {
             assemble::right_hand_side(
                 geo,
                 shape,
-                bins,
                 &quadrature,
                 &self.system.unknowns.node_of_row,
                 dt,
@@ -1110,6 +1099,7 @@ impl<const D: usize> GaussPoints<D> {
     /// The points as the assembly reads them.
     fn quadrature(&self, flux: bool) -> ParticleQuadrature<'_, D> {
         ParticleQuadrature {
+            bins: &self.bins,
             x: &self.x,
             half_width: &self.half_width,
             volume: &self.volume,
