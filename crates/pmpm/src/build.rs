@@ -91,6 +91,7 @@ impl<const D: usize> Simulation<D> {
                 &particles,
                 &boundary,
                 geo.cells.iter().product(),
+                settings.mass_epsilon,
             )
         });
         // the projection with nodal pressures reads J with the nodally averaged dilatation (the

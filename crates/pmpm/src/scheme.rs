@@ -350,7 +350,6 @@ impl<const D: usize> Simulation<D> {
                 &mut self.particles,
                 &mut self.grid,
                 &self.boundary,
-                self.settings.mass_epsilon,
                 dt,
                 &mut self.timers,
             )

@@ -105,6 +105,8 @@ struct Settings {
     /// A material is a solid (shear modulus > 0): the free surface carries p = n . tau . n
     /// instead of 0 ([`free_surface::surface_normal_stress`]).
     traction_free: bool,
+    /// Nodes of at most this mass are empty.
+    mass_epsilon: f64,
 }
 
 /// The projection's work buffers, sized as the particles and the grid need them.
@@ -197,6 +199,7 @@ impl<const D: usize> Projection<D> {
         ps: &Particles<D>,
         boundary: &Boundary<D>,
         cells: usize,
+        mass_epsilon: f64,
     ) -> Self {
         let solver = linear_solver(pd, cells);
         let particle_quadrature = usize::from(pd.quadrature == Quadrature::Particle);
@@ -217,6 +220,7 @@ impl<const D: usize> Projection<D> {
                 quadrature: pd.quadrature,
                 volume_correction: pd.volume_correction,
                 traction_free,
+                mass_epsilon,
             },
             solver,
             bins: CellBins::default(),
@@ -370,11 +374,10 @@ impl<const D: usize> Projection<D> {
         ps: &mut Particles<D>,
         grid: &mut Grid<D>,
         boundary: &Boundary<D>,
-        mass_epsilon: f64,
         dt: f64,
         timers: &mut PhaseTimers,
     ) -> Result<SolveStats, SolveError> {
-        let shape = self.settings.shape;
+        let (shape, mass_epsilon) = (self.settings.shape, self.settings.mass_epsilon);
         let beta = self.settings.beta;
         let n_nodes = grid.geo.node_count();
         self.node_pressure.resize(n_nodes, 0.0);
@@ -402,7 +405,7 @@ impl<const D: usize> Projection<D> {
         if beta > 0.0 {
             // incremental form: v* -= beta (dt / m_i) sum_p V_p N_ip (grad p^n)_p
             self.particle_pressure(ps, &grid.geo, false);
-            self.correct(ps, grid, mass_epsilon, beta * dt);
+            self.correct(ps, grid, beta * dt);
             timers.lap(Phase::Corrector);
         }
         let geo = &grid.geo;
@@ -460,8 +463,8 @@ impl<const D: usize> Projection<D> {
         let mut iterations = 0;
         for pass in 0..self.settings.passes {
             let first = pass == 0;
-            let skip = (self.settings.tolerance * first_norm, last_norm);
-            match self.pass(ps, grid, boundary, mass_epsilon, dt, first, skip, timers)? {
+            let further = (!first).then_some((self.settings.tolerance * first_norm, last_norm));
+            match self.pass(ps, grid, boundary, dt, further, timers)? {
                 Some((norm, stats)) => {
                     if first {
                         first_norm = norm;
@@ -487,22 +490,21 @@ impl<const D: usize> Projection<D> {
     /// (docs/method.md, "Passes"). A further pass solves L dq = b(v) for that divergence,
     /// with L and its preconditioner kept and dq = 0 on the free surface, and corrects again:
     /// the fixed-point iteration p <- p + L^-1 (b - A p) towards the operator A the corrector
-    /// applies. Returns the right-hand side's norm and the solve's statistics, or `None`
-    /// without solving (never on the first pass) when that norm is at most `skip.0` or at
-    /// least `skip.1`, the last pass's: where the iteration would not converge, it stops. A
-    /// further pass solves to the residual `skip.0`.
-    #[allow(clippy::too_many_arguments)]
+    /// applies. `further` is None for the first pass; for a further one, the residual r to
+    /// solve to and the last pass's right-hand side's norm. Returns the right-hand side's norm
+    /// and the solve's statistics, or `None` without solving (never on the first pass) when
+    /// that norm is at most r or at least the last pass's: where the iteration would not
+    /// converge, it stops.
     fn pass(
         &mut self,
         ps: &mut Particles<D>,
         grid: &mut Grid<D>,
         boundary: &Boundary<D>,
-        mass_epsilon: f64,
         dt: f64,
-        first: bool,
-        skip: (f64, f64),
+        further: Option<(f64, f64)>,
         timers: &mut PhaseTimers,
     ) -> Result<Option<(f64, SolveStats)>, SolveError> {
+        let first = further.is_none();
         // 4. (div v*) after the wall conditions, then L and the right-hand side, the solve
         self.sample_divergence(ps, grid, boundary, dt, first);
         self.assemble_pass(ps, grid, boundary, dt, first);
@@ -510,16 +512,19 @@ impl<const D: usize> Projection<D> {
         // a sequential sum: the same bits on any number of threads
         let norm = self.system.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
         self.last.pass_norms.push(norm);
-        let skip_below = skip.0;
-        if !first && (norm <= skip_below || norm >= skip.1) {
-            return Ok(None);
+        let mut further_tolerance = 0.0;
+        if let Some((residual, last_norm)) = further {
+            if norm <= residual || norm >= last_norm {
+                return Ok(None);
+            }
+            further_tolerance = residual / norm;
         }
-        let stats = self.solve(&grid.geo, first, skip.0 / norm)?;
+        let stats = self.solve(&grid.geo, first, further_tolerance)?;
         let level_set = self.surface.level_set().is_some();
         self.store_pressure(&grid.geo, first, level_set);
         timers.lap(Phase::Solve);
         // 5. particle pressure and (grad dp)_p, then the corrector
-        self.correct_velocity(ps, grid, boundary, mass_epsilon, dt, level_set);
+        self.correct_velocity(ps, grid, boundary, dt, level_set);
         timers.lap(Phase::Corrector);
         Ok(Some((norm, stats)))
     }
@@ -591,7 +596,7 @@ impl<const D: usize> Projection<D> {
                 None,
             )
         };
-        velocity_at_points(geo, shape, v_star, v_free, qx, qhw, qdiv, qw);
+        velocity_at_points(geo, shape, (v_star, v_free), (qx, qhw), qdiv, qw);
         if self.settings.volume_correction > 0.0 && first {
             // the discrete projection keeps the grid velocity divergence free in the weak
             // sense, not each particle's: the particles' J drifts, and a solid under a steady
@@ -777,13 +782,12 @@ impl<const D: usize> Projection<D> {
         ps: &mut Particles<D>,
         grid: &mut Grid<D>,
         boundary: &Boundary<D>,
-        mass_epsilon: f64,
         dt: f64,
         level_set: bool,
     ) {
         // 5. particle pressure and (grad dp)_p, then the corrector
         self.particle_pressure(ps, &grid.geo, true);
-        self.correct(ps, grid, mass_epsilon, dt);
+        self.correct(ps, grid, dt);
         if level_set {
             // the nodes no pressure reached take the held velocity of the walls around them
             boundary.apply(&mut grid.velocity_new);
@@ -844,7 +848,8 @@ impl<const D: usize> Projection<D> {
     /// v_i -= (scale / m_i) sum_p V_p N_ip (grad p)_p on every node with mass.
     ///
     /// A scatter from the particles, like P2G ([`scatter_to_nodes`]).
-    fn correct(&mut self, ps: &Particles<D>, grid: &mut Grid<D>, mass_epsilon: f64, scale: f64) {
+    fn correct(&mut self, ps: &Particles<D>, grid: &mut Grid<D>, scale: f64) {
+        let mass_epsilon = self.settings.mass_epsilon;
         let (vol, gp) = (&ps.volume0, &self.work.pressure_gradient);
         let force = &mut self.work.force;
         scatter_to_nodes(
@@ -985,15 +990,14 @@ impl Unknowns {
     }
 }
 
-/// (div v*)_q and w_q (the part of v* the walls removed) at quadrature points.
-#[allow(clippy::too_many_arguments)]
+/// (div v*)_q and w_q (the part of v* the walls removed) at the quadrature points at `x`
+/// of GIMP half-widths `half_width`, from the nodes' v* after (`v_star`) and before (`v_free`)
+/// the wall conditions.
 fn velocity_at_points<const D: usize>(
     geo: &crate::grid::GridGeometry<D>,
     shape: ShapeFunction,
-    v_star: &[Vector<D>],
-    v_free: &[Vector<D>],
-    x: &[Vector<D>],
-    half_width: &[f64],
+    (v_star, v_free): (&[Vector<D>], &[Vector<D>]),
+    (x, half_width): (&[Vector<D>], &[f64]),
     divergence: &mut [f64],
     removed: &mut [Vector<D>],
 ) {
