@@ -229,43 +229,39 @@ pub(crate) fn scatter_bands<const D: usize, T, F>(
 /// A scatter costs one stencil per particle. The gather it replaces (per node, every particle
 /// of the cells around it, asked for its weight at that node) visited each particle 4^D to
 /// 5^D times.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn scatter_to_nodes<const D: usize, T>(
     bands: &mut Vec<Band<T>>,
-    shape: ShapeFunction,
-    geo: &GridGeometry<D>,
-    x: &[Vector<D>],
-    half_width: &[f64],
+    points: Points<D>,
     zero: T,
     value: impl Fn(usize) -> T + Sync,
     out: &mut Vec<T>,
 ) where
     T: Copy + Send + Sync + std::ops::AddAssign + std::ops::Mul<f64, Output = T>,
 {
-    scatter_weighted(
-        bands,
-        shape,
-        geo,
-        x,
-        half_width,
-        zero,
-        value,
-        |v, nw| *v * nw.n,
-        out,
-    )
+    scatter_weighted(bands, points, zero, value, |v, nw| *v * nw.n, out)
+}
+
+/// Points that scatter to a grid's nodes: where they are, their GIMP half-widths, and the
+/// grid and shape functions through which they see the nodes.
+#[derive(Clone, Copy)]
+pub(crate) struct Points<'a, const D: usize> {
+    /// The grid.
+    pub geo: &'a GridGeometry<D>,
+    /// The shape functions.
+    pub shape: ShapeFunction,
+    /// Positions.
+    pub x: &'a [Vector<D>],
+    /// GIMP half-widths (in cells).
+    pub half_width: &'a [f64],
 }
 
 /// sum_p contribution(value(p), w_ip) at every node i, into `out`, where w_ip is the node's
 /// weight seen from particle p (N_ip, its gradient G_ip, APIC's a_ip): [`scatter_to_nodes`]
 /// for any per-node contribution, with the same band order and so the same bits for a given
 /// thread count.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn scatter_weighted<const D: usize, T, V>(
     bands: &mut Vec<Band<T>>,
-    shape: ShapeFunction,
-    geo: &GridGeometry<D>,
-    x: &[Vector<D>],
-    half_width: &[f64],
+    points: Points<D>,
     zero: T,
     value: impl Fn(usize) -> V + Sync,
     contribution: impl Fn(&V, &NodeWeight<D>) -> T + Sync,
@@ -273,6 +269,7 @@ pub(crate) fn scatter_weighted<const D: usize, T, V>(
 ) where
     T: Copy + Send + Sync + std::ops::AddAssign,
 {
+    let (geo, shape, x, half_width) = (points.geo, points.shape, points.x, points.half_width);
     bands.resize_with(rayon::current_num_threads().max(1), Band::default);
     crate::with_shape!(shape, S => {
         let shape = ShapeFunction::from_code(S);

@@ -31,7 +31,7 @@ use crate::grid::{CellBins, Grid, GridGeometry, Vector};
 use crate::material::{deviatoric_strain_rate, in_mask, Law, MaterialParams};
 use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
-use crate::transfer::{scatter_weighted, Band};
+use crate::transfer::{scatter_weighted, Band, Points};
 use rayon::prelude::*;
 
 /// No one material: a cell of several, or a point that is a particle.
@@ -500,10 +500,12 @@ impl<const D: usize> ImplicitViscosity<D> {
         let stress = &self.stress;
         scatter_weighted(
             &mut self.bands,
-            shape,
-            geo,
-            points,
-            widths,
+            Points {
+                geo,
+                shape,
+                x: points,
+                half_width: widths,
+            },
             Vector::<D>::zeros(),
             |p| stress[p],
             |s, nw| s * nw.grad,
@@ -520,10 +522,12 @@ impl<const D: usize> ImplicitViscosity<D> {
         let shear = 1.0 - 2.0 / D as f64;
         scatter_weighted(
             &mut self.bands,
-            shape,
-            geo,
-            &self.points,
-            &self.widths,
+            Points {
+                geo,
+                shape,
+                x: &self.points,
+                half_width: &self.widths,
+            },
             Vector::<D>::zeros(),
             |p| coefficient[p],
             |c, nw| {

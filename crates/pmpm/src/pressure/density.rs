@@ -35,7 +35,7 @@ use crate::grid::{CellBins, GridGeometry, Vector};
 use crate::linalg::{EllMatrix, LinearSolver, SolveError, SolveParams, SolveStats, System};
 use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
-use crate::transfer::{scatter_to_nodes, Band};
+use crate::transfer::{scatter_to_nodes, Band, Points};
 use rayon::prelude::*;
 
 /// Largest displacement of a node in one correction, in cells: a particle whose volume is far
@@ -257,10 +257,12 @@ impl<const D: usize> PositionCorrection<D> {
         let (v0, jac) = (&ps.volume0, &ps.jacobian);
         scatter_to_nodes(
             &mut self.bands,
-            shape,
-            geo,
-            &ps.x,
-            &ps.half_width,
+            Points {
+                geo,
+                shape,
+                x: &ps.x,
+                half_width: &ps.half_width,
+            },
             nalgebra::Vector2::zeros(),
             |p| {
                 // at most MAX_RATE of a particle's volume per correction
@@ -318,10 +320,12 @@ impl<const D: usize> PositionCorrection<D> {
         let (v0, jac, grad) = (&ps.volume0, &ps.jacobian, &self.gradient);
         scatter_to_nodes(
             &mut self.displacement_bands,
-            shape,
-            geo,
-            &ps.x,
-            &ps.half_width,
+            Points {
+                geo,
+                shape,
+                x: &ps.x,
+                half_width: &ps.half_width,
+            },
             Vector::<D>::zeros(),
             |p| grad[p] * (v0[p] * jac[p]),
             &mut self.displacement,

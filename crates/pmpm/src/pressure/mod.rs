@@ -27,7 +27,7 @@ use crate::linalg::{
 use crate::particles::Particles;
 use crate::shape::{ShapeFunction, Stencil};
 use crate::timing::{Phase, PhaseTimers};
-use crate::transfer::{scatter_to_nodes, Band};
+use crate::transfer::{scatter_to_nodes, Band, Points};
 use assemble::ParticleQuadrature;
 use free_surface::NodeKind;
 use rayon::prelude::*;
@@ -854,10 +854,12 @@ impl<const D: usize> Projection<D> {
         let force = &mut self.work.force;
         scatter_to_nodes(
             &mut self.work.force_bands,
-            self.settings.shape,
-            &grid.geo,
-            &ps.x,
-            &ps.half_width,
+            Points {
+                geo: &grid.geo,
+                shape: self.settings.shape,
+                x: &ps.x,
+                half_width: &ps.half_width,
+            },
             Vector::<D>::zeros(),
             |p| gp[p] * vol[p],
             force,
