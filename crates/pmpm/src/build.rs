@@ -249,8 +249,10 @@ pub fn inflows<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Vec<Inflow
                 .expect("validated: inflow material exists");
             Inflow::new(
                 face,
-                Vector::<D>::from_column_slice(&q.min),
-                Vector::<D>::from_column_slice(&q.max),
+                (
+                    Vector::<D>::from_column_slice(&q.min),
+                    Vector::<D>::from_column_slice(&q.max),
+                ),
                 q.velocity.compile().expect("validated expressions"),
                 mat as u16,
                 deck.materials[mat].density,

@@ -81,12 +81,10 @@ pub struct Inflow<const D: usize> {
 }
 
 impl<const D: usize> Inflow<D> {
-    /// An inflow on `face` over lo..hi, its layer's lattice laid out.
-    #[allow(clippy::too_many_arguments)]
+    /// An inflow on `face` over the patch lo..hi, its layer's lattice laid out.
     pub fn new(
         face: usize,
-        lo: Vector<D>,
-        hi: Vector<D>,
+        (lo, hi): (Vector<D>, Vector<D>),
         velocity: CompiledField,
         material: u16,
         density: f64,

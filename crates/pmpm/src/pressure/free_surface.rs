@@ -107,7 +107,6 @@ impl Surface {
     /// Finds each node's role from the particles (binned in `bins`, volumes `volume`) and the
     /// nodes' mass: volume fractions, enclosed gaps closed, rigid bodies read as walls, then
     /// the level set and the ghost-fluid roles, or the paper's rule.
-    #[allow(clippy::too_many_arguments)]
     pub fn detect<const D: usize>(
         &mut self,
         geo: &GridGeometry<D>,

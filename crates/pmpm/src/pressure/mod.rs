@@ -673,9 +673,8 @@ impl<const D: usize> Projection<D> {
                 shape,
                 &grid.velocity_new,
                 self.surface.level_set(),
-                &self.system.unknowns.row_of,
                 dt,
-                &mut self.system.rhs,
+                (&self.system.unknowns.row_of, &mut self.system.rhs),
             );
         }
     }

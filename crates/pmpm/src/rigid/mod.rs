@@ -871,17 +871,16 @@ impl<const D: usize> RigidBodies<D> {
     /// body's where the face lies, anywhere in a cell (Batty, Bertails & Bridson 2007, in the
     /// weak form). The assembly integrates the first term; this adds the second,
     /// -(1/dt) sum_g w_g N_i(x_g) (V_b - v(x_g)) . n_g, over the face points the level set
-    /// `phi` reads as wet, to the rows `row_of` numbers.
-    #[allow(clippy::too_many_arguments)]
+    /// `phi` reads as wet, to the right-hand sides `rhs` of the rows `row_of` numbers (each
+    /// node's row, `u32::MAX` where it has none).
     pub fn add_face_flux(
         &self,
         geo: &GridGeometry<D>,
         shape: ShapeFunction,
         v: &[Vector<D>],
         phi: Option<&[f64]>,
-        row_of: &[u32],
         dt: f64,
-        rhs: &mut [f64],
+        (row_of, rhs): (&[u32], &mut [f64]),
     ) {
         // serial: the points are few, and a fixed order keeps the bits on any thread count
         for f in &self.faces {
