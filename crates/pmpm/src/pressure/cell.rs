@@ -52,6 +52,13 @@ use rayon::prelude::*;
 /// Buffers of the cell projection, reused from step to step.
 #[derive(Default)]
 pub struct CellProjection<const D: usize> {
+    /// The transfers' shape functions.
+    shape: ShapeFunction,
+    /// The solve's relative residual and iteration limit.
+    tolerance: f64,
+    max_iterations: usize,
+    /// Nodes of at most this mass are empty.
+    mass_epsilon: f64,
     /// Nodes per direction a cell's particles reach (2 for linear shape functions, 4 for the
     /// others), from the cell's lower corner less `reach`.
     box_width: usize,
@@ -75,8 +82,14 @@ pub struct CellProjection<const D: usize> {
 }
 
 impl<const D: usize> CellProjection<D> {
-    /// Buffers for the given shape functions.
-    pub fn new(shape: ShapeFunction) -> Self {
+    /// Buffers for the given shape functions, and the solve's relative residual `tolerance`
+    /// and iteration limit, on the nodes of mass above `mass_epsilon`.
+    pub fn new(
+        shape: ShapeFunction,
+        tolerance: f64,
+        max_iterations: usize,
+        mass_epsilon: f64,
+    ) -> Self {
         let (box_width, reach) = match shape {
             ShapeFunction::Linear => (2, 0),
             // a particle in cell [a, a+1) reaches nodes a-1 .. a+2 (GIMP with lp <= 1/2,
@@ -84,6 +97,10 @@ impl<const D: usize> CellProjection<D> {
             ShapeFunction::Gimp | ShapeFunction::Bspline2 | ShapeFunction::Bspline3 => (4, 1),
         };
         Self {
+            shape,
+            tolerance,
+            max_iterations,
+            mass_epsilon,
             box_width,
             reach,
             ..Default::default()
@@ -112,22 +129,19 @@ impl<const D: usize> CellProjection<D> {
     /// and solves for the cell pressures, corrects the node velocities and gives the particles
     /// their pressure. `cell_pressure` (one slot per cell, numbered like its lower-corner
     /// node) holds the last step's pressures, the solver's first guess, and receives the new
-    /// ones. The caller re-applies the wall conditions.
-    #[allow(clippy::too_many_arguments)]
+    /// ones. `bins` holds the particles sorted by cell. The caller re-applies the wall
+    /// conditions.
     pub fn project(
         &mut self,
-        ps: &mut Particles<D>,
+        (ps, bins): (&mut Particles<D>, &CellBins),
         grid: &mut Grid<D>,
         boundary: &Boundary<D>,
-        bins: &CellBins,
         solver: &mut LinearSolver,
-        tolerance: f64,
-        max_iterations: usize,
-        mass_epsilon: f64,
         dt: f64,
-        shape: ShapeFunction,
         cell_pressure: &mut Vec<f64>,
     ) -> Result<SolveStats, SolveError> {
+        let (shape, mass_epsilon) = (self.shape, self.mass_epsilon);
+        let (tolerance, max_iterations) = (self.tolerance, self.max_iterations);
         let geo = &grid.geo;
         let n_nodes = geo.node_count();
         cell_pressure.resize(n_nodes, 0.0);

@@ -193,7 +193,7 @@ impl<const D: usize> PositionCorrection<D> {
         let fraction = &self.surface.fraction;
         let v0 = &ps.volume0;
         self.gauss
-            .build(geo, &self.bins, fraction, v0, v0, shape, Some(domain));
+            .build(geo, (&self.bins, v0, v0), fraction, shape, Some(domain));
         self.gauss.divergence.fill(0.0);
         self.gauss.velocity.fill(Vector::<D>::zeros());
         self.potential.clear();

@@ -734,21 +734,17 @@ pub fn ghost_values<const D: usize>(
 ///
 /// The outward normal is -grad(phi) of the volume fractions of the 2^D cells around the node
 /// (cells beyond a closed wall full, beyond an open face empty, as in [`classify`]); tau at the
-/// node is the particles' tau averaged with the weights V_p N_ip.
-#[allow(clippy::too_many_arguments)]
-pub fn surface_normal_stress<const D: usize>(
-    geo: &GridGeometry<D>,
-    shape: crate::shape::ShapeFunction,
+/// node is the particles' tau averaged with the weights V_p N_ip: the particles are `points`
+/// (binned in `bins`) of volumes `volume` and stresses `tau`; the surface is the cells' volume
+/// fractions, which faces are open, and the nodes' kinds.
+pub(crate) fn surface_normal_stress<const D: usize>(
+    points: crate::transfer::Points<D>,
     bins: &CellBins,
-    x: &[crate::grid::Vector<D>],
-    half_width: &[f64],
-    volume: &[f64],
-    tau: &[crate::particles::Matrix<D>],
-    fraction: &[f64],
-    open: &[bool],
-    kinds: &[NodeKind],
+    (volume, tau): (&[f64], &[crate::particles::Matrix<D>]),
+    (fraction, open, kinds): (&[f64], &[bool], &[NodeKind]),
     out: &mut Vec<f64>,
 ) {
+    let (geo, shape, x, half_width) = (points.geo, points.shape, points.x, points.half_width);
     use crate::grid::Vector;
     use crate::particles::Matrix;
     out.resize(geo.node_count(), 0.0);
@@ -1198,19 +1194,13 @@ mod tests {
         classify(&geo, &mass, 1e-9, &vf, 0.3, &open, &mut kinds);
         let mut p = Vec::new();
         let half = vec![0.0; n];
-        surface_normal_stress(
-            &geo,
-            crate::shape::ShapeFunction::Linear,
-            &bins,
-            &x,
-            &half,
-            &volume,
-            &tau,
-            &vf,
-            &open,
-            &kinds,
-            &mut p,
-        );
+        let points = crate::transfer::Points {
+            geo: &geo,
+            shape: crate::shape::ShapeFunction::Linear,
+            x: &x,
+            half_width: &half,
+        };
+        surface_normal_stress(points, &bins, (&volume, &tau), (&vf, &open, &kinds), &mut p);
         let at = |i: usize, j: usize| geo.flat(&[i + PAD, j + PAD]);
         // the sides (normal -x, +x): tau_xx; the top (normal +y): tau_yy
         for j in 1..=3 {

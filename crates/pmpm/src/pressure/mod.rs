@@ -245,8 +245,9 @@ impl<const D: usize> Projection<D> {
                 pass_norms: Vec::with_capacity(pd.passes),
                 singular: false,
             },
-            cells: (pd.unknowns == PressureUnknowns::Cells)
-                .then(|| cell::CellProjection::new(shape)),
+            cells: (pd.unknowns == PressureUnknowns::Cells).then(|| {
+                cell::CellProjection::new(shape, pd.tolerance, pd.max_iterations, mass_epsilon)
+            }),
             density: (pd.unknowns == PressureUnknowns::Nodes
                 && pd.density_correction == Some(DensityCorrection::Positions))
             .then(|| density::PositionCorrection::new(pd, shape, boundary)),
@@ -386,16 +387,11 @@ impl<const D: usize> Projection<D> {
         if let Some(cells) = &mut self.cells {
             timers.lap(Phase::FreeSurface);
             self.last.stats = cells.project(
-                ps,
+                (ps, &self.bins),
                 grid,
                 boundary,
-                &self.bins,
                 &mut self.solver,
-                self.settings.tolerance,
-                self.settings.max_iterations,
-                mass_epsilon,
                 dt,
-                shape,
                 &mut self.previous,
             )?;
             self.last.singular = false;
@@ -422,17 +418,18 @@ impl<const D: usize> Projection<D> {
         // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is
         self.work.surface_pressure.resize(n_nodes, 0.0);
         if self.settings.traction_free {
-            free_surface::surface_normal_stress(
+            let points = Points {
                 geo,
                 shape,
+                x: &ps.x,
+                half_width: &ps.half_width,
+            };
+            let s = &self.surface;
+            free_surface::surface_normal_stress(
+                points,
                 &self.bins,
-                &ps.x,
-                &ps.half_width,
-                &ps.volume0,
-                &ps.tau,
-                &self.surface.fraction,
-                &self.surface.open,
-                &self.surface.kinds,
+                (&ps.volume0, &ps.tau),
+                (&s.fraction, &s.open, &s.kinds),
                 &mut self.work.surface_pressure,
             );
         }
@@ -570,10 +567,8 @@ impl<const D: usize> Projection<D> {
             });
             self.work.gauss.build(
                 geo,
-                &self.bins,
+                (&self.bins, &ps.mass, &ps.volume0),
                 &self.surface.fraction,
-                &ps.mass,
-                &ps.volume0,
                 shape,
                 domain,
             );
@@ -1116,14 +1111,14 @@ impl<const D: usize> GaussPoints<D> {
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// The points of the cells with fluid (volume fractions `fraction`), or with a level set
+    /// of the cells next to an unknown (`domain`), each cell's density from the masses and
+    /// volumes of the particles `bins` holds in it.
     fn build(
         &mut self,
         geo: &crate::grid::GridGeometry<D>,
-        bins: &CellBins,
+        (bins, mass, volume): (&CellBins, &[f64], &[f64]),
         fraction: &[f64],
-        mass: &[f64],
-        volume: &[f64],
         shape: ShapeFunction,
         domain: Option<FluidDomain<'_, D>>,
     ) {
