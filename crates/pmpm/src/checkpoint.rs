@@ -368,17 +368,54 @@ pub fn read<const D: usize>(
     deck: &Deck,
     sim: &mut Simulation<D>,
 ) -> Result<DriverState, Error> {
+    let bytes = read_bytes(path)?;
+    let (s, rest) = decode::<D>(&bytes).map_err(|why| refuse(path, why))?;
+    let Trailer {
+        flow,
+        free,
+        wall_seconds,
+    } = trailer(path, deck, rest)?;
+    check_free_bodies(path, sim, free.as_deref())?;
+    check_deck(path, deck, &s)?;
+    let open = deck.has_open_flow();
+    let flow = check_open_flow(path, open, flow)?;
+    check_particles(path, open, sim, &s, flow.as_ref())?;
+    let driver = restore(sim, s, flow, free);
+    Ok(DriverState {
+        wall_seconds,
+        ..driver
+    })
+}
+
+/// The bytes of the checkpoint file at `path`; a directory or a missing file is refused.
+fn read_bytes(path: &Path) -> Result<Vec<u8>, Error> {
     if path.is_dir() {
         return Err(refuse(
             path,
             "it is a directory; give the checkpoint.bin inside it",
         ));
     }
-    let bytes = std::fs::read(path).map_err(|e| match e.kind() {
+    std::fs::read(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => refuse(path, "there is no such file"),
         _ => Error::io(path, e),
-    })?;
-    let (s, rest) = decode::<D>(&bytes).map_err(|why| refuse(path, why))?;
+    })
+}
+
+/// The sections of a checkpoint after its state, each present only where the run that wrote
+/// it had it.
+struct Trailer {
+    /// The open boundaries' ledger.
+    flow: Option<Ledger>,
+    /// The free rigid bodies' state.
+    free: Option<Vec<crate::rigid::FreeState>>,
+    /// The run's wall time so far (0 in a checkpoint without it).
+    wall_seconds: f64,
+}
+
+/// Decodes the bytes after the state (`rest`): the ledger and the free bodies' state where
+/// `deck` has them, then the wall time; anything left over, or a wall time that is not a
+/// time, is refused.
+fn trailer(path: &Path, deck: &Deck, rest: &[u8]) -> Result<Trailer, Error> {
     let cannot = |e: postcard::Error| refuse(path, format!("it cannot be decoded ({e})"));
     let (flow, rest) = if deck.has_open_flow() && !rest.is_empty() {
         let (f, rest) = postcard::take_from_bytes::<Ledger>(rest).map_err(cannot)?;
@@ -405,16 +442,28 @@ pub fn read<const D: usize>(
             "it holds state of open boundaries or free rigid bodies the deck has none for",
         ));
     }
+    Ok(Trailer {
+        flow,
+        free,
+        wall_seconds,
+    })
+}
+
+/// Refuses a checkpoint whose free rigid bodies' state is missing, damaged or not for the
+/// free bodies of `sim`.
+fn check_free_bodies<const D: usize>(
+    path: &Path,
+    sim: &Simulation<D>,
+    free: Option<&[crate::rigid::FreeState]>,
+) -> Result<(), Error> {
     let wanted = (0..sim.boundary.rigid.len())
         .filter(|&b| sim.boundary.rigid.is_free(b))
         .count();
-    match &free {
-        None if wanted > 0 => {
-            return Err(refuse(
-                path,
-                "it holds no state of the free rigid bodies the deck has",
-            ))
-        }
+    match free {
+        None if wanted > 0 => Err(refuse(
+            path,
+            "it holds no state of the free rigid bodies the deck has",
+        )),
         Some(f)
             if f.len() != wanted
                 || f.iter().any(|s| {
@@ -429,7 +478,7 @@ pub fn read<const D: usize>(
                         || s.last_velocity.iter().chain(&s.last_omega).any(|x| x.is_infinite())
                 }) =>
         {
-            return Err(refuse(
+            Err(refuse(
                 path,
                 format!(
                     "its state of the free rigid bodies is damaged or not this deck's ({} bodies, the deck has {wanted})",
@@ -437,8 +486,12 @@ pub fn read<const D: usize>(
                 ),
             ))
         }
-        _ => {}
+        _ => Ok(()),
     }
+}
+
+/// Refuses a state written for another dimension or by another deck than `deck`.
+fn check_deck<const D: usize>(path: &Path, deck: &Deck, s: &State<D>) -> Result<(), Error> {
     if s.dimension != D {
         return Err(refuse(
             path,
@@ -450,30 +503,42 @@ pub fn read<const D: usize>(
         .parse()
         .map_err(|e| refuse(path, format!("its deck cannot be read ({e})")))?;
     as_run_then(&mut theirs);
-    same_deck(path, theirs, fingerprint(deck))?;
+    same_deck(path, theirs, fingerprint(deck))
+}
+
+/// The open boundaries' ledger, which a checkpoint holds exactly when the deck has open
+/// boundaries (`open`); refuses one that lacks it or holds it for no open boundary.
+fn check_open_flow(path: &Path, open: bool, flow: Option<Ledger>) -> Result<Option<Ledger>, Error> {
+    match (open, flow) {
+        (true, Some(f)) => Ok(Some(f)),
+        (true, _) => Err(refuse(
+            path,
+            "it holds no state of the open boundaries (inflows, outflow faces) the deck has",
+        )),
+        (false, Some(_)) => Err(refuse(
+            path,
+            "it holds open boundaries' state the deck has none for",
+        )),
+        (false, None) => Ok(None),
+    }
+}
+
+/// Refuses a state whose particle count, ledger of the open boundaries (`flow`, where the
+/// deck has them: `open`) or fields do not fit `sim` ([`consistent`]).
+fn check_particles<const D: usize>(
+    path: &Path,
+    open: bool,
+    sim: &Simulation<D>,
+    s: &State<D>,
+    flow: Option<&Ledger>,
+) -> Result<(), Error> {
     // with open boundaries the count changes as material enters and leaves
-    let open = deck.has_open_flow();
-    let flow =
-        match (open, flow) {
-            (true, Some(f)) => Some(f),
-            (true, _) => return Err(refuse(
-                path,
-                "it holds no state of the open boundaries (inflows, outflow faces) the deck has",
-            )),
-            (false, Some(_)) => {
-                return Err(refuse(
-                    path,
-                    "it holds open boundaries' state the deck has none for",
-                ))
-            }
-            (false, None) => None,
-        };
     let n = if open {
         s.particles.id.len()
     } else {
         sim.particles.len()
     };
-    if let Some(l) = &flow {
+    if let Some(l) = flow {
         let finite = [l.mass0, l.mass_in, l.mass_out, l.volume_in, l.volume_out]
             .iter()
             .all(|x| x.is_finite() && *x >= 0.0);
@@ -481,7 +546,7 @@ pub fn read<const D: usize>(
             return Err(refuse(path, "its ledger of the open boundaries is damaged"));
         }
     }
-    let id_limit = flow.as_ref().map_or(n, |f| f.next_id as usize);
+    let id_limit = flow.map_or(n, |f| f.next_id as usize);
     if s.particles.id.len() != n {
         return Err(refuse(
             path,
@@ -494,7 +559,7 @@ pub fn read<const D: usize>(
     let node_pressure_len = sim.projection.as_ref().map(|_| sim.grid.geo.node_count());
     let variable_body_force = sim.body_force_values().is_some();
     consistent::<D>(
-        &s,
+        s,
         n,
         id_limit,
         sim.materials.len(),
@@ -502,7 +567,17 @@ pub fn read<const D: usize>(
         node_pressure_len,
         variable_body_force,
     )
-    .map_err(|why| refuse(path, why))?;
+    .map_err(|why| refuse(path, why))
+}
+
+/// Moves a checked state, with its ledger and free bodies' state, into `sim`, and returns
+/// the driver's state it holds.
+fn restore<const D: usize>(
+    sim: &mut Simulation<D>,
+    s: State<D>,
+    flow: Option<Ledger>,
+    free: Option<Vec<crate::rigid::FreeState>>,
+) -> DriverState {
     sim.particles = Particles::unflatten(&s.particles);
     sim.time = s.time;
     sim.steps = s.steps;
@@ -521,10 +596,7 @@ pub fn read<const D: usize>(
         sim.boundary.rigid.set_free_states(&f);
     }
     sim.fit_particle_arrays();
-    Ok(DriverState {
-        wall_seconds,
-        ..s.driver
-    })
+    s.driver
 }
 
 /// Checks a decoded state field by field before any of it is used or any output is touched:
