@@ -848,22 +848,46 @@ fn f64s(v: impl Iterator<Item = f64>) -> Vec<u8> {
     v.flat_map(f64::to_le_bytes).collect()
 }
 
+/// The particles as a VTK UnstructuredGrid (.vtu) of one vertex each, in id order, with raw
+/// appended binary data.
 fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Result<()> {
     let ps = &sim.particles;
     let n = ps.len();
     // points in id order, wherever the last sort put each particle
     let at = ps.places();
-    // ParaView wants 3-component points and vectors: pad 2D with z = 0.
-    let pad3 = |v: &crate::grid::Vector<D>| -> [f64; 3] {
-        std::array::from_fn(|d| if d < D { v[d] } else { 0.0 })
-    };
     let points = Array {
         name: "Points",
         vtk_type: "Float64",
         components: 3,
         bytes: f64s(at.iter().flat_map(|&p| pad3(&ps.x[p]))),
     };
-    let point_data = vec![
+    let point_data = vtu_point_data(sim, &at);
+    let cells = vtu_cells(ps, &at);
+    let xml = vtu_header(sim.time, n, &point_data, &points, &cells);
+    write_atomic(path, |w| {
+        w.write_all(xml.as_bytes())?;
+        for a in point_data
+            .iter()
+            .chain(std::iter::once(&points))
+            .chain(&cells)
+        {
+            w.write_all(&(a.bytes.len() as u64).to_le_bytes())?;
+            w.write_all(&a.bytes)?;
+        }
+        w.write_all(b"\n  </AppendedData>\n</VTKFile>\n")
+    })
+}
+
+/// A vector with 3 components, as ParaView wants points and vectors: 2D padded with z = 0.
+fn pad3<const D: usize>(v: &crate::grid::Vector<D>) -> [f64; 3] {
+    std::array::from_fn(|d| if d < D { v[d] } else { 0.0 })
+}
+
+/// The .vtu's point data: the particle fields, at the particles `at` (in id order), and
+/// whether each has yielded where a material has a yield stress.
+fn vtu_point_data<const D: usize>(sim: &Simulation<D>, at: &[usize]) -> Vec<Array> {
+    let ps = &sim.particles;
+    let mut point_data = vec![
         Array {
             name: "id",
             vtk_type: "Int64",
@@ -931,7 +955,6 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
                 .collect(),
         },
     ];
-    let mut point_data = point_data;
     if sim.materials.iter().any(|m| m.law.has_yield()) {
         point_data.push(Array {
             name: "yielded",
@@ -940,7 +963,13 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
             bytes: f64s(at.iter().map(|&p| particle_yielded(sim, p))),
         });
     }
-    let cells = [
+    point_data
+}
+
+/// The .vtu's cells: one vertex per particle `at` (in id order).
+fn vtu_cells<const D: usize>(ps: &crate::particles::Particles<D>, at: &[usize]) -> [Array; 3] {
+    let n = ps.len();
+    [
         Array {
             name: "connectivity",
             vtk_type: "Int64",
@@ -962,7 +991,18 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
             components: 1,
             bytes: vec![1u8; n], // VTK_VERTEX
         },
-    ];
+    ]
+}
+
+/// The .vtu's XML up to its appended data: the time, the point and cell counts (`n`), and
+/// each array's description, with its offset in the appended data that follows.
+fn vtu_header(
+    time: f64,
+    n: usize,
+    point_data: &[Array],
+    points: &Array,
+    cells: &[Array],
+) -> String {
     let mut offset = 0usize;
     let mut describe = |a: &Array| {
         let s = format!(
@@ -977,33 +1017,22 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
     xml += "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
     xml += &format!(
         "  <UnstructuredGrid>\n    <FieldData>\n      <DataArray type=\"Float64\" Name=\"TimeValue\" NumberOfTuples=\"1\" format=\"ascii\">{:e}</DataArray>\n    </FieldData>\n",
-        sim.time
+        time
     );
     xml += &format!("    <Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{n}\">\n");
     xml += "      <PointData Scalars=\"pressure\" Vectors=\"velocity\">\n";
-    for a in &point_data {
+    for a in point_data {
         xml += &describe(a);
     }
     xml += "      </PointData>\n      <Points>\n";
-    xml += &describe(&points);
+    xml += &describe(points);
     xml += "      </Points>\n      <Cells>\n";
-    for a in &cells {
+    for a in cells {
         xml += &describe(a);
     }
     xml +=
         "      </Cells>\n    </Piece>\n  </UnstructuredGrid>\n  <AppendedData encoding=\"raw\">\n_";
-    write_atomic(path, |w| {
-        w.write_all(xml.as_bytes())?;
-        for a in point_data
-            .iter()
-            .chain(std::iter::once(&points))
-            .chain(&cells)
-        {
-            w.write_all(&(a.bytes.len() as u64).to_le_bytes())?;
-            w.write_all(&a.bytes)?;
-        }
-        w.write_all(b"\n  </AppendedData>\n</VTKFile>\n")
-    })
+    xml
 }
 
 /// The grid's nodes as VTK ImageData (.vti) with the fields of [`NodeFields`], raw appended
