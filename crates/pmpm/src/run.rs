@@ -2,7 +2,7 @@
 
 use crate::checkpoint::{self, DriverState};
 use crate::deck::Deck;
-use crate::driver::{next_after, Driver};
+use crate::driver::{next_after, Clock, Driver};
 use crate::error::Error;
 use crate::output::OutputWriter;
 use crate::scheme::Simulation;
@@ -140,6 +140,9 @@ fn status<const D: usize>(
     }
 }
 
+/// Runs the deck in `D` dimensions: sets up the simulation and its output (or resumes them
+/// from a checkpoint), then steps to the end, writing frames, rows and checkpoints as they
+/// fall due.
 fn run_dim<const D: usize>(
     deck: &Deck,
     file: &str,
@@ -150,30 +153,10 @@ fn run_dim<const D: usize>(
     let start = Instant::now();
     let mut sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
     let clock = crate::build::clock(deck);
-    let (end, interval, eps) = (clock.end, clock.interval, clock.eps());
-    // checkpoints at every frame unless the deck says otherwise: one file, overwritten, and
-    // small next to the frames
-    let checkpoint_interval = deck.output.checkpoint_interval.unwrap_or(interval);
-    let checkpoint_path = dir.join("checkpoint.bin");
-    // the directory's lock is held to the run's end: a second run on it is refused
-    let (out, driver, _lock) =
-        open_output(deck, &mut sim, file, dir, opts, checkpoint_interval, eps)?;
-    let wall_before = driver.wall_seconds;
-    let mut w = Writing {
-        out,
-        driver,
-        checkpoint_path,
-        checkpoint_interval,
-        eps,
-        end,
-        start,
-        wall_before,
-        start_steps: sim.steps,
-        // a resumed run's last good state is the checkpoint it started from
-        last_checkpoint: opts.resume.as_ref().map(|_| sim.time),
-        room: RoomGuard::of(deck, &sim),
-    };
-    observer.started(&status(&sim, end, w.start_steps, 0.0, w.out.frames, 0.0));
+    // the directory's lock is held to the run's end, after the output is closed: a second run
+    // on it is refused
+    let (_lock, mut w) = Writing::open(deck, &mut sim, file, dir, opts, &clock, start)?;
+    observer.started(&w.status(&sim, 0.0, 0.0));
     let mut driver = if opts.resume.is_some() {
         Driver::resume(clock, w.driver.next_frame)
     } else {
@@ -192,21 +175,10 @@ fn run_dim<const D: usize>(
         let t0 = sim.time;
         let stepped = driver.step(&mut sim);
         w.driver.next_frame = driver.next_frame;
-        let (iters, max_iters) = &mut w.driver.iterations;
-        *iters += sim.pressure_iterations() as u64;
-        *max_iters = (*max_iters).max(sim.pressure_iterations());
+        w.count_iterations(&sim);
         sim.timers.lap(Phase::Other);
-        if let Err(e) = w.out.probe_row(t0, &sim) {
+        if let Err(e) = w.step_rows(t0, &sim, stepped.is_ok()) {
             break Err(e);
-        }
-        if stepped.is_ok() {
-            if let Err(e) = w
-                .out
-                .rigid_row(&sim)
-                .and_then(|_| w.out.gauge_row(t0, &sim))
-            {
-                break Err(e);
-            }
         }
         let step = match stepped {
             Ok(step) => step,
@@ -239,40 +211,24 @@ fn run_dim<const D: usize>(
         }
         sim.timers.lap(Phase::Output);
         let wall = start.elapsed().as_secs_f64();
-        observer.stepped(&status(
-            &sim,
-            end,
-            w.start_steps,
-            step.dt,
-            w.out.frames,
-            wall,
-        ));
+        observer.stepped(&w.status(&sim, step.dt, wall));
         if interrupted {
-            break Err(Error::Interrupted(format!(
-                "interrupted at step {}, t = {:.6} s; the frame and a checkpoint are written. \
-                 To go on: {}",
-                sim.steps,
-                sim.time,
-                resume_command(file, &w.checkpoint_path, dir, deck)
-            )));
+            let resume = resume_command(file, &w.checkpoint_path, dir, deck);
+            break Err(interrupted_error(&sim, &resume));
         }
     };
-    let flushed = w.out.finish();
-    let resume = resume_command(file, &w.checkpoint_path, dir, deck);
-    result.map_err(|e| write_failure_hint(e, w.last_checkpoint, &resume))?;
-    flushed.map_err(|e| write_failure_hint(e, w.last_checkpoint, &resume))?;
-    let summary = RunSummary {
-        steps: sim.steps,
-        frames: w.out.frames,
-        particles: sim.particles.len(),
-        wall_seconds: start.elapsed().as_secs_f64(),
-        time: sim.time,
-        timers: sim.timers.clone(),
-        pressure_iterations: w.driver.iterations,
-        peak_memory: peak_memory(),
-        last_dt,
-    };
-    Ok(summary)
+    w.finish(result, file, dir, deck)?;
+    Ok(w.summary(&sim, last_dt))
+}
+
+/// The error that stops a run interrupted after the step that brought `sim` where it is,
+/// with the command (`resume`) that goes on from its checkpoint.
+fn interrupted_error<const D: usize>(sim: &Simulation<D>, resume: &str) -> Error {
+    Error::Interrupted(format!(
+        "interrupted at step {}, t = {:.6} s; the frame and a checkpoint are written. \
+         To go on: {}",
+        sim.steps, sim.time, resume
+    ))
 }
 
 /// What the driver's loop writes and when: the output, the clocks of frames and checkpoints,
@@ -342,6 +298,73 @@ impl RoomGuard {
 }
 
 impl Writing {
+    /// Opens the run's output (a resumed run reads its checkpoint into `sim`) and sets the
+    /// clocks of frames and checkpoints from the deck's `clock`; the run began at `start`.
+    /// Returns the directory's lock first: bound in that order, the output is closed before
+    /// the lock is released.
+    fn open<const D: usize>(
+        deck: &Deck,
+        sim: &mut Simulation<D>,
+        file: &str,
+        dir: &Path,
+        opts: &RunOptions,
+        clock: &Clock,
+        start: Instant,
+    ) -> Result<(crate::output::DirectoryLock, Self), Error> {
+        let (end, interval, eps) = (clock.end, clock.interval, clock.eps());
+        // checkpoints at every frame unless the deck says otherwise: one file, overwritten, and
+        // small next to the frames
+        let checkpoint_interval = deck.output.checkpoint_interval.unwrap_or(interval);
+        let checkpoint_path = dir.join("checkpoint.bin");
+        let (out, driver, lock) =
+            open_output(deck, sim, file, dir, opts, checkpoint_interval, eps)?;
+        let wall_before = driver.wall_seconds;
+        let w = Writing {
+            out,
+            driver,
+            checkpoint_path,
+            checkpoint_interval,
+            eps,
+            end,
+            start,
+            wall_before,
+            start_steps: sim.steps,
+            // a resumed run's last good state is the checkpoint it started from
+            last_checkpoint: opts.resume.as_ref().map(|_| sim.time),
+            room: RoomGuard::of(deck, sim),
+        };
+        Ok((lock, w))
+    }
+
+    /// The observer's view of `sim` after a step of `dt`, `wall` seconds into the run.
+    fn status<const D: usize>(&self, sim: &Simulation<D>, dt: f64, wall: f64) -> Status {
+        status(sim, self.end, self.start_steps, dt, self.out.frames, wall)
+    }
+
+    /// Adds the last step's pressure iterations to the run's totals.
+    fn count_iterations<const D: usize>(&mut self, sim: &Simulation<D>) {
+        let (iters, max_iters) = &mut self.driver.iterations;
+        *iters += sim.pressure_iterations() as u64;
+        *max_iters = (*max_iters).max(sim.pressure_iterations());
+    }
+
+    /// The time series' rows of a step from `t0`: the probes' always, the rigid bodies' and
+    /// the gauges' only when the step was taken (`stepped`).
+    fn step_rows<const D: usize>(
+        &mut self,
+        t0: f64,
+        sim: &Simulation<D>,
+        stepped: bool,
+    ) -> Result<(), Error> {
+        self.out.probe_row(t0, sim)?;
+        if stepped {
+            self.out
+                .rigid_row(sim)
+                .and_then(|_| self.out.gauge_row(t0, sim))?;
+        }
+        Ok(())
+    }
+
     /// After a step of `dt`: the `frame` the driver found due, the final probe row and the
     /// checkpoint that are due. At the end there are all three; at the `last` step asked for
     /// (a benchmark), a frame and the probe row; when `interrupted`, a frame and a checkpoint.
@@ -401,6 +424,36 @@ impl Writing {
             self.last_checkpoint = Some(sim.time);
         }
         Ok(())
+    }
+
+    /// Flushes the output at the run's end, and returns the run's error (`result`), or else
+    /// the flush's, with where the last good state is and how to go on from it.
+    fn finish(
+        &mut self,
+        result: Result<(), Error>,
+        file: &str,
+        dir: &Path,
+        deck: &Deck,
+    ) -> Result<(), Error> {
+        let flushed = self.out.finish();
+        let resume = resume_command(file, &self.checkpoint_path, dir, deck);
+        result.map_err(|e| write_failure_hint(e, self.last_checkpoint, &resume))?;
+        flushed.map_err(|e| write_failure_hint(e, self.last_checkpoint, &resume))
+    }
+
+    /// What the finished run of `sim` reports, its last step `last_dt`.
+    fn summary<const D: usize>(&self, sim: &Simulation<D>, last_dt: f64) -> RunSummary {
+        RunSummary {
+            steps: sim.steps,
+            frames: self.out.frames,
+            particles: sim.particles.len(),
+            wall_seconds: self.start.elapsed().as_secs_f64(),
+            time: sim.time,
+            timers: sim.timers.clone(),
+            pressure_iterations: self.driver.iterations,
+            peak_memory: peak_memory(),
+            last_dt,
+        }
     }
 }
 
