@@ -198,15 +198,12 @@ fn run_dim<const D: usize>(
             .as_ref()
             .is_some_and(|f| f.load(Ordering::SeqCst));
         let last = opts.max_steps.is_some_and(|n| sim.steps >= n);
-        if let Err(e) = w.after_step(
-            deck,
-            &mut sim,
-            step.dt,
-            step.frame,
+        let end = StepEnd {
+            scheduled: step.frame,
             last,
             interrupted,
-            observer,
-        ) {
+        };
+        if let Err(e) = w.after_step(deck, &mut sim, step.dt, end, observer) {
             break Err(e);
         }
         sim.timers.lap(Phase::Output);
@@ -219,6 +216,17 @@ fn run_dim<const D: usize>(
     };
     w.finish(result, file, dir, deck)?;
     Ok(w.summary(&sim, last_dt))
+}
+
+/// How a step ended, for what is written after it ([`Writing::after_step`]).
+#[derive(Debug, Clone, Copy)]
+struct StepEnd {
+    /// A frame is due by the schedule.
+    scheduled: bool,
+    /// The last step asked for (`max_steps`).
+    last: bool,
+    /// The run was interrupted (Ctrl-C, a signal).
+    interrupted: bool,
 }
 
 /// The error that stops a run interrupted after the step that brought `sim` where it is,
@@ -365,23 +373,25 @@ impl Writing {
         Ok(())
     }
 
-    /// After a step of `dt`: the `frame` the driver found due, the final probe row and the
-    /// checkpoint that are due. At the end there are all three; at the `last` step asked for
-    /// (a benchmark), a frame and the probe row; when `interrupted`, a frame and a checkpoint.
-    /// A frame written only because the run was interrupted is not counted: the resumed run
-    /// writes the next frame of the schedule under its number, so that its frames are those
-    /// of the run never stopped.
-    #[allow(clippy::too_many_arguments)]
+    /// After a step of `dt`: the frame the driver found due (`end.scheduled`), the final
+    /// probe row and the checkpoint that are due. At the end there are all three; at the
+    /// `last` step asked for (a benchmark), a frame and the probe row; when `interrupted`, a
+    /// frame and a checkpoint. A frame written only because the run was interrupted is not
+    /// counted: the resumed run writes the next frame of the schedule under its number, so
+    /// that its frames are those of the run never stopped.
     fn after_step<const D: usize>(
         &mut self,
         deck: &Deck,
         sim: &mut Simulation<D>,
         dt: f64,
-        scheduled: bool,
-        last: bool,
-        interrupted: bool,
+        end: StepEnd,
         observer: &mut dyn Observer,
     ) -> Result<(), Error> {
+        let StepEnd {
+            scheduled,
+            last,
+            interrupted,
+        } = end;
         if let Some(guard) = &self.room {
             guard.check(deck, sim)?;
         }
