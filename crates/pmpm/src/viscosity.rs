@@ -10,7 +10,7 @@
 //!
 //! backward Euler on m_i du_i/dt = -sum_q w_q tau_q G_iq, the viscous force of the weak form
 //! integrated at quadrature points q: the Gauss points of the cells deep in the fluid, the
-//! particles elsewhere ([`ImplicitViscosity::quadrature`]). u^T K u = sum_q 2 w_q mu_q
+//! particles elsewhere (`ImplicitViscosity::quadrature`). u^T K u = sum_q 2 w_q mu_q
 //! |dev sym L_q|^2 >= 0, so M + dt K is symmetric positive definite on the nodes that carry
 //! mass, for any mu_q >= 0 and any dt: the solve is unconditionally stable. The free surface
 //! needs no condition: it is where the quadrature points end, and the weak form's natural

@@ -83,7 +83,7 @@ pub struct RigidBox<const D: usize> {
     pub motion: Option<crate::field::CompiledField>,
     /// How it holds the material on its trailing faces.
     pub sides: RigidSides,
-    /// A body of any shape, or one that turns ([`shaped`]); None: the box above.
+    /// A body of any shape, or one that turns (the `shaped` module); None: the box above.
     pub shaped: Option<ShapedBody>,
     /// A box that moves freely (without turning): its mass and what it keeps still; it
     /// starts at `velocity` and `motion` is None.
@@ -321,7 +321,7 @@ impl<const D: usize> RigidBodies<D> {
     }
 
     /// Displacement of body `b` at time `t`: v t at a constant velocity, else the velocity's
-    /// integral from 0 to t ([`displacement`]); a shaped body's reference point's (a free
+    /// integral from 0 to t (`displacement`); a shaped body's reference point's (a free
     /// body's now, whatever `t`).
     pub fn displacement(&self, b: usize, t: f64) -> Vector<D> {
         if let Some(s) = &self.shaped[b] {
@@ -812,7 +812,7 @@ impl<const D: usize> RigidBodies<D> {
     }
 
     /// The part of the box [lo, hi] that the box bodies (not the shaped ones) leave open, their
-    /// faces [`snapped`](RigidBodies::snapped) to the node rows: its volume and centroid, exact
+    /// faces snapped (`RigidBodies::snapped`) to the node rows: its volume and centroid, exact
     /// for one body (overlapping bodies are taken one by one, their common part counted once
     /// per body, the volume clamped at zero).
     pub fn open_part(
@@ -1186,7 +1186,7 @@ impl<const D: usize> RigidBodies<D> {
 
     /// After the step's pressure: the force and torque on each body, and the free bodies
     /// moved by them over the step, then parted from the bodies they reached
-    /// ([`contact`]) and held inside the grid. Contact and walls take turns (three passes): a
+    /// (the `contact` module) and held inside the grid. Contact and walls take turns (three passes): a
     /// body parted from another onto a wall is put back and parted again.
     pub fn end_step(&mut self, grid: &Grid<D>, dt: f64, pressure: PressureForce<'_, D>) {
         if self.is_empty() {
