@@ -65,11 +65,11 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod atomic;
-pub mod averaging;
+pub(crate) mod averaging;
 pub mod boundary;
 pub mod build;
 pub mod checkpoint;
-pub mod damping;
+pub(crate) mod damping;
 pub mod deck;
 pub mod driver;
 pub mod error;
@@ -90,8 +90,8 @@ pub mod scheme;
 pub mod seed;
 pub mod shape;
 pub mod timing;
-pub mod transfer;
-pub mod viscosity;
+pub(crate) mod transfer;
+pub(crate) mod viscosity;
 
 pub use deck::{limits, Deck};
 pub use error::Error;

@@ -894,7 +894,7 @@ pub(crate) fn least_density<const D: usize>(ps: &Particles<D>) -> f64 {
 
 impl<const D: usize> Grid<D> {
     /// Predictor on the nodes: v* = v^n / (1 + dt c_i) + dt f / m, zero on empty nodes, with
-    /// c_i = damping + the damping zones' rate at the node ([`crate::damping`]).
+    /// c_i = damping + the damping zones' rate at the node (the `damping` module).
     /// The damping acts on the velocity the node has (implicitly, so it is stable for any
     /// coefficient), not on the step's force: damping the force too, (v^n + dt f / m) /
     /// (1 + dt damping), made a column at rest under the projection carry only

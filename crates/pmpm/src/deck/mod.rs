@@ -703,7 +703,7 @@ pub struct InflowDeck {
 }
 
 /// `[[damping_zones]]`: a layer where the grid's velocities relax towards rest, to absorb the
-/// waves that reach the ends of a tank ([`crate::damping`]).
+/// waves that reach the ends of a tank (the `damping` module).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DampingZoneDeck {

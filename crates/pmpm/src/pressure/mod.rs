@@ -10,9 +10,9 @@
 //! volume V_p^0 (rho_p = m_p / V_p^0), not V_p^0 J: J drifts with the discrete divergence, and
 //! feeding the drift back into L and into the free-surface volume fractions would compound it.
 
-pub mod assemble;
-pub mod cell;
-pub mod density;
+pub(crate) mod assemble;
+pub(crate) mod cell;
+pub(crate) mod density;
 pub mod free_surface;
 mod settings;
 
