@@ -79,6 +79,7 @@ pub mod gauges;
 pub mod geometry;
 pub mod grid;
 pub mod grid_fields;
+mod keys;
 pub mod linalg;
 pub mod material;
 pub mod output;

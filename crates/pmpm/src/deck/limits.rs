@@ -5,6 +5,7 @@
 
 use super::Deck;
 use crate::error::Error;
+pub use crate::keys::short;
 
 /// The most steps a deck may need without `--allow-large`.
 pub const MAX_STEPS: f64 = 1e9;
@@ -56,7 +57,7 @@ pub struct RigidPace {
     pub key: &'static str,
 }
 
-/// The prescribed bodies' fastest speed at each of [`super::motion_times`] (empty without a
+/// The prescribed bodies' fastest speed at each of [`crate::rigid::motion_times`] (empty without a
 /// moving body), and the [`RigidPace`] of the fastest of all (None without a moving one).
 pub fn prescribed_speeds(deck: &Deck) -> (Vec<f64>, Option<RigidPace>) {
     use super::RigidMotion;
@@ -80,9 +81,9 @@ pub fn prescribed_speeds(deck: &Deck) -> (Vec<f64>, Option<RigidPace>) {
             None => 0.0,
         };
         if speeds.is_empty() {
-            speeds = vec![0.0; super::motion_times(end).count()];
+            speeds = vec![0.0; crate::rigid::motion_times(end).count()];
         }
-        for (k, t) in super::motion_times(end).enumerate() {
+        for (k, t) in crate::rigid::motion_times(end).enumerate() {
             let lin = v.as_ref().map_or(0.0, |v| v.eval_t(t).norm());
             let rot = w.as_ref().map_or(0.0, |w| w.eval_t(t).norm() * radius);
             let speed = lin + rot;
@@ -167,7 +168,7 @@ pub fn memory(dimension: usize, particles: f64, nodes: f64) -> f64 {
 }
 
 /// [`Estimate::flow_steps`] and [`Estimate::steps`], with `rigid` the fastest prescribed
-/// rigid body's speed (m/s) at each of [`super::motion_times`] (or empty), which the adaptive
+/// rigid body's speed (m/s) at each of [`crate::rigid::motion_times`] (or empty), which the adaptive
 /// step follows: the steps are the integral over the run of the faster of it and the flow's
 /// speed, over cfl h.
 fn steps(deck: &Deck, rigid: &[f64]) -> (f64, f64) {
@@ -318,19 +319,6 @@ pub fn refuse_beyond_limits(deck: &Deck, file: &str, allow_large: bool) -> Resul
         ));
     }
     Ok(())
-}
-
-/// A number in a message: as it is when short, else in scientific form with 3 digits (a
-/// bulk modulus of 1e308 must not print 300 digits).
-pub fn short(x: f64) -> String {
-    let plain = format!("{x}");
-    if plain.len() <= 12 {
-        plain
-    } else if x.abs() >= 1e6 || (x != 0.0 && x.abs() < 1e-4) {
-        format!("{x:.3e}")
-    } else {
-        format!("{x:.6}")
-    }
 }
 
 /// `text` with every number Rust printed as a long decimal (it writes 1e300 and 1e-300 with

@@ -10,7 +10,8 @@
 pub mod limits;
 pub mod room;
 
-use crate::field::{Component, VectorField};
+use crate::field::VectorField;
+use crate::keys::Check;
 use serde::{Deserialize, Serialize};
 
 // the option enums live with the code they choose
@@ -1004,113 +1005,6 @@ fn humanise(msg: &str, key: &mut String) -> String {
     }
 }
 
-/// exmex's parse errors in plain words where they are written for its developers.
-fn plain_exmex(msg: &str) -> String {
-    // field.rs writes `[k] = "text": why`
-    let split = msg.find("\": ").map(|i| (&msg[..i + 1], &msg[i + 3..]));
-    match split {
-        Some((head, why)) if why.contains("we always need one more node than op") => {
-            format!("{head}: an operator or a function lacks a value, or two values have no operator between them")
-        }
-        Some((head, why)) if why.starts_with("wlog ") => format!("{head}: {}", &why[5..]),
-        _ => msg.to_string(),
-    }
-}
-
-/// Small builder of validation errors against one file.
-struct Check<'a> {
-    file: &'a str,
-}
-
-impl Check<'_> {
-    fn err(&self, key: impl Into<String>, message: impl Into<String>) -> DeckError {
-        DeckError {
-            file: self.file.to_string(),
-            key: key.into(),
-            line_col: None,
-            message: message.into(),
-        }
-    }
-    fn positive(&self, key: &str, v: f64) -> Result<(), DeckError> {
-        if v.is_finite() && v > 0.0 {
-            Ok(())
-        } else {
-            Err(self.err(key, format!("must be > 0, got {v}")))
-        }
-    }
-    fn non_negative(&self, key: &str, v: f64) -> Result<(), DeckError> {
-        if v.is_finite() && v >= 0.0 {
-            Ok(())
-        } else {
-            Err(self.err(key, format!("must be >= 0, got {v}")))
-        }
-    }
-    /// A vector has `dim` components.
-    fn components(&self, key: &str, n: usize, dim: usize) -> Result<(), DeckError> {
-        if n == dim {
-            return Ok(());
-        }
-        Err(self.err(
-            key,
-            format!("must have {dim} components (dimension = {dim}), got {n}"),
-        ))
-    }
-
-    /// A vector field: `dim` components, finite numbers, expressions that parse.
-    fn field(&self, key: &str, v: &VectorField, dim: usize) -> Result<(), DeckError> {
-        self.components(key, v.len(), dim)?;
-        for c in &v.0 {
-            if let Component::Number(x) = c {
-                if !x.is_finite() {
-                    return Err(self.err(key, format!("components must be finite, got {x}")));
-                }
-            }
-        }
-        for (k, comp) in v.0.iter().enumerate() {
-            // exmex reads `{name}` as a variable of any name, which the names check of
-            // field.rs does not see (and then panics on)
-            if let Component::Expression(text) = comp {
-                if text.contains(['{', '}']) {
-                    return Err(self.err(
-                        key,
-                        format!("bad expression: {key}[{k}] = \"{text}\": braces {{ }} are not allowed; use ( ) and the variables x, y, z, t"),
-                    ));
-                }
-            }
-        }
-        v.compile()
-            .map_err(|e| self.err(key, format!("bad expression: {key}{}", plain_exmex(&e))))?;
-        // an expression without x, y, z or t is a number: it must be a finite one ("sqrt(-1)",
-        // "1/0" would only show as a blow-up of the run)
-        for (k, comp) in v.0.iter().enumerate() {
-            if let Component::Expression(text) = comp {
-                let one = VectorField(vec![comp.clone()]).compile().map_err(|e| {
-                    self.err(key, format!("bad expression: {key}[{k}] = \"{text}\": {e}"))
-                })?;
-                if !one.is_constant() {
-                    continue;
-                }
-                let x = one.eval::<1>(&crate::grid::Vector::<1>::zeros(), 0.0)[0];
-                if !x.is_finite() {
-                    return Err(self.err(
-                        key,
-                        format!("bad expression: {key}[{k}] = \"{text}\": gives {x}, not a finite number"),
-                    ));
-                }
-            }
-        }
-        Ok(())
-    }
-
-    fn vector(&self, key: &str, v: &[f64], dim: usize) -> Result<(), DeckError> {
-        self.components(key, v.len(), dim)?;
-        if let Some(x) = v.iter().find(|x| !x.is_finite()) {
-            return Err(self.err(key, format!("components must be finite, got {x}")));
-        }
-        Ok(())
-    }
-}
-
 impl Deck {
     /// Whether material enters or leaves through the grid's faces (an outflow face or an
     /// Whether a rigid body moves freely (its state goes into the checkpoint).
@@ -1734,7 +1628,7 @@ impl Deck {
                     format!("must exceed min along {}: {} <= {}", AXES[d], mx[d], mn[d]),
                 ));
             }
-            rigid_velocity(r, &k, dim, self.simulation.end_time, c)?;
+            r.check_velocity(&k, dim, self.simulation.end_time, c)?;
         }
         self.check_free_apart(c)?;
         self.mesh_files.extend(files);
@@ -1794,39 +1688,8 @@ impl Deck {
                 "\"smooth\" is for a box that does not turn (an axis-aligned box moved by velocity alone); this body is held rough",
             ));
         }
-        if let Some(w) = &r.angular_velocity {
-            let key = format!("{k}.angular_velocity");
-            let f = w.field();
-            let want = if dim == 2 { 1 } else { 3 };
-            if f.len() != want {
-                return Err(c.err(
-                    key,
-                    if dim == 2 {
-                        "in 2D is one number or expression of t (rad/s, counter-clockwise)"
-                            .to_string()
-                    } else {
-                        format!(
-                            "in 3D is a vector of 3 numbers or expressions of t, got {}",
-                            f.len()
-                        )
-                    },
-                ));
-            }
-            let g = f.compile().map_err(|e| c.err(key.clone(), e))?;
-            time_only(&g, &key, "turns", self.simulation.end_time, c)?;
-        }
-        rigid_velocity(r, k, dim, self.simulation.end_time, c)?;
+        r.check_motion(k, dim, self.simulation.end_time, c)?;
         let free = r.motion == RigidMotion::Free;
-        if let Some(x) = &r.centre {
-            c.vector(&format!("{k}.centre"), x, dim)?;
-            if !free && r.angular_velocity.is_none() {
-                return Err(c.err(
-                    format!("{k}.centre"),
-                    "is the point a turning body turns about: give angular_velocity, or remove centre",
-                ));
-            }
-        }
-        motion_keys(r, k, dim, c)?;
         let Some(shape) = self.rigid_shape(r) else {
             return Err(c.err(
                 format!("{k}.shape"),
@@ -2485,141 +2348,6 @@ fn check_body_material(
                 .join(", ")
         );
         return Err(c.err(format!("{k}.material"), msg));
-    }
-    Ok(())
-}
-
-/// The keys of rigid body `r` (key `k`) that only one kind of motion takes: a free body's
-/// density, its velocities at t = 0 as numbers, and the motions it holds (`fixed`); none of
-/// them for a prescribed body.
-fn motion_keys(r: &RigidBodyDeck, k: &str, dim: usize, c: &Check) -> Result<(), DeckError> {
-    if r.motion == RigidMotion::Free {
-        match r.density {
-            None => {
-                return Err(c.err(
-                    format!("{k}.density"),
-                    "a free body needs its density (kg/m^3)",
-                ))
-            }
-            Some(rho) => c.positive(&format!("{k}.density"), rho)?,
-        }
-        if r.centre.is_some() {
-            return Err(c.err(
-                format!("{k}.centre"),
-                "a free body turns about its centroid: remove centre",
-            ));
-        }
-        for (key, given) in [
-            (
-                "velocity",
-                r.velocity.as_ref().map(|v| v.numbers().is_none()),
-            ),
-            (
-                "angular_velocity",
-                r.angular_velocity
-                    .as_ref()
-                    .map(|w| w.field().numbers().is_none()),
-            ),
-        ] {
-            if given == Some(true) {
-                return Err(c.err(
-                    format!("{k}.{key}"),
-                    "of a free body is its value at t = 0: numbers, not expressions",
-                ));
-            }
-        }
-        let names: &[&str] = if dim == 2 {
-            &["x", "y", "rotation"]
-        } else {
-            &["x", "y", "z", "rotation"]
-        };
-        for (j, f) in r.fixed.iter().enumerate() {
-            if !names.contains(&f.as_str()) {
-                return Err(c.err(
-                    format!("{k}.fixed[{j}]"),
-                    format!("must be one of {}, got \"{f}\"", names.join(", ")),
-                ));
-            }
-        }
-        if !r.turns() && r.angular_velocity.is_some() {
-            return Err(c.err(
-                format!("{k}.angular_velocity"),
-                "is given for a body held from turning (fixed holds \"rotation\"): remove one of them",
-            ));
-        }
-    } else {
-        if r.density.is_some() {
-            return Err(c.err(
-                format!("{k}.density"),
-                "is for motion = \"free\" (a prescribed body's motion does not depend on its mass)",
-            ));
-        }
-        if !r.fixed.is_empty() {
-            return Err(c.err(format!("{k}.fixed"), "is for motion = \"free\""));
-        }
-    }
-    Ok(())
-}
-
-/// A rigid body's `velocity`: `dim` components, numbers or expressions of t only, finite
-/// over the run.
-fn rigid_velocity(
-    r: &RigidBodyDeck,
-    k: &str,
-    dim: usize,
-    end_time: f64,
-    c: &Check,
-) -> Result<(), DeckError> {
-    let Some(v) = &r.velocity else {
-        return Ok(());
-    };
-    let key = format!("{k}.velocity");
-    c.field(&key, v, dim)?;
-    time_only(
-        &v.compile().expect("checked above"),
-        &key,
-        "moves",
-        end_time,
-        c,
-    )
-}
-
-/// Samples of a run's time span [0, end_time] at which a prescribed rigid body's motion is
-/// looked at (its ends and 2047 points between): where it must be finite, and the fastest it
-/// goes for the step estimate.
-pub fn motion_times(end_time: f64) -> impl Iterator<Item = f64> {
-    const N: usize = 2048;
-    (0..=N).map(move |k| end_time * k as f64 / N as f64)
-}
-
-/// A rigid body moves and turns as a whole: the field `f` of `key` may depend on t only (no
-/// expression names x, y or z), and is a finite number over the run, [0, end_time] (what it
-/// gives after the end is never used).
-fn time_only(
-    f: &crate::field::CompiledField,
-    key: &str,
-    verb: &str,
-    end_time: f64,
-    c: &Check,
-) -> Result<(), DeckError> {
-    if f.uses_position() {
-        return Err(c.err(
-            key,
-            format!("may depend on t only (a rigid body {verb} as a whole): remove x, y and z from the expressions"),
-        ));
-    }
-    for t in motion_times(end_time) {
-        let v = f.eval_at(&[], t);
-        if v.iter().any(|x| !x.is_finite()) {
-            return Err(c.err(
-                key,
-                format!(
-                    "is not a finite number at t = {} s, within the run (simulation.end_time = {} s): {v:?}",
-                    crate::limits::short(t),
-                    crate::limits::short(end_time)
-                ),
-            ));
-        }
     }
     Ok(())
 }

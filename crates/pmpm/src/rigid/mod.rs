@@ -33,7 +33,7 @@ mod settings;
 mod shaped;
 
 pub use motion::{Free, FreeState, Motion};
-pub use settings::{RigidBodyDeck, RigidMotion, Spin};
+pub use settings::{motion_times, RigidBodyDeck, RigidMotion, Spin};
 pub use shaped::{Pose, Reach, Shaped};
 
 use crate::grid::NodeKind;

@@ -1,9 +1,13 @@
 //! The `[[rigid_bodies]]` deck section: each body's shape, motion and contact, as the deck
-//! gives them, and its shape on the grid.
+//! gives them, the checks of its motion's keys, and its shape on the grid. The deck checks
+//! what concerns the section as a whole (names, overlaps, bodies against inflows) and calls
+//! these.
 
 use super::{Reach, RigidSides, Shaped};
+use crate::error::DeckError;
 use crate::field::{Component, VectorField};
 use crate::geometry::ShapeDeck;
+use crate::keys::Check;
 use serde::{Deserialize, Serialize};
 
 /// `[[rigid_bodies]]`: a body that moves through the material along a prescribed path (a
@@ -90,9 +94,7 @@ impl RigidBodyDeck {
     pub fn is_shaped(&self) -> bool {
         !self.shape.is_plain_box() || self.turns()
     }
-}
 
-impl RigidBodyDeck {
     /// Its shape on a grid of cell size `h` over the domain `lo`..`hi` (cut to the grid, grown
     /// by a cell, where it is unbounded), with its volume, centroid, inertia and surface, for a
     /// run to `end_time`; None when it holds no volume there or is not a valid shape.
@@ -139,4 +141,185 @@ impl RigidBodyDeck {
             });
         2.0 * fastest * end
     }
+
+    /// Its `velocity` (key `k`.velocity): `dim` components, numbers or expressions of t only,
+    /// finite over a run to `end_time`.
+    pub(crate) fn check_velocity(
+        &self,
+        k: &str,
+        dim: usize,
+        end_time: f64,
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        let Some(v) = &self.velocity else {
+            return Ok(());
+        };
+        let key = format!("{k}.velocity");
+        c.field(&key, v, dim)?;
+        time_only(
+            &v.compile().expect("checked above"),
+            &key,
+            "moves",
+            end_time,
+            c,
+        )
+    }
+
+    /// The keys of its motion on the general path (key `k`): `angular_velocity` (one component
+    /// in 2D, three in 3D, of t only, finite over a run to `end_time`), `velocity`, `centre`
+    /// (only for a body that turns about it), and the keys only one kind of motion takes.
+    pub(crate) fn check_motion(
+        &self,
+        k: &str,
+        dim: usize,
+        end_time: f64,
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        if let Some(w) = &self.angular_velocity {
+            let key = format!("{k}.angular_velocity");
+            let f = w.field();
+            let want = if dim == 2 { 1 } else { 3 };
+            if f.len() != want {
+                return Err(c.err(
+                    key,
+                    if dim == 2 {
+                        "in 2D is one number or expression of t (rad/s, counter-clockwise)"
+                            .to_string()
+                    } else {
+                        format!(
+                            "in 3D is a vector of 3 numbers or expressions of t, got {}",
+                            f.len()
+                        )
+                    },
+                ));
+            }
+            let g = f.compile().map_err(|e| c.err(key.clone(), e))?;
+            time_only(&g, &key, "turns", end_time, c)?;
+        }
+        self.check_velocity(k, dim, end_time, c)?;
+        let free = self.motion == RigidMotion::Free;
+        if let Some(x) = &self.centre {
+            c.vector(&format!("{k}.centre"), x, dim)?;
+            if !free && self.angular_velocity.is_none() {
+                return Err(c.err(
+                    format!("{k}.centre"),
+                    "is the point a turning body turns about: give angular_velocity, or remove centre",
+                ));
+            }
+        }
+        motion_keys(self, k, dim, c)?;
+        Ok(())
+    }
+}
+
+/// The keys of rigid body `r` (key `k`) that only one kind of motion takes: a free body's
+/// density, its velocities at t = 0 as numbers, and the motions it holds (`fixed`); none of
+/// them for a prescribed body.
+fn motion_keys(r: &RigidBodyDeck, k: &str, dim: usize, c: &Check) -> Result<(), DeckError> {
+    if r.motion == RigidMotion::Free {
+        match r.density {
+            None => {
+                return Err(c.err(
+                    format!("{k}.density"),
+                    "a free body needs its density (kg/m^3)",
+                ))
+            }
+            Some(rho) => c.positive(&format!("{k}.density"), rho)?,
+        }
+        if r.centre.is_some() {
+            return Err(c.err(
+                format!("{k}.centre"),
+                "a free body turns about its centroid: remove centre",
+            ));
+        }
+        for (key, given) in [
+            (
+                "velocity",
+                r.velocity.as_ref().map(|v| v.numbers().is_none()),
+            ),
+            (
+                "angular_velocity",
+                r.angular_velocity
+                    .as_ref()
+                    .map(|w| w.field().numbers().is_none()),
+            ),
+        ] {
+            if given == Some(true) {
+                return Err(c.err(
+                    format!("{k}.{key}"),
+                    "of a free body is its value at t = 0: numbers, not expressions",
+                ));
+            }
+        }
+        let names: &[&str] = if dim == 2 {
+            &["x", "y", "rotation"]
+        } else {
+            &["x", "y", "z", "rotation"]
+        };
+        for (j, f) in r.fixed.iter().enumerate() {
+            if !names.contains(&f.as_str()) {
+                return Err(c.err(
+                    format!("{k}.fixed[{j}]"),
+                    format!("must be one of {}, got \"{f}\"", names.join(", ")),
+                ));
+            }
+        }
+        if !r.turns() && r.angular_velocity.is_some() {
+            return Err(c.err(
+                format!("{k}.angular_velocity"),
+                "is given for a body held from turning (fixed holds \"rotation\"): remove one of them",
+            ));
+        }
+    } else {
+        if r.density.is_some() {
+            return Err(c.err(
+                format!("{k}.density"),
+                "is for motion = \"free\" (a prescribed body's motion does not depend on its mass)",
+            ));
+        }
+        if !r.fixed.is_empty() {
+            return Err(c.err(format!("{k}.fixed"), "is for motion = \"free\""));
+        }
+    }
+    Ok(())
+}
+
+/// Samples of a run's time span [0, end_time] at which a prescribed rigid body's motion is
+/// looked at (its ends and 2047 points between): where it must be finite, and the fastest it
+/// goes for the step estimate.
+pub fn motion_times(end_time: f64) -> impl Iterator<Item = f64> {
+    const N: usize = 2048;
+    (0..=N).map(move |k| end_time * k as f64 / N as f64)
+}
+
+/// A rigid body moves and turns as a whole: the field `f` of `key` may depend on t only (no
+/// expression names x, y or z), and is a finite number over the run, [0, end_time] (what it
+/// gives after the end is never used).
+fn time_only(
+    f: &crate::field::CompiledField,
+    key: &str,
+    verb: &str,
+    end_time: f64,
+    c: &Check,
+) -> Result<(), DeckError> {
+    if f.uses_position() {
+        return Err(c.err(
+            key,
+            format!("may depend on t only (a rigid body {verb} as a whole): remove x, y and z from the expressions"),
+        ));
+    }
+    for t in motion_times(end_time) {
+        let v = f.eval_at(&[], t);
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(c.err(
+                key,
+                format!(
+                    "is not a finite number at t = {} s, within the run (simulation.end_time = {} s): {v:?}",
+                    crate::keys::short(t),
+                    crate::keys::short(end_time)
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
