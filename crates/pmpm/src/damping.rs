@@ -15,7 +15,87 @@
 //! absorbs most of it). The damping acts in the predictor, implicitly (v / (1 + dt c)), so it
 //! is stable at any rate. It is not a force a rigid body feels.
 
+use crate::error::DeckError;
 use crate::grid::GridGeometry;
+use crate::keys::{Check, AXES};
+use serde::{Deserialize, Serialize};
+
+/// `[[damping_zones]]`: a layer where the grid's velocities relax towards rest, to absorb the
+/// waves that reach the ends of a tank.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DampingZoneDeck {
+    /// "x", "y" or "z": the axis along which the rate grows.
+    pub axis: String,
+    /// Where the damping starts (rate 0), as a coordinate along `axis` (m).
+    pub from: f64,
+    /// Where it reaches `rate` (m); the zone lies on this side of `from`.
+    pub to: f64,
+    /// The rate at `to` and beyond (1/s).
+    pub rate: f64,
+}
+
+impl DampingZoneDeck {
+    /// The zone of a validated entry.
+    pub fn zone(&self) -> DampingZone {
+        DampingZone {
+            axis: AXES.iter().position(|a| *a == self.axis).unwrap_or(0),
+            from: self.from,
+            to: self.to,
+            rate: self.rate,
+        }
+    }
+
+    /// Checks an entry of key `k` on a grid of cell size `h` over `lo`..`hi`: an axis of
+    /// the run's dimension `dim`, `from` and `to` inside the grid and at least a cell apart,
+    /// a rate above 0.
+    pub(crate) fn check(
+        &self,
+        k: &str,
+        dim: usize,
+        (lo, hi): (&[f64], &[f64]),
+        h: f64,
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        let tol = 1e-9 * h;
+        let Some(axis) = AXES[..dim].iter().position(|a| *a == self.axis) else {
+            return Err(c.err(
+                format!("{k}.axis"),
+                format!(
+                    "must be one of {} (dimension = {dim}), got \"{}\"",
+                    AXES[..dim]
+                        .iter()
+                        .map(|a| format!("\"{a}\""))
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    self.axis
+                ),
+            ));
+        };
+        for (name, v) in [("from", self.from), ("to", self.to)] {
+            if !v.is_finite() || v < lo[axis] - tol || v > hi[axis] + tol {
+                return Err(c.err(
+                    format!("{k}.{name}"),
+                    format!(
+                        "must lie in the grid along {} ([{}, {}]), got {v}",
+                        self.axis, lo[axis], hi[axis]
+                    ),
+                ));
+            }
+        }
+        if (self.to - self.from).abs() < h {
+            return Err(c.err(
+                format!("{k}.to"),
+                format!(
+                    "must be at least a cell (grid.cell_size = {}) from `from` = {}, got {}: the rate grows from 0 at `from` to `rate` at `to`, and a sudden rise reflects the waves the zone should absorb",
+                    h, self.from, self.to
+                ),
+            ));
+        }
+        c.positive(&format!("{k}.rate"), self.rate)?;
+        Ok(())
+    }
+}
 
 /// One zone: the damping rate grows as s^2 from `from` to `to` along `axis`, and stays at
 /// `rate` beyond `to`.

@@ -129,3 +129,6 @@ pub fn short(x: f64) -> String {
         format!("{x:.6}")
     }
 }
+
+/// The names of the axes, as the deck writes them.
+pub(crate) const AXES: [&str; 3] = ["x", "y", "z"];

@@ -31,6 +31,7 @@ use std::fmt;
 use std::path::Path;
 
 pub use crate::boundary::BoundaryKind;
+pub use crate::damping::DampingZoneDeck;
 pub use crate::error::DeckError;
 pub use crate::geometry::{Numbers, ShapeDeck, ShapeKind};
 pub use crate::material::Model;
@@ -294,7 +295,7 @@ pub struct BoundaryDeck {
 }
 
 /// Names of the axes, in messages.
-const AXES: [&str; 3] = ["x", "y", "z"];
+use crate::keys::AXES;
 
 /// Face names in the order axis 0 min, axis 0 max, axis 1 min, ...
 pub const FACE_NAMES: [&str; 6] = ["x_min", "x_max", "y_min", "y_max", "z_min", "z_max"];
@@ -701,33 +702,6 @@ pub struct InflowDeck {
     /// Particles per cell per direction of the emitted lattice (default 2).
     #[serde(default = "default_ppc")]
     pub particles_per_cell: usize,
-}
-
-/// `[[damping_zones]]`: a layer where the grid's velocities relax towards rest, to absorb the
-/// waves that reach the ends of a tank (the `damping` module).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DampingZoneDeck {
-    /// "x", "y" or "z": the axis along which the rate grows.
-    pub axis: String,
-    /// Where the damping starts (rate 0), as a coordinate along `axis` (m).
-    pub from: f64,
-    /// Where it reaches `rate` (m); the zone lies on this side of `from`.
-    pub to: f64,
-    /// The rate at `to` and beyond (1/s).
-    pub rate: f64,
-}
-
-impl DampingZoneDeck {
-    /// The zone of a validated entry.
-    pub fn zone(&self) -> crate::damping::DampingZone {
-        crate::damping::DampingZone {
-            axis: AXES.iter().position(|a| *a == self.axis).unwrap_or(0),
-            from: self.from,
-            to: self.to,
-            rate: self.rate,
-        }
-    }
 }
 
 /// The whole deck.
@@ -1728,44 +1702,9 @@ impl Deck {
     fn check_damping_zones(&self, c: &Check) -> Result<(), DeckError> {
         let dim = self.simulation.dimension;
         let (lo, hi) = self.domain();
-        let tol = 1e-9 * self.grid.cell_size;
         for (i, z) in self.damping_zones.iter().enumerate() {
             let k = format!("damping_zones[{i}]");
-            let Some(axis) = AXES[..dim].iter().position(|a| *a == z.axis) else {
-                return Err(c.err(
-                    format!("{k}.axis"),
-                    format!(
-                        "must be one of {} (dimension = {dim}), got \"{}\"",
-                        AXES[..dim]
-                            .iter()
-                            .map(|a| format!("\"{a}\""))
-                            .collect::<Vec<_>>()
-                            .join(", "),
-                        z.axis
-                    ),
-                ));
-            };
-            for (name, v) in [("from", z.from), ("to", z.to)] {
-                if !v.is_finite() || v < lo[axis] - tol || v > hi[axis] + tol {
-                    return Err(c.err(
-                        format!("{k}.{name}"),
-                        format!(
-                            "must lie in the grid along {} ([{}, {}]), got {v}",
-                            z.axis, lo[axis], hi[axis]
-                        ),
-                    ));
-                }
-            }
-            if (z.to - z.from).abs() < self.grid.cell_size {
-                return Err(c.err(
-                    format!("{k}.to"),
-                    format!(
-                        "must be at least a cell (grid.cell_size = {}) from `from` = {}, got {}: the rate grows from 0 at `from` to `rate` at `to`, and a sudden rise reflects the waves the zone should absorb",
-                        self.grid.cell_size, z.from, z.to
-                    ),
-                ));
-            }
-            c.positive(&format!("{k}.rate"), z.rate)?;
+            z.check(&k, dim, (&lo, &hi), self.grid.cell_size, c)?;
         }
         Ok(())
     }
