@@ -950,6 +950,7 @@ impl<const D: usize> RigidBodies<D> {
             return;
         }
         self.update_ends(dt);
+        let grid = (geo.origin, geo.upper());
         let n = x.len();
         let (mut hits, mut impulses) = (
             std::mem::take(&mut self.hit),
@@ -969,7 +970,7 @@ impl<const D: usize> RigidBodies<D> {
             .for_each(|(x, v, &m, hit, impulse)| {
                 *hit = u32::MAX;
                 for b in 0..this.len() {
-                    let Some((d, sign, body)) = this.put_out(b, geo, dt, x) else {
+                    let Some((d, sign, body)) = this.put_out(b, geo, grid, dt, x) else {
                         continue;
                     };
                     if (v[d] - body) * sign < 0.0 {
@@ -1021,19 +1022,19 @@ impl<const D: usize> RigidBodies<D> {
         self.ends = ends;
     }
 
-    /// Moves a particle at `x` that lies inside body `b` at the end of a step of `dt` out
-    /// through one face, and gives that face's axis d, its outward sign and the body's velocity
-    /// along d there; None where the particle is outside or the body has no way out for it.
+    /// Moves a particle at `x` that lies inside body `b` at the end of a step of `dt` (on the
+    /// grid `geo`, whose corners are `(lo_grid, hi_grid)`) out through one face, and gives
+    /// that face's axis d, its outward sign and the body's velocity along d there; None where the particle is outside or the body has no way out for it.
     /// A box's way out is its face of least depth whose reflection stays inside the grid (a
     /// face on a wall, or one so near it that the reflection would cross it, is none).
     fn put_out(
         &self,
         b: usize,
         geo: &GridGeometry<D>,
+        (lo_grid, hi_grid): (Vector<D>, Vector<D>),
         dt: f64,
         x: &mut Vector<D>,
     ) -> Option<(usize, f64, f64)> {
-        let (lo_grid, hi_grid) = (geo.origin, geo.upper());
         if let Some((pose, (lo, hi))) = &self.ends[b] {
             let s = self.shaped[b].as_ref().expect("a shaped body");
             let mut y = to3(x);
