@@ -4,7 +4,6 @@
 
 use crate::common;
 use common::{drive, in_pool, pmpm, scratch_dir};
-use pmpm::gauges::Gauge;
 use pmpm::scheme::Simulation;
 
 fn tank(extra: &str, velocity: &str, end: f64) -> pmpm::Deck {
@@ -74,7 +73,7 @@ position = [0.3]
         "[0.0, 0.0]",
         0.3,
     );
-    let gauges = Gauge::from_deck(&d);
+    let gauges = d.gauges();
     let side = 1000.0 * 9.81 * 0.2 * 0.2 / 2.0;
     let weight = 1000.0 * 9.81 * 0.2 * 0.6;
     let mut worst = [0.0f64; 4];
@@ -130,7 +129,7 @@ position = [0.155]
         r#"["0.3 * cos(3.141592653589793 * x / 0.6)", "0.0"]"#,
         1.0,
     );
-    let gauges = Gauge::from_deck(&d);
+    let gauges = d.gauges();
     let h = 0.01;
     let (mut worst, mut range) = (0.0f64, (f64::INFINITY, f64::NEG_INFINITY));
     in_pool(2, || {

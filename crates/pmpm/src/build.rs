@@ -8,7 +8,6 @@ use crate::deck::RigidMotion;
 use crate::deck::{Deck, DeckError, MaterialDeck, ProbeSample};
 use crate::driver::{Clock, StepSize};
 use crate::error::Error;
-use crate::flow::Inflow;
 use crate::grid::{GridGeometry, Vector};
 use crate::material::MaterialParams;
 use crate::particles::Particles;
@@ -223,7 +222,15 @@ pub fn boundary<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Boundary<
     let mirrors = deck.simulation.scheme == Scheme::Projection
         && deck.pressure.unknowns == PressureUnknowns::Nodes;
     Boundary::new(faces, fields, mirrors, rigid_bodies(deck), geo).with_inflows(
-        inflows(deck, geo),
+        crate::flow::InflowDeck::build(
+            &deck.inflows,
+            &deck
+                .materials
+                .iter()
+                .map(|m| (m.name.as_str(), m.density))
+                .collect::<Vec<_>>(),
+            geo,
+        ),
         // the rows of nodes a particle less than a cell from the face reads from
         match deck.simulation.shape_function {
             crate::shape::ShapeFunction::Linear => 1,
@@ -231,36 +238,6 @@ pub fn boundary<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Boundary<
         },
         geo,
     )
-}
-
-/// The inflow patches of a validated deck.
-pub fn inflows<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Vec<Inflow<D>> {
-    deck.inflows
-        .iter()
-        .map(|q| {
-            let face = crate::deck::FACE_NAMES
-                .iter()
-                .position(|n| *n == q.face)
-                .expect("validated face");
-            let mat = deck
-                .materials
-                .iter()
-                .position(|m| m.name == q.material)
-                .expect("validated: inflow material exists");
-            Inflow::new(
-                face,
-                (
-                    Vector::<D>::from_column_slice(&q.min),
-                    Vector::<D>::from_column_slice(&q.max),
-                ),
-                q.velocity.compile().expect("validated expressions"),
-                mat as u16,
-                deck.materials[mat].density,
-                q.particles_per_cell,
-                geo.h,
-            )
-        })
-        .collect()
 }
 
 /// The rigid bodies of a validated deck.

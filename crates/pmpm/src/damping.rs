@@ -17,7 +17,7 @@
 
 use crate::error::DeckError;
 use crate::grid::GridGeometry;
-use crate::keys::{Check, AXES};
+use crate::keys::{Check, Frame, AXES};
 use serde::{Deserialize, Serialize};
 
 /// `[[damping_zones]]`: a layer where the grid's velocities relax towards rest, to absorb the
@@ -46,17 +46,22 @@ impl DampingZoneDeck {
         }
     }
 
-    /// Checks an entry of key `k` on a grid of cell size `h` over `lo`..`hi`: an axis of
-    /// the run's dimension `dim`, `from` and `to` inside the grid and at least a cell apart,
-    /// a rate above 0.
-    pub(crate) fn check(
-        &self,
-        k: &str,
-        dim: usize,
-        (lo, hi): (&[f64], &[f64]),
-        h: f64,
+    /// The `[[damping_zones]]`: each an axis of the run's dimension, `from` and `to` inside
+    /// the grid and at least a cell apart, a rate above 0.
+    pub(crate) fn check_all(
+        zones: &[DampingZoneDeck],
+        frame: &Frame,
         c: &Check,
     ) -> Result<(), DeckError> {
+        for (i, z) in zones.iter().enumerate() {
+            z.check(&format!("damping_zones[{i}]"), frame, c)?;
+        }
+        Ok(())
+    }
+
+    /// One entry, of key `k`.
+    fn check(&self, k: &str, frame: &Frame, c: &Check) -> Result<(), DeckError> {
+        let (dim, h, lo, hi) = (frame.dim, frame.cell_size, &frame.lo, &frame.hi);
         let tol = 1e-9 * h;
         let Some(axis) = AXES[..dim].iter().position(|a| *a == self.axis) else {
             return Err(c.err(

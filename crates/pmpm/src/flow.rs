@@ -19,8 +19,12 @@
 //! The [`Ledger`] counts what entered and left, so that series.csv closes the mass balance:
 //! m(0) + m_in - m_out - m(t) = 0 to round-off.
 
+use crate::error::DeckError;
 use crate::field::CompiledField;
+use crate::field::VectorField;
+use crate::geometry::Solid;
 use crate::grid::{GridGeometry, Vector};
+use crate::keys::{point, Check, Frame, AXES, FACE_NAMES};
 use crate::particles::Matrix;
 use crate::particles::Particles;
 use serde::{Deserialize, Serialize};
@@ -251,4 +255,291 @@ impl<const D: usize> Inflow<D> {
 pub fn has_left<const D: usize>(geo: &GridGeometry<D>, outflow: &[bool], x: &Vector<D>) -> bool {
     let (lo, hi) = (geo.origin, geo.upper());
     (0..D).any(|d| (outflow[2 * d] && x[d] < lo[d]) || (outflow[2 * d + 1] && x[d] > hi[d]))
+}
+
+/// `[[inflows]]`: a patch of a wall face through which material enters at a given velocity
+/// (this module).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InflowDeck {
+    /// Name of a `[[materials]]` entry.
+    pub material: String,
+    /// The face: "x_min", "x_max", "y_min", ... (a slip or no-slip face).
+    pub face: String,
+    /// The patch's lower corner on the face (its component along the face's normal is the
+    /// face's coordinate).
+    pub min: Vec<f64>,
+    /// The patch's upper corner.
+    pub max: Vec<f64>,
+    /// Velocity of the entering material (numbers or expressions in x, y, z, t), into the
+    /// domain.
+    pub velocity: VectorField,
+    /// Particles per cell per direction of the emitted lattice (default 2).
+    #[serde(default = "default_particles_per_cell")]
+    pub particles_per_cell: usize,
+}
+
+fn default_particles_per_cell() -> usize {
+    2
+}
+
+impl InflowDeck {
+    /// The inflows of a validated deck: each its face's index, its material's (by the
+    /// deck's `[[materials]]` names and densities) and the lattice of its patch.
+    pub fn build<const D: usize>(
+        inflows: &[InflowDeck],
+        materials: &[(&str, f64)],
+        geo: &GridGeometry<D>,
+    ) -> Vec<Inflow<D>> {
+        inflows
+            .iter()
+            .map(|q| {
+                let face = FACE_NAMES
+                    .iter()
+                    .position(|n| *n == q.face)
+                    .expect("validated face");
+                let mat = materials
+                    .iter()
+                    .position(|m| m.0 == q.material)
+                    .expect("validated: inflow material exists");
+                Inflow::new(
+                    face,
+                    (
+                        Vector::<D>::from_column_slice(&q.min),
+                        Vector::<D>::from_column_slice(&q.max),
+                    ),
+                    q.velocity.compile().expect("validated expressions"),
+                    mat as u16,
+                    materials[mat].1,
+                    q.particles_per_cell,
+                    geo.h,
+                )
+            })
+            .collect()
+    }
+
+    /// The `[[inflows]]`: each a patch of a wall face inside the grid, a whole number of
+    /// lanes wide, apart from the others, not covered by a rigid body (`rigid`: each body's
+    /// name and region), with a velocity that enters.
+    pub(crate) fn check_all(
+        inflows: &[InflowDeck],
+        frame: &Frame,
+        rigid: &[(&str, Solid)],
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        for (i, q) in inflows.iter().enumerate() {
+            let k = format!("inflows[{i}]");
+            let f = q.check(&k, frame, c)?;
+            if let Some((j, _)) = inflows[..i].iter().enumerate().find(|(_, o)| {
+                o.face == q.face
+                    && (0..frame.dim)
+                        .filter(|&d| d != f / 2)
+                        .all(|d| o.min[d] < q.max[d] && q.min[d] < o.max[d])
+            }) {
+                return Err(c.err(
+                    format!("{k}.min"),
+                    format!("the patch overlaps inflows[{j}]'s on the face {}", q.face),
+                ));
+            }
+            c.field(&format!("{k}.velocity"), &q.velocity, frame.dim)?;
+            q.check_enters(&k, f, frame, c)?;
+        }
+        for (i, q) in inflows.iter().enumerate() {
+            let axis = FACE_NAMES.iter().position(|n| *n == q.face).unwrap_or(0) / 2;
+            q.check_uncovered(&format!("inflows[{i}]"), axis, frame, rigid, c)?;
+        }
+        Ok(())
+    }
+
+    /// One inflow's keys (`k` its key): material, face, corners on the face and inside the
+    /// grid, particles per cell, width. Gives the face's index.
+    fn check(&self, k: &str, frame: &Frame, c: &Check) -> Result<usize, DeckError> {
+        let q = self;
+        let (dim, h) = (frame.dim, frame.cell_size);
+        let (lo, hi) = (&frame.lo, &frame.hi);
+        frame.material(&format!("{k}.material"), &q.material, c)?;
+        let f = frame.face(&format!("{k}.face"), &q.face, c)?;
+        if !frame.is_wall(f) {
+            return Err(c.err(
+                format!("{k}.face"),
+                format!(
+                    "grid.boundary.{} is \"{}\": an inflow is a patch of a slip or no-slip face",
+                    q.face, frame.faces[f]
+                ),
+            ));
+        }
+        c.vector(&format!("{k}.min"), &q.min, dim)?;
+        c.vector(&format!("{k}.max"), &q.max, dim)?;
+        let axis = f / 2;
+        let plane = if f % 2 == 0 { lo[axis] } else { hi[axis] };
+        for (name, v) in [("min", &q.min), ("max", &q.max)] {
+            if (v[axis] - plane).abs() > 1e-9 * h {
+                return Err(c.err(
+                    format!("{k}.{name}"),
+                    format!(
+                        "must lie on the face {}: its {} component must be {plane}, got {}",
+                        q.face, AXES[axis], v[axis]
+                    ),
+                ));
+            }
+        }
+        for d in (0..dim).filter(|&d| d != axis) {
+            if q.max[d] <= q.min[d] {
+                return Err(c.err(
+                    format!("{k}.max"),
+                    format!(
+                        "must exceed min along {}: {} <= {}",
+                        AXES[d], q.max[d], q.min[d]
+                    ),
+                ));
+            }
+            if q.min[d] < lo[d] - 1e-9 * h || q.max[d] > hi[d] + 1e-9 * h {
+                return Err(c.err(
+                    format!("{k}.min"),
+                    format!(
+                        "the patch spans [{}, {}] along {}, past the grid's [{}, {}]",
+                        q.min[d], q.max[d], AXES[d], lo[d], hi[d]
+                    ),
+                ));
+            }
+        }
+        if !(1..=8).contains(&q.particles_per_cell) {
+            return Err(c.err(
+                format!("{k}.particles_per_cell"),
+                format!("must be between 1 and 8, got {}", q.particles_per_cell),
+            ));
+        }
+        // each lane of the lattice carries s^(D-1) of the patch: its width must be a whole
+        // number of spacings, and at least a cell so that the face's nodes hold its flux
+        let s = h / q.particles_per_cell as f64;
+        for d in (0..dim).filter(|&d| d != axis) {
+            let w = q.max[d] - q.min[d];
+            let lanes = w / s;
+            if w < h * (1.0 - 1e-9) || (lanes - lanes.round()).abs() > 1e-6 * lanes {
+                return Err(c.err(
+                    format!("{k}.max"),
+                    format!(
+                        "the patch is {w} m wide along {}: it must be at least a cell (grid.cell_size = {h}) and a whole number of particle spacings (cell_size / particles_per_cell = {s})",
+                        AXES[d]
+                    ),
+                ));
+            }
+        }
+        Ok(f)
+    }
+    /// The material of this inflow (key `k`, on face `f`) enters: its velocity at t = 0 on a
+    /// lattice over the patch (its corners, its edges, the face's nodes on it) is finite and
+    /// points inwards.
+    fn check_enters(&self, k: &str, f: usize, frame: &Frame, c: &Check) -> Result<(), DeckError> {
+        let q = self;
+        let (dim, h, axis) = (frame.dim, frame.cell_size, f / 2);
+        let field = q.velocity.compile().expect("checked before");
+        let steps: Vec<usize> = (0..dim)
+            .map(|d| {
+                if d == axis {
+                    0
+                } else {
+                    ((q.max[d] - q.min[d]) / h).round() as usize
+                }
+            })
+            .collect();
+        let total: usize = steps.iter().map(|n| n + 1).product();
+        for m in 0..total {
+            let mut rem = m;
+            let x: Vec<f64> = (0..dim)
+                .map(|d| {
+                    let i = rem % (steps[d] + 1);
+                    rem /= steps[d] + 1;
+                    if steps[d] == 0 {
+                        q.min[d]
+                    } else {
+                        q.min[d] + (q.max[d] - q.min[d]) * i as f64 / steps[d] as f64
+                    }
+                })
+                .collect();
+            let v = field.eval_at(&x, 0.0);
+            let at = x
+                .iter()
+                .map(|c| format!("{c}"))
+                .collect::<Vec<_>>()
+                .join(", ");
+            if v.iter().any(|c| !c.is_finite()) {
+                return Err(c.err(
+                    format!("{k}.velocity"),
+                    format!("is not a finite number at ({at}) at t = 0: {v:?}"),
+                ));
+            }
+            let inward = if f % 2 == 0 { v[axis] } else { -v[axis] };
+            if inward < 0.0 {
+                return Err(c.err(
+                    format!("{k}.velocity"),
+                    format!(
+                        "points out of the domain at ({at}) at t = 0 (its {} component is {} on the face {}): an inflow's velocity points into the grid",
+                        AXES[axis], v[axis], q.face
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// No rigid body covers this inflow's patch (key `k`, on a face normal to `axis`) at
+    /// t = 0: the patch's nodes would hold the inflow's velocity inside the solid, and the
+    /// particles it emits would enter the solid. Tested at the first row of the particles it
+    /// emits (half a spacing in front of the patch), at each lane's centre.
+    fn check_uncovered(
+        &self,
+        k: &str,
+        axis: usize,
+        frame: &Frame,
+        rigid: &[(&str, Solid)],
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        let q = self;
+        let dim = frame.dim;
+        let s = frame.cell_size / q.particles_per_cell as f64;
+        let inward = if q.min[axis] <= frame.lo[axis] {
+            1.0
+        } else {
+            -1.0
+        };
+        let lanes: Vec<usize> = (0..dim)
+            .map(|d| {
+                if d == axis {
+                    1
+                } else {
+                    ((q.max[d] - q.min[d]) / s).round().max(1.0) as usize
+                }
+            })
+            .collect();
+        let total: usize = lanes.iter().product();
+        for (r, (name, solid)) in rigid.iter().enumerate() {
+            for m in 0..total {
+                let mut rem = m;
+                let x: Vec<f64> = (0..dim)
+                    .map(|d| {
+                        let i = rem % lanes[d];
+                        rem /= lanes[d];
+                        if d == axis {
+                            q.min[d] + inward * 0.5 * s
+                        } else {
+                            q.min[d] + (q.max[d] - q.min[d]) * (i as f64 + 0.5) / lanes[d] as f64
+                        }
+                    })
+                    .collect();
+                if solid.contains(&x) {
+                    return Err(c.err(
+                        format!("{k}.min"),
+                        format!(
+                            "the patch on the face {} is covered by rigid_bodies[{r}] (\"{}\") at t = 0 (for example at ({})): material would enter through the solid; move the patch or the body",
+                            q.face,
+                            name,
+                            point(&x)
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
 }

@@ -6,10 +6,16 @@
 //! about its place, as the grid's frames do ([`crate::grid_fields`]), whatever shape
 //! function the run steps with. Written by hand: each is a few lines over the particles near
 //! it, and the wall force is the grid's own momentum balance at the face's nodes.
+//!
+//! The section's settings are here too: `[[output.gauges]]`, and the probes
+//! (`[[output.probes]]`, sampled every step into probes.csv by the scheme).
 
-use crate::deck::{Deck, GaugeKind, FACE_NAMES};
+use crate::error::DeckError;
 use crate::grid::Vector;
+use crate::keys::{Check, Frame, AXES, FACE_NAMES};
+use crate::scheme::ProbeSample;
 use crate::scheme::Simulation;
+use serde::{Deserialize, Serialize};
 
 /// One gauge, as the run reads it.
 #[derive(Debug, Clone)]
@@ -41,13 +47,10 @@ pub enum Gauge {
 }
 
 impl Gauge {
-    /// The deck's gauges (validated).
-    pub fn from_deck(deck: &Deck) -> Vec<Self> {
-        let dim = deck.simulation.dimension;
-        let up = deck.simulation.vertical_axis();
-        let faces = deck.grid.boundary.faces();
-        deck.output
-            .gauges
+    /// The gauges of a validated deck.
+    pub(crate) fn build(gauges: &[GaugeDeck], frame: &Frame) -> Vec<Self> {
+        let (dim, up) = (frame.dim, frame.up);
+        gauges
             .iter()
             .map(|q| {
                 let point = |horizontal: bool| {
@@ -76,9 +79,7 @@ impl Gauge {
                             .iter()
                             .position(|n| *n == name)
                             .expect("validated");
-                        let all = faces[face]
-                            .as_ref()
-                            .is_some_and(|s| s.kind() == crate::boundary::BoundaryKind::NoSlip);
+                        let all = frame.faces[face] == "no_slip";
                         Gauge::WallForce { face, all }
                     }
                 }
@@ -238,6 +239,202 @@ fn wall_force<const D: usize>(sim: &Simulation<D>, face: usize) -> Vector<D> {
         f += sigma_a * (sign * ps.volume(p) / h) + g * (ps.mass[p] * (1.0 - gap / h));
     }
     f
+}
+
+/// `[[output.probes]]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProbeDeck {
+    /// Column prefix in probes.csv.
+    pub name: String,
+    /// Where the grid fields are sampled.
+    pub position: Vec<f64>,
+    /// What is read there.
+    #[serde(default)]
+    pub sample: ProbeSample,
+    /// With `sample = "particles"`: the half-width of the hat weights (m); the cell size
+    /// where absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+}
+
+/// What a gauge reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GaugeKind {
+    /// The free surface's height on a vertical line (a wave gauge).
+    Surface,
+    /// Pressure at a point.
+    Pressure,
+    /// Velocity at a point.
+    Velocity,
+    /// The material's force on a wall face.
+    WallForce,
+}
+
+/// `[[output.gauges]]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GaugeDeck {
+    /// Column prefix in gauges.csv.
+    pub name: String,
+    /// What it reads.
+    #[serde(rename = "type")]
+    pub kind: GaugeKind,
+    /// Where: a point (pressure, velocity), or the horizontal coordinates of a vertical line
+    /// (surface).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<Vec<f64>>,
+    /// The face of a wall force: "x_min", "x_max", ...
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub face: Option<String>,
+}
+
+impl GaugeDeck {
+    /// The `[[output.gauges]]` and `output.gauge_interval`: names that head CSV columns,
+    /// once each; a wall force on a wall face; a point or a vertical line inside the grid.
+    pub(crate) fn check_all(
+        gauges: &[GaugeDeck],
+        interval: Option<f64>,
+        frame: &Frame,
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        let (dim, up) = (frame.dim, frame.up);
+        let (lo, hi) = (&frame.lo, &frame.hi);
+        if let Some(i) = interval {
+            c.positive("output.gauge_interval", i)?;
+        }
+        for (i, q) in gauges.iter().enumerate() {
+            let k = format!("output.gauges[{i}]");
+            if q.name.is_empty() || q.name.contains([',', '"', '\n']) {
+                return Err(c.err(
+                    format!("{k}.name"),
+                    "must be non-empty, without commas or quotes (it heads CSV columns)",
+                ));
+            }
+            if gauges[..i].iter().any(|r| r.name == q.name) {
+                return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", q.name)));
+            }
+            if q.kind == GaugeKind::WallForce {
+                if q.position.is_some() {
+                    return Err(c.err(
+                        format!("{k}.position"),
+                        "is not for a wall force, which reads a whole face: give face",
+                    ));
+                }
+                let Some(name) = &q.face else {
+                    return Err(c.err(
+                        format!("{k}.face"),
+                        "a wall force needs the face it reads: \"x_min\", \"x_max\", ...",
+                    ));
+                };
+                let f = frame.face(&format!("{k}.face"), name, c)?;
+                if !frame.is_wall(f) {
+                    return Err(c.err(
+                        format!("{k}.face"),
+                        format!("grid.boundary.{name} is not a wall (slip or no_slip): nothing holds the material there"),
+                    ));
+                }
+                continue;
+            }
+            if q.face.is_some() {
+                return Err(c.err(format!("{k}.face"), "is only for type = \"wall_force\""));
+            }
+            let key = format!("{k}.position");
+            let Some(p) = &q.position else {
+                return Err(c.err(key, "a gauge needs its position"));
+            };
+            let (want, axes): (usize, Vec<usize>) = if q.kind == GaugeKind::Surface {
+                (dim - 1, (0..dim).filter(|&d| d != up).collect())
+            } else {
+                (dim, (0..dim).collect())
+            };
+            if p.len() != want {
+                return Err(c.err(
+                    key,
+                    if q.kind == GaugeKind::Surface {
+                        format!(
+                            "of a surface gauge is the place of its vertical line, its {} coordinate{} ({} is up, along gravity): {want} number{}, got {}",
+                            axes.iter().map(|&d| AXES[d]).collect::<Vec<_>>().join(" and "),
+                            if want > 1 { "s" } else { "" },
+                            AXES[up],
+                            if want > 1 { "s" } else { "" },
+                            p.len()
+                        )
+                    } else {
+                        format!("must have {dim} components (dimension = {dim}), got {}", p.len())
+                    },
+                ));
+            }
+            for (&d, &x) in axes.iter().zip(p) {
+                if !x.is_finite() || x < lo[d] || x > hi[d] {
+                    return Err(c.err(
+                        key,
+                        format!(
+                            "lies outside the grid along {}: {} = {x}, the grid spans [{}, {}]",
+                            AXES[d], AXES[d], lo[d], hi[d]
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl ProbeDeck {
+    /// The `[[output.probes]]`: names that head CSV columns, once each; points inside the
+    /// grid; a radius only for a particles' reading, and at most the grid's extent.
+    pub(crate) fn check_all(
+        probes: &[ProbeDeck],
+        frame: &Frame,
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        let dim = frame.dim;
+        let (lo, hi) = (&frame.lo, &frame.hi);
+        for (i, pr) in probes.iter().enumerate() {
+            let k = format!("output.probes[{i}]");
+            if pr.name.is_empty() || pr.name.contains([',', '"', '\n']) {
+                return Err(c.err(
+                    format!("{k}.name"),
+                    "must be non-empty, without commas or quotes (it heads CSV columns)",
+                ));
+            }
+            if probes[..i].iter().any(|q| q.name == pr.name) {
+                return Err(c.err(
+                    format!("{k}.name"),
+                    format!("\"{}\" is used twice", pr.name),
+                ));
+            }
+            c.vector(&format!("{k}.position"), &pr.position, dim)?;
+            if let Some(r) = pr.radius {
+                if pr.sample != ProbeSample::Particles {
+                    return Err(c.err(
+                            format!("{k}.radius"),
+                            "applies to sample = \"particles\" only (the nodes' reading has the shape functions' reach)",
+                        ));
+                }
+                c.positive(&format!("{k}.radius"), r)?;
+                let span = (0..dim).map(|d| hi[d] - lo[d]).fold(0.0, f64::max);
+                if r > span {
+                    return Err(c.err(
+                        format!("{k}.radius"),
+                        format!("must be at most the grid's extent ({span} m), got {r}"),
+                    ));
+                }
+            }
+            if let Some(d) = (0..dim).find(|&d| pr.position[d] < lo[d] || pr.position[d] > hi[d]) {
+                return Err(c.err(
+                    format!("{k}.position"),
+                    format!(
+                        "lies outside the grid along {}: {} = {}, the grid spans [{}, {}]",
+                        AXES[d], AXES[d], pr.position[d], lo[d], hi[d]
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]

@@ -94,6 +94,18 @@ impl Check<'_> {
         Ok(())
     }
 
+    /// A shape that builds (reading any mesh), errors at `key` and the keys below.
+    pub(crate) fn solid(
+        &self,
+        key: &str,
+        shape: &crate::geometry::ShapeDeck,
+        dim: usize,
+    ) -> Result<crate::geometry::Solid, DeckError> {
+        shape
+            .solid(dim)
+            .map_err(|e| self.err(format!("{key}{}", e.key), e.message))
+    }
+
     /// `v` has `dim` finite components.
     pub(crate) fn vector(&self, key: &str, v: &[f64], dim: usize) -> Result<(), DeckError> {
         self.components(key, v.len(), dim)?;
@@ -132,3 +144,121 @@ pub fn short(x: f64) -> String {
 
 /// The names of the axes, as the deck writes them.
 pub(crate) const AXES: [&str; 3] = ["x", "y", "z"];
+
+/// Face names in the order axis 0 min, axis 0 max, axis 1 min, ...
+pub const FACE_NAMES: [&str; 6] = ["x_min", "x_max", "y_min", "y_max", "z_min", "z_max"];
+
+/// Other names a person may type for a key (left), and the key they mean (right).
+const SYNONYMS: &[(&str, &str)] = &[
+    ("rho", "density"),
+    ("mu", "viscosity"),
+    ("k", "bulk_modulus"),
+    ("ppc", "particles_per_cell"),
+    ("h", "cell_size"),
+    ("dx", "cell_size"),
+    ("g", "gravity"),
+    ("courant", "cfl"),
+    ("time_step", "dt"),
+    ("timestep", "dt"),
+    ("t_end", "end_time"),
+    ("tend", "end_time"),
+];
+
+/// The valid name nearest to `given`, if it is near enough to be a likely typo: a known other
+/// name for it, a name that `given` begins (`dens` for `density`), or one within a few edits.
+pub fn nearest<'a>(given: &str, valid: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    let valid: Vec<&str> = valid.into_iter().collect();
+    let lower = given.to_lowercase();
+    if let Some(&(_, to)) = SYNONYMS.iter().find(|(from, _)| *from == lower) {
+        if let Some(v) = valid.iter().find(|v| **v == to) {
+            return Some(v);
+        }
+    }
+    if lower.len() >= 3 {
+        if let Some(v) = valid
+            .iter()
+            .filter(|v| v.starts_with(&lower))
+            .min_by_key(|v| v.len())
+        {
+            return Some(v);
+        }
+    }
+    valid
+        .iter()
+        .map(|v| (strsim::damerau_levenshtein(&lower, v), *v))
+        .filter(|(d, v)| *d <= 3.max(v.len() / 3) && *d < v.len().max(given.len()))
+        .min_by_key(|(d, _)| *d)
+        .map(|(_, v)| v)
+}
+
+/// What a section's check and build read of the rest of the deck: the grid's box and cell,
+/// the run's dimension and vertical axis, each face's condition and the materials' names. The
+/// deck makes one once its grid is checked and hands it to each section, so that a section's
+/// module needs nothing of the deck's.
+pub(crate) struct Frame<'a> {
+    /// 2 or 3.
+    pub(crate) dim: usize,
+    /// The grid's lower corner.
+    pub(crate) lo: Vec<f64>,
+    /// The grid's upper corner.
+    pub(crate) hi: Vec<f64>,
+    /// The grid's cell size h.
+    pub(crate) cell_size: f64,
+    /// The vertical axis (against gravity).
+    pub(crate) up: usize,
+    /// The run's end time (s).
+    pub(crate) end_time: f64,
+    /// Each face's condition as the deck names it ("slip" where it gives none), in
+    /// [`FACE_NAMES`] order.
+    pub(crate) faces: [&'static str; 6],
+    /// The `[[materials]]`' names, in order.
+    pub(crate) materials: Vec<&'a str>,
+}
+
+impl Frame<'_> {
+    /// The index in [`FACE_NAMES`] of a face named at `key`, one of this run's dimension.
+    pub(crate) fn face(&self, key: &str, name: &str, c: &Check) -> Result<usize, DeckError> {
+        let names = &FACE_NAMES[..2 * self.dim];
+        names.iter().position(|n| *n == name).ok_or_else(|| {
+            c.err(
+                key,
+                format!(
+                    "must be one of {} (dimension = {}), got \"{name}\"",
+                    names.join(", "),
+                    self.dim
+                ),
+            )
+        })
+    }
+
+    /// Whether face `f` is a wall (slip or no-slip) that holds the material.
+    pub(crate) fn is_wall(&self, f: usize) -> bool {
+        matches!(self.faces[f], "slip" | "no_slip")
+    }
+
+    /// A material named at `key` (`...material`) is one of the deck's, with the nearest name
+    /// as a hint.
+    pub(crate) fn material(&self, key: &str, name: &str, c: &Check) -> Result<(), DeckError> {
+        if self.materials.contains(&name) {
+            return Ok(());
+        }
+        let mut msg = format!("no material named \"{name}\"");
+        if let Some(n) = nearest(name, self.materials.iter().copied()) {
+            msg += &format!("; did you mean \"{n}\"?");
+        }
+        msg += &format!(
+            " (defined: {})",
+            self.materials
+                .iter()
+                .map(|m| format!("\"{m}\""))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        Err(c.err(key, msg))
+    }
+}
+
+/// A point as `0.1, 0.2` in a message.
+pub(crate) fn point(x: &[f64]) -> String {
+    x.iter().map(|c| short(*c)).collect::<Vec<_>>().join(", ")
+}

@@ -456,7 +456,7 @@ impl OutputWriter {
                 &rigid_header(deck, dim),
             )?)
         };
-        let gauge_list = crate::gauges::Gauge::from_deck(deck);
+        let gauge_list = deck.gauges();
         let gauges = if gauge_list.is_empty() {
             None
         } else {
@@ -542,7 +542,7 @@ impl OutputWriter {
                 |f| f.parse::<f64>().is_ok_and(|s| s <= t),
             )?)
         };
-        let gauge_list = crate::gauges::Gauge::from_deck(deck);
+        let gauge_list = deck.gauges();
         let gauges = if gauge_list.is_empty() {
             None
         } else {

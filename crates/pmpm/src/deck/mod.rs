@@ -11,7 +11,7 @@ pub mod limits;
 pub mod room;
 
 use crate::field::VectorField;
-use crate::keys::Check;
+use crate::keys::{Check, Frame};
 use serde::{Deserialize, Serialize};
 
 // the option enums live with the code they choose
@@ -33,10 +33,11 @@ use std::path::Path;
 pub use crate::boundary::BoundaryKind;
 pub use crate::damping::DampingZoneDeck;
 pub use crate::error::DeckError;
+pub use crate::flow::InflowDeck;
+pub use crate::gauges::{GaugeDeck, GaugeKind, ProbeDeck};
 pub use crate::geometry::{Numbers, ShapeDeck, ShapeKind};
 pub use crate::material::Model;
-use crate::material::{Law, MaterialParams, Newtonian, ViscoElastic};
-use crate::material::{NeoHookean, Viscoplastic, VonMises};
+pub use crate::material::{MaterialDeck, MAX_MATERIAL_PARAMETER};
 pub use crate::particles::InitialStress;
 
 const BOUNDARY_KINDS: &[&str] = &["slip", "no_slip", "open", "outflow", "periodic"];
@@ -206,10 +207,6 @@ fn default_viscosity_max_iterations() -> usize {
 
 pub use crate::scheme::MAX_PARTICLE_CELLS;
 
-/// The largest value of a material parameter (Pa, Pa s, kg/m^3, ...): far past any material
-/// (the stiffest solids' moduli are about 1e12 Pa, the mantle's viscosity 1e22 Pa s), and
-/// low enough that a stress's square stays finite.
-pub const MAX_MATERIAL_PARAMETER: f64 = 1e100;
 pub use crate::viscosity::ViscosityTreatment;
 
 /// The most frames, or checkpoints, a deck may ask for over its run: a million frames of even a
@@ -297,8 +294,7 @@ pub struct BoundaryDeck {
 /// Names of the axes, in messages.
 use crate::keys::AXES;
 
-/// Face names in the order axis 0 min, axis 0 max, axis 1 min, ...
-pub const FACE_NAMES: [&str; 6] = ["x_min", "x_max", "y_min", "y_max", "z_min", "z_max"];
+pub use crate::keys::FACE_NAMES;
 
 impl BoundaryDeck {
     /// The face entries in [`FACE_NAMES`] order.
@@ -321,240 +317,6 @@ impl BoundaryDeck {
             &mut self.z_min,
             &mut self.z_max,
         ]
-    }
-}
-
-/// `[[materials]]`
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MaterialDeck {
-    /// Name bodies refer to.
-    pub name: String,
-    /// Constitutive model (default `newtonian`).
-    #[serde(default)]
-    pub model: Model,
-    /// Density (kg/m3).
-    pub density: f64,
-    /// Dynamic viscosity (Pa s), default 0: the Newtonian viscosity, Bingham's plastic
-    /// viscosity, a neo-Hookean solid's damping.
-    #[serde(default)]
-    pub viscosity: f64,
-    /// Bulk modulus (Pa) of the equation of state; required by `scheme = "explicit"`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub bulk_modulus: Option<f64>,
-    /// Yield stress tau_y (Pa): `bingham`, `herschel_bulkley`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub yield_stress: Option<f64>,
-    /// Papanastasiou exponent m (s): `bingham`, `herschel_bulkley`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub papanastasiou_exponent: Option<f64>,
-    /// Consistency K (Pa s^n): `herschel_bulkley`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub consistency: Option<f64>,
-    /// Flow index n: `herschel_bulkley`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub flow_index: Option<f64>,
-    /// Shear modulus G (Pa): `neo_hookean_incompressible`, `von_mises`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub shear_modulus: Option<f64>,
-    /// Undrained shear strength c_u (Pa): `von_mises`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub undrained_shear_strength: Option<f64>,
-}
-
-impl MaterialDeck {
-    /// The step's parameters of this validated entry.
-    pub fn params(&self) -> MaterialParams {
-        let m = self;
-        let law = match m.model {
-            Model::Newtonian => Law::Newtonian(Newtonian {
-                viscosity: m.viscosity,
-            }),
-            Model::Bingham | Model::HerschelBulkley => Law::Viscoplastic(Viscoplastic {
-                consistency: if m.model == Model::Bingham {
-                    m.viscosity
-                } else {
-                    m.consistency.unwrap_or(0.0)
-                },
-                flow_index: m.flow_index.unwrap_or(1.0),
-                yield_stress: m.yield_stress.unwrap_or(0.0),
-                exponent: m.papanastasiou_exponent.unwrap_or(0.0),
-            }),
-            Model::NeoHookeanIncompressible => Law::NeoHookean(ViscoElastic {
-                elastic: NeoHookean {
-                    shear_modulus: m.shear_modulus.unwrap_or(0.0),
-                },
-                viscosity: m.viscosity,
-            }),
-            Model::VonMises => Law::VonMises(VonMises {
-                shear_modulus: m.shear_modulus.unwrap_or(0.0),
-                strength: m.undrained_shear_strength.unwrap_or(0.0),
-            }),
-        };
-        MaterialParams {
-            model: m.model,
-            density: m.density,
-            bulk_modulus: m.bulk_modulus.unwrap_or(0.0),
-            law,
-        }
-    }
-
-    /// A solid: a material with a shear modulus (its J is its deformation, its waves set the
-    /// projection's step).
-    pub fn is_solid(&self) -> bool {
-        self.shear_modulus.is_some()
-    }
-
-    /// The model parameters a material may give, each with its key (the keys some models
-    /// require and others refuse).
-    fn model_parameters(&self) -> [(&'static str, Option<f64>); 6] {
-        [
-            ("yield_stress", self.yield_stress),
-            ("papanastasiou_exponent", self.papanastasiou_exponent),
-            ("consistency", self.consistency),
-            ("flow_index", self.flow_index),
-            ("shear_modulus", self.shear_modulus),
-            ("undrained_shear_strength", self.undrained_shear_strength),
-        ]
-    }
-
-    /// The model's keys against those given: each given key must be the model's, each required
-    /// one given, each value in range.
-    fn check_model_keys(&self, k: &str, c: &Check) -> Result<(), DeckError> {
-        let model = self.model;
-        let own = model.keys();
-        let list = || {
-            own.iter()
-                .map(|(key, required)| {
-                    format!("{key}{}", if *required { "" } else { " (optional)" })
-                })
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        let viscosity = (
-            "viscosity",
-            (self.viscosity != 0.0).then_some(self.viscosity),
-        );
-        let given: Vec<(&str, Option<f64>)> = std::iter::once(viscosity)
-            .chain(self.model_parameters())
-            .collect();
-        for &(key, value) in &given {
-            let Some(v) = value else { continue };
-            if !own.iter().any(|(o, _)| *o == key) {
-                return Err(c.err(
-                    format!("{k}.{key}"),
-                    format!(
-                        "is not a key of model = \"{}\" (its keys: {})",
-                        model.name(),
-                        list()
-                    ),
-                ));
-            }
-            let full = format!("{k}.{key}");
-            match key {
-                "yield_stress" | "viscosity" => c.non_negative(&full, v)?,
-                _ => c.positive(&full, v)?,
-            }
-        }
-        for (key, _) in own.iter().filter(|(_, required)| *required) {
-            if given.iter().any(|(g, v)| g == key && v.is_some()) {
-                continue;
-            }
-            let why = if *key == "viscosity" {
-                "must be > 0: it is the plastic viscosity of model = \"bingham\"".to_string()
-            } else {
-                format!(
-                    "is required by model = \"{}\" (its keys: {})",
-                    model.name(),
-                    list()
-                )
-            };
-            let hint = match *key {
-                "papanastasiou_exponent" => {
-                    "; it sets how rigid the unyielded material is (a creep viscosity of about \
-                     yield_stress * m) and so the time step: try m such that yield_stress * m \
-                     is 100 to 1000 times the viscosity"
-                }
-                _ => "",
-            };
-            return Err(c.err(format!("{k}.{key}"), format!("{why}{hint}")));
-        }
-        Ok(())
-    }
-
-    /// Every parameter is at most [`MAX_MATERIAL_PARAMETER`]: a stress computed from one
-    /// past it overflows when squared (a yield test, an energy), and the run would stop on a
-    /// NaN blamed on a blow-up.
-    fn check_magnitudes(&self, k: &str, c: &Check) -> Result<(), DeckError> {
-        let common = [
-            ("density", Some(self.density)),
-            ("viscosity", Some(self.viscosity)),
-            ("bulk_modulus", self.bulk_modulus),
-        ];
-        for (key, v) in common.into_iter().chain(self.model_parameters()) {
-            if let Some(v) = v.filter(|&v| v > MAX_MATERIAL_PARAMETER) {
-                return Err(c.err(
-                    format!("{k}.{key}"),
-                    format!(
-                        "{} is beyond what a run can compute with: at most {MAX_MATERIAL_PARAMETER:e} (a stress from it overflows double precision when squared)",
-                        crate::limits::short(v)
-                    ),
-                ));
-            }
-        }
-        Ok(())
-    }
-
-    /// The key that sets the largest viscosity of the model ([`crate::material::Constitutive::max_viscosity`]),
-    /// for messages.
-    fn viscosity_key(&self) -> &'static str {
-        match self.model {
-            Model::HerschelBulkley => "consistency",
-            Model::Bingham
-                if self.yield_stress.unwrap_or(0.0)
-                    * self.papanastasiou_exponent.unwrap_or(0.0)
-                    > self.viscosity =>
-            {
-                "papanastasiou_exponent"
-            }
-            _ => "viscosity",
-        }
-    }
-
-    /// One line for `pmpm check`: name, model, density and the model's parameters.
-    pub fn describe(&self) -> String {
-        let mut out = format!(
-            "\"{}\": {}, density {} kg/m3",
-            self.name,
-            self.model.name(),
-            self.density
-        );
-        let values = [
-            ("viscosity", Some(self.viscosity), "Pa s"),
-            ("yield stress", self.yield_stress, "Pa"),
-            ("papanastasiou exponent", self.papanastasiou_exponent, "s"),
-            ("consistency", self.consistency, "Pa s^n"),
-            ("flow index", self.flow_index, ""),
-            ("shear modulus", self.shear_modulus, "Pa"),
-            (
-                "undrained shear strength",
-                self.undrained_shear_strength,
-                "Pa",
-            ),
-            ("bulk modulus", self.bulk_modulus, "Pa"),
-        ];
-        for (name, v, unit) in values {
-            let Some(v) = v else { continue };
-            let key = name.replace(' ', "_");
-            let used = key == "bulk_modulus" || self.model.keys().iter().any(|(k, _)| *k == key);
-            if used {
-                out += &format!(
-                    ", {name} {v:e}{}{unit}",
-                    if unit.is_empty() { "" } else { " " }
-                );
-            }
-        }
-        out
     }
 }
 
@@ -591,55 +353,6 @@ pub enum Format {
     Csv,
     /// `.vti` frames of the grid's nodes and `grid.pvd` ([`crate::grid_fields`]).
     Grid,
-}
-
-/// `[[output.probes]]`
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ProbeDeck {
-    /// Column prefix in probes.csv.
-    pub name: String,
-    /// Where the grid fields are sampled.
-    pub position: Vec<f64>,
-    /// What is read there.
-    #[serde(default)]
-    pub sample: ProbeSample,
-    /// With `sample = "particles"`: the half-width of the hat weights (m); the cell size
-    /// where absent.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub radius: Option<f64>,
-}
-
-/// What a gauge reads.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum GaugeKind {
-    /// The free surface's height on a vertical line (a wave gauge).
-    Surface,
-    /// Pressure at a point.
-    Pressure,
-    /// Velocity at a point.
-    Velocity,
-    /// The material's force on a wall face.
-    WallForce,
-}
-
-/// `[[output.gauges]]`
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GaugeDeck {
-    /// Column prefix in gauges.csv.
-    pub name: String,
-    /// What it reads.
-    #[serde(rename = "type")]
-    pub kind: GaugeKind,
-    /// Where: a point (pressure, velocity), or the horizontal coordinates of a vertical line
-    /// (surface).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub position: Option<Vec<f64>>,
-    /// The face of a wall force: "x_min", "x_max", ...
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub face: Option<String>,
 }
 
 /// `[output]`
@@ -680,28 +393,6 @@ fn default_formats() -> Vec<Format> {
 pub struct ProgramInfo {
     /// Version of pmpm that wrote the file.
     pub version: String,
-}
-
-/// `[[inflows]]`: a patch of a wall face through which material enters at a given velocity
-/// ([`crate::flow`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct InflowDeck {
-    /// Name of a `[[materials]]` entry.
-    pub material: String,
-    /// The face: "x_min", "x_max", "y_min", ... (a slip or no-slip face).
-    pub face: String,
-    /// The patch's lower corner on the face (its component along the face's normal is the
-    /// face's coordinate).
-    pub min: Vec<f64>,
-    /// The patch's upper corner.
-    pub max: Vec<f64>,
-    /// Velocity of the entering material (numbers or expressions in x, y, z, t), into the
-    /// domain.
-    pub velocity: VectorField,
-    /// Particles per cell per direction of the emitted lattice (default 2).
-    #[serde(default = "default_ppc")]
-    pub particles_per_cell: usize,
 }
 
 /// The whole deck.
@@ -757,48 +448,7 @@ fn backticked(msg: &str) -> Vec<&str> {
     msg.split('`').skip(1).step_by(2).collect()
 }
 
-/// Other names a person may type for a key (left), and the key they mean (right).
-const SYNONYMS: &[(&str, &str)] = &[
-    ("rho", "density"),
-    ("mu", "viscosity"),
-    ("k", "bulk_modulus"),
-    ("ppc", "particles_per_cell"),
-    ("h", "cell_size"),
-    ("dx", "cell_size"),
-    ("g", "gravity"),
-    ("courant", "cfl"),
-    ("time_step", "dt"),
-    ("timestep", "dt"),
-    ("t_end", "end_time"),
-    ("tend", "end_time"),
-];
-
-/// The valid name nearest to `given`, if it is near enough to be a likely typo: a known other
-/// name for it, a name that `given` begins (`dens` for `density`), or one within a few edits.
-pub fn nearest<'a>(given: &str, valid: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
-    let valid: Vec<&str> = valid.into_iter().collect();
-    let lower = given.to_lowercase();
-    if let Some(&(_, to)) = SYNONYMS.iter().find(|(from, _)| *from == lower) {
-        if let Some(v) = valid.iter().find(|v| **v == to) {
-            return Some(v);
-        }
-    }
-    if lower.len() >= 3 {
-        if let Some(v) = valid
-            .iter()
-            .filter(|v| v.starts_with(&lower))
-            .min_by_key(|v| v.len())
-        {
-            return Some(v);
-        }
-    }
-    valid
-        .iter()
-        .map(|v| (strsim::damerau_levenshtein(&lower, v), *v))
-        .filter(|(d, v)| *d <= 3.max(v.len() / 3) && *d < v.len().max(given.len()))
-        .min_by_key(|(d, _)| *d)
-        .map(|(_, v)| v)
-}
+pub use crate::keys::nearest;
 
 /// The values an enum of the deck accepts, in order (read from serde's own error message).
 /// How a deck spells a setting's value, quoted (`"bspline2"`).
@@ -1089,12 +739,16 @@ impl Deck {
             self.pressure.preconditioner = Some(self.pressure.preconditioner(cells));
         }
         self.check_pressure(&c)?;
-        self.check_materials(&c)?;
+        MaterialDeck::check_all(
+            &self.materials,
+            self.simulation.scheme == Scheme::Explicit,
+            &c,
+        )?;
+        self.check_cells_hold_solids(&c)?;
         self.check_bodies(&c)?;
         self.check_rigid_bodies(&c)?;
-        self.check_inflows(&c)?;
-        self.check_inflows_uncovered(&c)?;
-        self.check_damping_zones(&c)?;
+        InflowDeck::check_all(&self.inflows, &self.frame(), &self.rigid_solids(), &c)?;
+        DampingZoneDeck::check_all(&self.damping_zones, &self.frame(), &c)?;
         self.check_output(&c)?;
         self.check_time_step(&c)?;
         self.check_inflow_room(&c)?;
@@ -1416,52 +1070,17 @@ impl Deck {
         Ok(())
     }
 
-    /// The `[[materials]]`.
-    fn check_materials(&self, c: &Check) -> Result<(), DeckError> {
-        if self.materials.is_empty() {
-            return Err(c.err("materials", "at least one [[materials]] entry is required"));
+    /// With the projection, `pressure.unknowns = "cells"` takes solids only.
+    fn check_cells_hold_solids(&self, c: &Check) -> Result<(), DeckError> {
+        if self.simulation.scheme == Scheme::Explicit
+            || self.pressure.unknowns != PressureUnknowns::Cells
+        {
+            return Ok(());
         }
-        if self.materials.len() > u16::MAX as usize + 1 {
-            // a particle keeps its material's index in a u16
-            return Err(c.err(
-                "materials",
-                format!(
-                    "{} entries, too many: pmpm takes at most {}",
-                    self.materials.len(),
-                    u16::MAX as usize + 1
-                ),
-            ));
-        }
-        let explicit = self.simulation.scheme == Scheme::Explicit;
         for (i, m) in self.materials.iter().enumerate() {
-            let k = format!("materials[{i}]");
-            if m.name.trim().is_empty() {
-                return Err(c.err(format!("{k}.name"), "must not be empty"));
-            }
-            if self.materials[..i].iter().any(|o| o.name == m.name) {
+            if m.params().wave_speed(false) <= 0.0 {
                 return Err(c.err(
-                    format!("{k}.name"),
-                    format!("\"{}\" is defined twice", m.name),
-                ));
-            }
-            c.positive(&format!("{k}.density"), m.density)?;
-            c.non_negative(&format!("{k}.viscosity"), m.viscosity)?;
-            m.check_model_keys(&k, c)?;
-            m.check_magnitudes(&k, c)?;
-            match m.bulk_modulus {
-                Some(b) => c.positive(&format!("{k}.bulk_modulus"), b)?,
-                None if explicit => {
-                    return Err(c.err(
-                        format!("{k}.bulk_modulus"),
-                        "is required by scheme = \"explicit\" (equation of state p = K (1 - J))",
-                    ))
-                }
-                None => {}
-            }
-            let solid = m.params().wave_speed(false) > 0.0;
-            if !explicit && self.pressure.unknowns == PressureUnknowns::Cells && !solid {
-                return Err(c.err(
-                    format!("{k}.model"),
+                    format!("materials[{i}].model"),
                     format!(
                         "\"{}\" is a fluid, and pressure.unknowns = \"cells\" is for solids: one pressure per cell leaves velocity modes that only a shear stiffness holds (a water column at rest stirs up to 0.07 m/s in 2 s); use unknowns = \"nodes\"",
                         m.name
@@ -1478,22 +1097,15 @@ impl Deck {
         if self.bodies.is_empty() {
             return Err(c.err("bodies", "at least one [[bodies]] entry is required"));
         }
-        let (lo, hi): (Vec<f64>, Vec<f64>) = (
-            self.grid.origin.clone(),
-            self.grid
-                .origin
-                .iter()
-                .zip(&self.grid.size)
-                .map(|(o, s)| o + s)
-                .collect(),
-        );
+        let frame = frame(&self.simulation, &self.grid, &self.materials);
+        let (lo, hi) = (&frame.lo, &frame.hi);
         let mut lattice = 0.0;
         for (i, b) in self.bodies.iter_mut().enumerate() {
             let k = format!("bodies[{i}]");
-            check_body_material(&self.materials, &b.material, &k, c)?;
+            frame.material(&format!("{k}.material"), &b.material, c)?;
             b.shape
                 .resolve_files(Path::new(c.file).parent().unwrap_or(Path::new("")));
-            let solid = shape_solid(&b.shape, &format!("{k}.shape"), dim, c)?;
+            let solid = c.solid(&format!("{k}.shape"), &b.shape, dim)?;
             for m in solid.mesh_sources() {
                 self.mesh_files.insert(m.path.clone(), m.digest());
             }
@@ -1555,502 +1167,29 @@ impl Deck {
         Ok(())
     }
 
-    /// The `[[rigid_bodies]]`.
+    /// The `[[rigid_bodies]]` ([`RigidBodyDeck::check_all`]), and the mesh files they read.
     fn check_rigid_bodies(&mut self, c: &Check) -> Result<(), DeckError> {
-        let dim = self.simulation.dimension;
-        let dir = Path::new(c.file)
-            .parent()
-            .unwrap_or(Path::new(""))
-            .to_path_buf();
-        for r in &mut self.rigid_bodies {
-            r.shape.resolve_files(&dir);
-        }
-        let (mut files, mut triangles) = (Vec::new(), 0);
-        for (i, r) in self.rigid_bodies.iter().enumerate() {
-            let k = format!("rigid_bodies[{i}]");
-            if r.name.is_empty() || r.name.contains([',', '"', '\n']) {
-                return Err(c.err(
-                    format!("{k}.name"),
-                    "must be non-empty, without commas or quotes (it heads CSV columns)",
-                ));
-            }
-            if self.rigid_bodies[..i].iter().any(|q| q.name == r.name) {
-                return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", r.name)));
-            }
-            let solid = shape_solid(&r.shape, &format!("{k}.shape"), dim, c)?;
-            files.extend(solid.mesh_sources().map(|m| (m.path.clone(), m.digest())));
-            triangles += solid.meshes().map(|m| m.triangles).sum::<usize>();
-            if r.is_shaped()
-                || r.motion == RigidMotion::Free
-                || r.density.is_some()
-                || !r.fixed.is_empty()
-                || r.centre.is_some()
-            {
-                self.check_shaped_rigid(r, &k, &solid, c)?;
-                if r.is_shaped() {
-                    continue;
-                }
-            }
-            let (Some(mn), Some(mx)) = (&r.shape.min, &r.shape.max) else {
-                return Err(c.err(format!("{k}.shape"), "a box needs both min and max"));
-            };
-            c.vector(&format!("{k}.shape.min"), mn, dim)?;
-            c.vector(&format!("{k}.shape.max"), mx, dim)?;
-            if let Some(d) = (0..dim).find(|&d| mx[d] <= mn[d]) {
-                return Err(c.err(
-                    format!("{k}.shape.max"),
-                    format!("must exceed min along {}: {} <= {}", AXES[d], mx[d], mn[d]),
-                ));
-            }
-            r.check_velocity(&k, dim, self.simulation.end_time, c)?;
-        }
-        self.check_free_apart(c)?;
+        let dir = Path::new(c.file).parent().unwrap_or(Path::new(""));
+        let frame = frame(&self.simulation, &self.grid, &self.materials);
+        let (files, triangles) = RigidBodyDeck::check_all(&mut self.rigid_bodies, dir, &frame, c)?;
         self.mesh_files.extend(files);
         self.mesh_triangles += triangles;
         Ok(())
     }
 
-    /// A free body starts apart from every other rigid body: the contact parts bodies that
-    /// meet as they move, not one placed through another.
-    fn check_free_apart(&self, c: &Check) -> Result<(), DeckError> {
-        let dim = self.simulation.dimension;
-        let (lo, hi) = self.domain();
-        let solids: Vec<_> = self
-            .rigid_bodies
-            .iter()
-            .map(|r| r.shape.solid(dim).ok())
-            .collect();
-        let free = |r: &RigidBodyDeck| r.motion == RigidMotion::Free;
-        for (b, rb) in self.rigid_bodies.iter().enumerate() {
-            for (a, ra) in self.rigid_bodies[..b].iter().enumerate() {
-                if !(free(ra) || free(rb)) {
-                    continue;
-                }
-                let (Some(sa), Some(sb)) = (&solids[a], &solids[b]) else {
-                    continue;
-                };
-                if let Some(x) = sa.common_point(sb, (&lo, &hi)) {
-                    let (f, o) = if free(rb) { (b, a) } else { (a, b) };
-                    return Err(c.err(
-                        format!("rigid_bodies[{f}].shape"),
-                        format!(
-                            "the free body \"{}\" overlaps rigid_bodies[{o}] (\"{}\") at t = 0 (for example at ({})): a free body must start apart from the other bodies (the contact parts bodies that meet, not one placed inside another); place them apart",
-                            self.rigid_bodies[f].name,
-                            self.rigid_bodies[o].name,
-                            point(&x)
-                        ),
-                    ));
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// A rigid body of the general path: its motion's keys, and a shape that holds a volume
-    /// and, unless it stands still, is bounded.
-    fn check_shaped_rigid(
-        &self,
-        r: &RigidBodyDeck,
-        k: &str,
-        solid: &crate::geometry::Solid,
-        c: &Check,
-    ) -> Result<(), DeckError> {
-        let dim = self.simulation.dimension;
-        if r.sides == RigidSides::Smooth && r.is_shaped() {
-            return Err(c.err(
-                format!("{k}.sides"),
-                "\"smooth\" is for a box that does not turn (an axis-aligned box moved by velocity alone); this body is held rough",
-            ));
-        }
-        r.check_motion(k, dim, self.simulation.end_time, c)?;
-        let free = r.motion == RigidMotion::Free;
-        let Some(shape) = self.rigid_shape(r) else {
-            return Err(c.err(
-                format!("{k}.shape"),
-                "holds no volume inside the grid (a shape thinner than a quarter cell, or one wholly outside)",
-            ));
-        };
-        let (mn, mx) = solid.bounds();
-        let moves = free || r.velocity.is_some() || r.angular_velocity.is_some();
-        if moves && (0..dim).any(|d| !mn[d].is_finite() || !mx[d].is_finite()) {
-            return Err(c.err(
-                format!("{k}.shape"),
-                "is unbounded (a half-space): only a body at rest may be, cut off at the grid",
-            ));
-        }
-        if free {
-            // the walls hold a free body inside the grid; one that starts across a wall
-            // would be thrown in at the first step
-            let (lo, hi) = self.domain();
-            let (a, z) = shape.extent(&crate::rigid::Pose::at(shape.reference()));
-            let tol = 1e-9 * self.grid.cell_size;
-            if let Some(d) = (0..dim).find(|&d| a[d] < lo[d] - tol || z[d] > hi[d] + tol) {
-                return Err(c.err(
-                    format!("{k}.shape"),
-                    format!(
-                        "of a free body must lie inside the grid: it reaches {} = [{:.4}, {:.4}] against the grid's [{}, {}]",
-                        AXES[d], a[d], z[d], lo[d], hi[d]
-                    ),
-                ));
-            }
-        }
-        Ok(())
-    }
-
-    /// The `[[damping_zones]]`: an axis of the run's dimension, `from` and `to` apart and
-    /// inside the grid along it, and a positive rate.
-    fn check_damping_zones(&self, c: &Check) -> Result<(), DeckError> {
-        let dim = self.simulation.dimension;
-        let (lo, hi) = self.domain();
-        for (i, z) in self.damping_zones.iter().enumerate() {
-            let k = format!("damping_zones[{i}]");
-            z.check(&k, dim, (&lo, &hi), self.grid.cell_size, c)?;
-        }
-        Ok(())
-    }
-
-    /// The `[[inflows]]`.
-    fn check_inflows(&self, c: &Check) -> Result<(), DeckError> {
-        let dim = self.simulation.dimension;
-        let (lo, hi) = self.domain();
-        let h = self.grid.cell_size;
-        let faces = self.grid.boundary.faces();
-        for (i, q) in self.inflows.iter().enumerate() {
-            let k = format!("inflows[{i}]");
-            check_body_material(&self.materials, &q.material, &k, c)?;
-            let Some(f) = FACE_NAMES[..2 * dim].iter().position(|n| *n == q.face) else {
-                return Err(c.err(
-                    format!("{k}.face"),
-                    format!(
-                        "must be one of {} (dimension = {dim}), got \"{}\"",
-                        FACE_NAMES[..2 * dim].join(", "),
-                        q.face
-                    ),
-                ));
-            };
-            let kind = faces[f].as_ref().map_or(BoundaryKind::Slip, |s| s.kind());
-            if !matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip) {
-                return Err(c.err(
-                    format!("{k}.face"),
-                    format!(
-                        "grid.boundary.{} is \"{}\": an inflow is a patch of a slip or no-slip face",
-                        q.face,
-                        BOUNDARY_KINDS
-                            .iter()
-                            .find(|n| BoundaryKind::from_name(n) == Some(kind))
-                            .unwrap_or(&"?")
-                    ),
-                ));
-            }
-            c.vector(&format!("{k}.min"), &q.min, dim)?;
-            c.vector(&format!("{k}.max"), &q.max, dim)?;
-            let axis = f / 2;
-            let plane = if f % 2 == 0 { lo[axis] } else { hi[axis] };
-            for (name, v) in [("min", &q.min), ("max", &q.max)] {
-                if (v[axis] - plane).abs() > 1e-9 * h {
-                    return Err(c.err(
-                        format!("{k}.{name}"),
-                        format!(
-                            "must lie on the face {}: its {} component must be {plane}, got {}",
-                            q.face, AXES[axis], v[axis]
-                        ),
-                    ));
-                }
-            }
-            for d in (0..dim).filter(|&d| d != axis) {
-                if q.max[d] <= q.min[d] {
-                    return Err(c.err(
-                        format!("{k}.max"),
-                        format!(
-                            "must exceed min along {}: {} <= {}",
-                            AXES[d], q.max[d], q.min[d]
-                        ),
-                    ));
-                }
-                if q.min[d] < lo[d] - 1e-9 * h || q.max[d] > hi[d] + 1e-9 * h {
-                    return Err(c.err(
-                        format!("{k}.min"),
-                        format!(
-                            "the patch spans [{}, {}] along {}, past the grid's [{}, {}]",
-                            q.min[d], q.max[d], AXES[d], lo[d], hi[d]
-                        ),
-                    ));
-                }
-            }
-            if !(1..=8).contains(&q.particles_per_cell) {
-                return Err(c.err(
-                    format!("{k}.particles_per_cell"),
-                    format!("must be between 1 and 8, got {}", q.particles_per_cell),
-                ));
-            }
-            // each lane of the lattice carries s^(D-1) of the patch: its width must be a whole
-            // number of spacings, and at least a cell so that the face's nodes hold its flux
-            let s = h / q.particles_per_cell as f64;
-            for d in (0..dim).filter(|&d| d != axis) {
-                let w = q.max[d] - q.min[d];
-                let lanes = w / s;
-                if w < h * (1.0 - 1e-9) || (lanes - lanes.round()).abs() > 1e-6 * lanes {
-                    return Err(c.err(
-                        format!("{k}.max"),
-                        format!(
-                            "the patch is {w} m wide along {}: it must be at least a cell (grid.cell_size = {h}) and a whole number of particle spacings (cell_size / particles_per_cell = {s})",
-                            AXES[d]
-                        ),
-                    ));
-                }
-            }
-            if let Some((j, _)) = self.inflows[..i].iter().enumerate().find(|(_, o)| {
-                o.face == q.face
-                    && (0..dim)
-                        .filter(|&d| d != axis)
-                        .all(|d| o.min[d] < q.max[d] && q.min[d] < o.max[d])
-            }) {
-                return Err(c.err(
-                    format!("{k}.min"),
-                    format!("the patch overlaps inflows[{j}]'s on the face {}", q.face),
-                ));
-            }
-            c.field(&format!("{k}.velocity"), &q.velocity, dim)?;
-            self.check_inflow_enters(q, &k, f, c)?;
-        }
-        Ok(())
-    }
-
-    /// The material of inflow `q` (key `k`, on face `f`) enters: its velocity at t = 0 on a
-    /// lattice over the patch (its corners, its edges, the face's nodes on it) is finite and
-    /// points inwards.
-    fn check_inflow_enters(
-        &self,
-        q: &InflowDeck,
-        k: &str,
-        f: usize,
-        c: &Check,
-    ) -> Result<(), DeckError> {
-        let (dim, h, axis) = (self.simulation.dimension, self.grid.cell_size, f / 2);
-        let field = q.velocity.compile().expect("checked before");
-        let steps: Vec<usize> = (0..dim)
-            .map(|d| {
-                if d == axis {
-                    0
-                } else {
-                    ((q.max[d] - q.min[d]) / h).round() as usize
-                }
-            })
-            .collect();
-        let total: usize = steps.iter().map(|n| n + 1).product();
-        for m in 0..total {
-            let mut rem = m;
-            let x: Vec<f64> = (0..dim)
-                .map(|d| {
-                    let i = rem % (steps[d] + 1);
-                    rem /= steps[d] + 1;
-                    if steps[d] == 0 {
-                        q.min[d]
-                    } else {
-                        q.min[d] + (q.max[d] - q.min[d]) * i as f64 / steps[d] as f64
-                    }
-                })
-                .collect();
-            let v = field.eval_at(&x, 0.0);
-            let at = x
-                .iter()
-                .map(|c| format!("{c}"))
-                .collect::<Vec<_>>()
-                .join(", ");
-            if v.iter().any(|c| !c.is_finite()) {
-                return Err(c.err(
-                    format!("{k}.velocity"),
-                    format!("is not a finite number at ({at}) at t = 0: {v:?}"),
-                ));
-            }
-            let inward = if f % 2 == 0 { v[axis] } else { -v[axis] };
-            if inward < 0.0 {
-                return Err(c.err(
-                    format!("{k}.velocity"),
-                    format!(
-                        "points out of the domain at ({at}) at t = 0 (its {} component is {} on the face {}): an inflow's velocity points into the grid",
-                        AXES[axis], v[axis], q.face
-                    ),
-                ));
-            }
-        }
-        Ok(())
-    }
-
-    /// No rigid body covers an inflow's patch at t = 0: the patch's nodes would hold the
-    /// inflow's velocity inside the solid, and the particles it emits would enter the solid.
-    /// Tested at the first row of the particles it emits (half a spacing in front of the
-    /// patch), at each lane's centre.
-    fn check_inflows_uncovered(&self, c: &Check) -> Result<(), DeckError> {
-        for (i, q) in self.inflows.iter().enumerate() {
-            let axis = FACE_NAMES.iter().position(|n| *n == q.face).unwrap_or(0) / 2;
-            self.check_inflow_uncovered(q, &format!("inflows[{i}]"), axis, c)?;
-        }
-        Ok(())
-    }
-
-    /// [`Deck::check_inflows_uncovered`] for one inflow, `k` its key, on a face normal to
-    /// `axis`.
-    fn check_inflow_uncovered(
-        &self,
-        q: &InflowDeck,
-        k: &str,
-        axis: usize,
-        c: &Check,
-    ) -> Result<(), DeckError> {
-        let dim = self.simulation.dimension;
-        let s = self.grid.cell_size / q.particles_per_cell as f64;
-        let inward = if q.min[axis] <= self.grid.origin[axis] {
-            1.0
-        } else {
-            -1.0
-        };
-        let lanes: Vec<usize> = (0..dim)
-            .map(|d| {
-                if d == axis {
-                    1
-                } else {
-                    ((q.max[d] - q.min[d]) / s).round().max(1.0) as usize
-                }
-            })
-            .collect();
-        let total: usize = lanes.iter().product();
-        for (r, rigid) in self.rigid_bodies.iter().enumerate() {
-            let Ok(solid) = rigid.shape.solid(dim) else {
-                continue;
-            };
-            for m in 0..total {
-                let mut rem = m;
-                let x: Vec<f64> = (0..dim)
-                    .map(|d| {
-                        let i = rem % lanes[d];
-                        rem /= lanes[d];
-                        if d == axis {
-                            q.min[d] + inward * 0.5 * s
-                        } else {
-                            q.min[d] + (q.max[d] - q.min[d]) * (i as f64 + 0.5) / lanes[d] as f64
-                        }
-                    })
-                    .collect();
-                if solid.contains(&x) {
-                    return Err(c.err(
-                        format!("{k}.min"),
-                        format!(
-                            "the patch on the face {} is covered by rigid_bodies[{r}] (\"{}\") at t = 0 (for example at ({})): material would enter through the solid; move the patch or the body",
-                            q.face,
-                            rigid.name,
-                            point(&x)
-                        ),
-                    ));
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// The `[[output.gauges]]`.
-    fn check_gauges(&self, c: &Check) -> Result<(), DeckError> {
-        let dim = self.simulation.dimension;
-        let (lo, hi) = self.domain();
-        let o = &self.output;
-        if let Some(i) = o.gauge_interval {
-            c.positive("output.gauge_interval", i)?;
-        }
-        let up = self.simulation.vertical_axis();
-        let faces = self.grid.boundary.faces();
-        for (i, q) in o.gauges.iter().enumerate() {
-            let k = format!("output.gauges[{i}]");
-            if q.name.is_empty() || q.name.contains([',', '"', '\n']) {
-                return Err(c.err(
-                    format!("{k}.name"),
-                    "must be non-empty, without commas or quotes (it heads CSV columns)",
-                ));
-            }
-            if o.gauges[..i].iter().any(|r| r.name == q.name) {
-                return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", q.name)));
-            }
-            if q.kind == GaugeKind::WallForce {
-                if q.position.is_some() {
-                    return Err(c.err(
-                        format!("{k}.position"),
-                        "is not for a wall force, which reads a whole face: give face",
-                    ));
-                }
-                let Some(name) = &q.face else {
-                    return Err(c.err(
-                        format!("{k}.face"),
-                        "a wall force needs the face it reads: \"x_min\", \"x_max\", ...",
-                    ));
-                };
-                let Some(f) = FACE_NAMES[..2 * dim].iter().position(|n| n == name) else {
-                    return Err(c.err(
-                        format!("{k}.face"),
-                        format!(
-                            "must be one of {} (dimension = {dim}), got \"{name}\"",
-                            FACE_NAMES[..2 * dim].join(", ")
-                        ),
-                    ));
-                };
-                let kind = faces[f].as_ref().map_or(BoundaryKind::Slip, |s| s.kind());
-                if !matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip) {
-                    return Err(c.err(
-                        format!("{k}.face"),
-                        format!("grid.boundary.{name} is not a wall (slip or no_slip): nothing holds the material there"),
-                    ));
-                }
-                continue;
-            }
-            if q.face.is_some() {
-                return Err(c.err(format!("{k}.face"), "is only for type = \"wall_force\""));
-            }
-            let key = format!("{k}.position");
-            let Some(p) = &q.position else {
-                return Err(c.err(key, "a gauge needs its position"));
-            };
-            let (want, axes): (usize, Vec<usize>) = if q.kind == GaugeKind::Surface {
-                (dim - 1, (0..dim).filter(|&d| d != up).collect())
-            } else {
-                (dim, (0..dim).collect())
-            };
-            if p.len() != want {
-                return Err(c.err(
-                    key,
-                    if q.kind == GaugeKind::Surface {
-                        format!(
-                            "of a surface gauge is the place of its vertical line, its {} coordinate{} ({} is up, along gravity): {want} number{}, got {}",
-                            axes.iter().map(|&d| AXES[d]).collect::<Vec<_>>().join(" and "),
-                            if want > 1 { "s" } else { "" },
-                            AXES[up],
-                            if want > 1 { "s" } else { "" },
-                            p.len()
-                        )
-                    } else {
-                        format!("must have {dim} components (dimension = {dim}), got {}", p.len())
-                    },
-                ));
-            }
-            for (&d, &x) in axes.iter().zip(p) {
-                if !x.is_finite() || x < lo[d] || x > hi[d] {
-                    return Err(c.err(
-                        key,
-                        format!(
-                            "lies outside the grid along {}: {} = {x}, the grid spans [{}, {}]",
-                            AXES[d], AXES[d], lo[d], hi[d]
-                        ),
-                    ));
-                }
-            }
-        }
-        Ok(())
-    }
-
     /// The `[output]` table: intervals, formats and probes.
     fn check_output(&mut self, c: &Check) -> Result<(), DeckError> {
-        self.check_gauges(c)?;
-        let dim = self.simulation.dimension;
-        let (lo, hi) = self.domain();
-        let o = &mut self.output;
-        let interval = *o.interval.get_or_insert(self.simulation.end_time / 100.0);
+        GaugeDeck::check_all(
+            &self.output.gauges,
+            self.output.gauge_interval,
+            &self.frame(),
+            c,
+        )?;
+        let interval = *self
+            .output
+            .interval
+            .get_or_insert(self.simulation.end_time / 100.0);
+        let o = &self.output;
         c.positive("output.interval", interval)?;
         let end = self.simulation.end_time;
         // a frame or a checkpoint per step of a runaway deck fills the disk and never ends
@@ -2073,47 +1212,7 @@ impl Deck {
             c.positive("output.checkpoint_interval", ci)?;
             count("output.checkpoint_interval", "checkpoints", ci)?;
         }
-        for (i, pr) in o.probes.iter().enumerate() {
-            let k = format!("output.probes[{i}]");
-            if pr.name.is_empty() || pr.name.contains([',', '"', '\n']) {
-                return Err(c.err(
-                    format!("{k}.name"),
-                    "must be non-empty, without commas or quotes (it heads CSV columns)",
-                ));
-            }
-            if o.probes[..i].iter().any(|q| q.name == pr.name) {
-                return Err(c.err(
-                    format!("{k}.name"),
-                    format!("\"{}\" is used twice", pr.name),
-                ));
-            }
-            c.vector(&format!("{k}.position"), &pr.position, dim)?;
-            if let Some(r) = pr.radius {
-                if pr.sample != ProbeSample::Particles {
-                    return Err(c.err(
-                        format!("{k}.radius"),
-                        "applies to sample = \"particles\" only (the nodes' reading has the shape functions' reach)",
-                    ));
-                }
-                c.positive(&format!("{k}.radius"), r)?;
-                let span = (0..dim).map(|d| hi[d] - lo[d]).fold(0.0, f64::max);
-                if r > span {
-                    return Err(c.err(
-                        format!("{k}.radius"),
-                        format!("must be at most the grid's extent ({span} m), got {r}"),
-                    ));
-                }
-            }
-            if let Some(d) = (0..dim).find(|&d| pr.position[d] < lo[d] || pr.position[d] > hi[d]) {
-                return Err(c.err(
-                    format!("{k}.position"),
-                    format!(
-                        "lies outside the grid along {}: {} = {}, the grid spans [{}, {}]",
-                        AXES[d], AXES[d], pr.position[d], lo[d], hi[d]
-                    ),
-                ));
-            }
-        }
+        ProbeDeck::check_all(&o.probes, &self.frame(), c)?;
         Ok(())
     }
 
@@ -2182,6 +1281,26 @@ impl Deck {
             }
         }
         Ok(())
+    }
+
+    /// What the sections' checks and builds read of the rest of the deck
+    /// ([`crate::keys::Frame`]).
+    pub(crate) fn frame(&self) -> Frame<'_> {
+        frame(&self.simulation, &self.grid, &self.materials)
+    }
+
+    /// The gauges the run reads, of a validated deck.
+    pub fn gauges(&self) -> Vec<crate::gauges::Gauge> {
+        crate::gauges::Gauge::build(&self.output.gauges, &self.frame())
+    }
+
+    /// Each rigid body's name and region (the bodies whose shape builds).
+    fn rigid_solids(&self) -> Vec<(&str, crate::geometry::Solid)> {
+        let dim = self.simulation.dimension;
+        self.rigid_bodies
+            .iter()
+            .filter_map(|r| Some((r.name.as_str(), r.shape.solid(dim).ok()?)))
+            .collect()
     }
 
     /// The grid's lower and upper corners.
@@ -2266,47 +1385,34 @@ impl Deck {
     }
 }
 
-/// A body's material is one of the deck's, by name (with the nearest name as a hint).
-fn check_body_material(
-    materials: &[MaterialDeck],
-    material: &str,
-    k: &str,
-    c: &Check,
-) -> Result<(), DeckError> {
-    if !materials.iter().any(|m| m.name == material) {
-        let mut msg = format!("no material named \"{}\"", material);
-        if let Some(n) = nearest(material, materials.iter().map(|m| m.name.as_str())) {
-            msg += &format!("; did you mean \"{n}\"?");
-        }
-        msg += &format!(
-            " (defined: {})",
-            materials
-                .iter()
-                .map(|m| format!("\"{}\"", m.name))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-        return Err(c.err(format!("{k}.material"), msg));
+
+/// [`Deck::frame`] from the sections it reads (borrowed apart from the others).
+fn frame<'a>(
+    simulation: &SimulationDeck,
+    grid: &GridDeck,
+    materials: &'a [MaterialDeck],
+) -> Frame<'a> {
+    let faces = grid.boundary.faces().map(|f| {
+        let kind = f.as_ref().map_or(BoundaryKind::Slip, |s| s.kind());
+        BOUNDARY_KINDS
+            .iter()
+            .find(|n| BoundaryKind::from_name(n) == Some(kind))
+            .copied()
+            .unwrap_or("slip")
+    });
+    Frame {
+        dim: simulation.dimension,
+        lo: grid.origin.clone(),
+        hi: grid
+            .origin
+            .iter()
+            .zip(&grid.size)
+            .map(|(o, s)| o + s)
+            .collect(),
+        cell_size: grid.cell_size,
+        up: simulation.vertical_axis(),
+        end_time: simulation.end_time,
+        faces,
+        materials: materials.iter().map(|m| m.name.as_str()).collect(),
     }
-    Ok(())
-}
-
-/// A point as `0.1, 0.2` in a message.
-fn point(x: &[f64]) -> String {
-    x.iter()
-        .map(|c| crate::limits::short(*c))
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
-/// A body's shape has the keys its type takes, and a box has positive extent.
-/// Checks a shape (reading any mesh) and builds it, errors against `key` and the keys below.
-fn shape_solid(
-    sh: &ShapeDeck,
-    key: &str,
-    dim: usize,
-    c: &Check,
-) -> Result<crate::geometry::Solid, DeckError> {
-    sh.solid(dim)
-        .map_err(|e| c.err(format!("{key}{}", e.key), e.message))
 }

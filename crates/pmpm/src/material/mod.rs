@@ -5,10 +5,12 @@
 //! scheme's. One file per model family; docs/materials.md has their equations.
 
 mod neo_hookean;
+mod settings;
 mod viscoplastic;
 mod von_mises;
 
 pub use neo_hookean::NeoHookean;
+pub use settings::{MaterialDeck, MAX_MATERIAL_PARAMETER};
 pub use viscoplastic::Viscoplastic;
 pub use von_mises::VonMises;
 

@@ -1,14 +1,13 @@
 //! The `[[rigid_bodies]]` deck section: each body's shape, motion and contact, as the deck
-//! gives them, the checks of its motion's keys, and its shape on the grid. The deck checks
-//! what concerns the section as a whole (names, overlaps, bodies against inflows) and calls
-//! these.
+//! gives them, their checks, and each body's shape on the grid.
 
 use super::{Reach, RigidSides, Shaped};
 use crate::error::DeckError;
 use crate::field::{Component, VectorField};
 use crate::geometry::ShapeDeck;
-use crate::keys::Check;
+use crate::keys::{point, Check, Frame, AXES};
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// `[[rigid_bodies]]`: a body that moves through the material along a prescribed path (a
 /// footing, a gate, a paddle, a mixer's blade) or freely under the material's push and gravity
@@ -80,6 +79,117 @@ impl Spin {
 }
 
 impl RigidBodyDeck {
+    /// The `[[rigid_bodies]]` (their mesh files' paths resolved against `dir`, the deck's
+    /// folder): names that head CSV columns, once each; shapes that build; a box's corners
+    /// and velocity, or the general path's motion; free bodies apart from the others. Gives
+    /// the mesh files read (path and digest) and their triangles.
+    pub(crate) fn check_all(
+        bodies: &mut [RigidBodyDeck],
+        dir: &Path,
+        frame: &Frame,
+        c: &Check,
+    ) -> Result<(Vec<(String, String)>, usize), DeckError> {
+        let dim = frame.dim;
+        for r in bodies.iter_mut() {
+            r.shape.resolve_files(dir);
+        }
+        let (mut files, mut triangles) = (Vec::new(), 0);
+        for (i, r) in bodies.iter().enumerate() {
+            let k = format!("rigid_bodies[{i}]");
+            if r.name.is_empty() || r.name.contains([',', '"', '\n']) {
+                return Err(c.err(
+                    format!("{k}.name"),
+                    "must be non-empty, without commas or quotes (it heads CSV columns)",
+                ));
+            }
+            if bodies[..i].iter().any(|q| q.name == r.name) {
+                return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", r.name)));
+            }
+            let solid = c.solid(&format!("{k}.shape"), &r.shape, dim)?;
+            files.extend(solid.mesh_sources().map(|m| (m.path.clone(), m.digest())));
+            triangles += solid.meshes().map(|m| m.triangles).sum::<usize>();
+            if r.is_shaped()
+                || r.motion == RigidMotion::Free
+                || r.density.is_some()
+                || !r.fixed.is_empty()
+                || r.centre.is_some()
+            {
+                r.check_shaped(&k, &solid, frame, c)?;
+                if r.is_shaped() {
+                    continue;
+                }
+            }
+            let (Some(mn), Some(mx)) = (&r.shape.min, &r.shape.max) else {
+                return Err(c.err(format!("{k}.shape"), "a box needs both min and max"));
+            };
+            c.vector(&format!("{k}.shape.min"), mn, dim)?;
+            c.vector(&format!("{k}.shape.max"), mx, dim)?;
+            if let Some(d) = (0..dim).find(|&d| mx[d] <= mn[d]) {
+                return Err(c.err(
+                    format!("{k}.shape.max"),
+                    format!("must exceed min along {}: {} <= {}", AXES[d], mx[d], mn[d]),
+                ));
+            }
+            r.check_velocity(&k, dim, frame.end_time, c)?;
+        }
+        check_free_apart(bodies, frame, c)?;
+        Ok((files, triangles))
+    }
+
+    /// A rigid body of the general path: its motion's keys, and a shape that holds a volume
+    /// and, unless it stands still, is bounded.
+    fn check_shaped(
+        &self,
+        k: &str,
+        solid: &crate::geometry::Solid,
+        frame: &Frame,
+        c: &Check,
+    ) -> Result<(), DeckError> {
+        let r = self;
+        let dim = frame.dim;
+        if r.sides == RigidSides::Smooth && r.is_shaped() {
+            return Err(c.err(
+                format!("{k}.sides"),
+                "\"smooth\" is for a box that does not turn (an axis-aligned box moved by velocity alone); this body is held rough",
+            ));
+        }
+        r.check_motion(k, dim, frame.end_time, c)?;
+        let free = r.motion == RigidMotion::Free;
+        let Some(shape) =
+            r.shape_on_grid(dim, frame.cell_size, (&frame.lo, &frame.hi), frame.end_time)
+        else {
+            return Err(c.err(
+                format!("{k}.shape"),
+                "holds no volume inside the grid (a shape thinner than a quarter cell, or one wholly outside)",
+            ));
+        };
+        let (mn, mx) = solid.bounds();
+        let moves = free || r.velocity.is_some() || r.angular_velocity.is_some();
+        if moves && (0..dim).any(|d| !mn[d].is_finite() || !mx[d].is_finite()) {
+            return Err(c.err(
+                format!("{k}.shape"),
+                "is unbounded (a half-space): only a body at rest may be, cut off at the grid",
+            ));
+        }
+        if free {
+            // the walls hold a free body inside the grid; one that starts across a wall
+            // would be thrown in at the first step
+            let (lo, hi) = (&frame.lo, &frame.hi);
+            let (a, z) = shape.extent(&super::Pose::at(shape.reference()));
+            let tol = 1e-9 * frame.cell_size;
+            if let Some(d) = (0..dim).find(|&d| a[d] < lo[d] - tol || z[d] > hi[d] + tol) {
+                return Err(c.err(
+                    format!("{k}.shape"),
+                    format!(
+                        "of a free body must lie inside the grid: it reaches {} = [{:.4}, {:.4}] against the grid's [{}, {}]",
+                        AXES[d], a[d], z[d], lo[d], hi[d]
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Whether it turns: its angle, angular velocity and torque are written.
     pub fn turns(&self) -> bool {
         match self.motion {
@@ -319,6 +429,38 @@ fn time_only(
                     crate::keys::short(end_time)
                 ),
             ));
+        }
+    }
+    Ok(())
+}
+
+/// A free body starts apart from every other rigid body: the contact parts bodies that
+/// meet as they move, not one placed through another.
+fn check_free_apart(bodies: &[RigidBodyDeck], frame: &Frame, c: &Check) -> Result<(), DeckError> {
+    let dim = frame.dim;
+    let (lo, hi) = (&frame.lo, &frame.hi);
+    let solids: Vec<_> = bodies.iter().map(|r| r.shape.solid(dim).ok()).collect();
+    let free = |r: &RigidBodyDeck| r.motion == RigidMotion::Free;
+    for (b, rb) in bodies.iter().enumerate() {
+        for (a, ra) in bodies[..b].iter().enumerate() {
+            if !(free(ra) || free(rb)) {
+                continue;
+            }
+            let (Some(sa), Some(sb)) = (&solids[a], &solids[b]) else {
+                continue;
+            };
+            if let Some(x) = sa.common_point(sb, (lo, hi)) {
+                let (f, o) = if free(rb) { (b, a) } else { (a, b) };
+                return Err(c.err(
+                    format!("rigid_bodies[{f}].shape"),
+                    format!(
+                        "the free body \"{}\" overlaps rigid_bodies[{o}] (\"{}\") at t = 0 (for example at ({})): a free body must start apart from the other bodies (the contact parts bodies that meet, not one placed inside another); place them apart",
+                        bodies[f].name,
+                        bodies[o].name,
+                        point(&x)
+                    ),
+                ));
+            }
         }
     }
     Ok(())
