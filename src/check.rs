@@ -307,6 +307,9 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
     let s = &deck.simulation;
     let geo = &sim.grid.geo;
     let mut out = format!("{file}: deck is valid\n");
+    if let Some(a) = &deck.about {
+        out += &format!("  about            {}\n", a.describe());
+    }
     for w in warnings(deck) {
         out += &format!("warning: {w}\n");
     }

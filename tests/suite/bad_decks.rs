@@ -50,7 +50,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown table",
             edit(&[("[output]", "[outputs]")]),
-            "bad.toml:32:2: outputs: unknown key; did you mean `output`? (valid keys: pmpm, simulation, grid, pressure, materials, bodies, rigid_bodies, inflows, damping_zones, output)",
+            "bad.toml:32:2: outputs: unknown key; did you mean `output`? (valid keys: pmpm, about, simulation, grid, pressure, materials, bodies, rigid_bodies, inflows, damping_zones, output)",
         ),
         // unknown values: the nearest allowed value, and the allowed values
         (

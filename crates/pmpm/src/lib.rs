@@ -64,6 +64,7 @@
 // Loops over the D axes index several arrays at once and read like the equations.
 #![allow(clippy::needless_range_loop)]
 
+pub mod about;
 pub mod atomic;
 pub(crate) mod averaging;
 pub mod boundary;

@@ -402,6 +402,8 @@ pub struct Deck {
     /// `[pmpm]`, only in a `run.toml`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pmpm: Option<ProgramInfo>,
+    /// `[about]`: the deck's title and where it comes from.
+    pub about: Option<crate::about::AboutDeck>,
     /// `[simulation]`
     pub simulation: SimulationDeck,
     /// `[grid]`
@@ -729,6 +731,7 @@ impl Deck {
     /// Checks what the types cannot and fills in every default.
     pub fn validate(&mut self, file: &str) -> Result<(), DeckError> {
         let c = Check { file };
+        crate::about::AboutDeck::check(&self.about, &c)?;
         self.check_simulation(&c)?;
         self.fill_pressure_defaults(&c)?;
         self.check_grid(&c)?;
@@ -1384,7 +1387,6 @@ impl Deck {
         format!("# The deck as run by pmpm, every default filled in.\n{body}")
     }
 }
-
 
 /// [`Deck::frame`] from the sections it reads (borrowed apart from the others).
 fn frame<'a>(
