@@ -116,7 +116,10 @@ shape = {{ type = "box", min = [0.0, 0.0], max = [0.1, 0.1] }}
         let plain = deck("").unwrap();
         assert_eq!(plain.about, None);
         let text = plain.to_run_toml();
-        assert!(text.contains("[simulation]") && !text.contains("about"), "{text}");
+        assert!(
+            text.contains("[simulation]") && !text.contains("about"),
+            "{text}"
+        );
         let given = deck(
             "[about]\ntitle = \"Column\"\ndescription = \"A column.\\nAt rest.\"\nreference = \"doi:10/x\"",
         )

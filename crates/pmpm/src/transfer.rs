@@ -238,6 +238,7 @@ pub(crate) fn scatter_to_nodes<const D: usize, T>(
 ) where
     T: Copy + Send + Sync + std::ops::AddAssign + std::ops::Mul<f64, Output = T>,
 {
+    out.resize(points.geo.node_count(), zero);
     scatter_weighted(bands, points, zero, value, |v, nw| *v * nw.n, out)
 }
 
@@ -258,14 +259,14 @@ pub(crate) struct Points<'a, const D: usize> {
 /// sum_p contribution(value(p), w_ip) at every node i, into `out`, where w_ip is the node's
 /// weight seen from particle p (N_ip, its gradient G_ip, APIC's a_ip): [`scatter_to_nodes`]
 /// for any per-node contribution, with the same band order and so the same bits for a given
-/// thread count.
+/// thread count. `out` has a value per node of the grid.
 pub(crate) fn scatter_weighted<const D: usize, T, V>(
     bands: &mut Vec<Band<T>>,
     points: Points<D>,
     zero: T,
     value: impl Fn(usize) -> V + Sync,
     contribution: impl Fn(&V, &NodeWeight<D>) -> T + Sync,
-    out: &mut Vec<T>,
+    out: &mut [T],
 ) where
     T: Copy + Send + Sync + std::ops::AddAssign,
 {
@@ -282,7 +283,7 @@ pub(crate) fn scatter_weighted<const D: usize, T, V>(
             }
         })
     });
-    out.resize(geo.node_count(), zero);
+    debug_assert_eq!(out.len(), geo.node_count());
     let bands = &*bands;
     out.par_iter_mut().enumerate().for_each(|(i, o)| {
         *o = zero;

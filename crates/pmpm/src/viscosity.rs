@@ -28,6 +28,7 @@
 
 use crate::boundary::Boundary;
 use crate::grid::{CellBins, Grid, GridGeometry, Vector};
+use crate::linalg::{dot, CgWork, Operator, Precondition, SolveError, SolveParams};
 use crate::material::{deviatoric_strain_rate, in_mask, Law, MaterialParams};
 use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
@@ -146,12 +147,9 @@ pub struct ImplicitViscosity<const D: usize> {
     mask: Vec<Vector<D>>,
     /// Inverse of the diagonal of M + dt K on the free components.
     inverse_diagonal: Vec<Vector<D>>,
-    r: Vec<Vector<D>>,
-    z: Vec<Vector<D>>,
-    p: Vec<Vector<D>>,
-    q: Vec<Vector<D>>,
     bands: Vec<Band<Vector<D>>>,
-    partials: Vec<f64>,
+    /// The conjugate gradient's work vectors.
+    cg: CgWork<Vector<D>>,
 }
 
 impl<const D: usize> ImplicitViscosity<D> {
@@ -198,8 +196,21 @@ impl<const D: usize> ImplicitViscosity<D> {
             ..
         } = grid;
         let n = geo.node_count();
+        let Self {
+            tolerance,
+            max_iterations,
+            mask,
+            inverse_diagonal,
+            points,
+            widths,
+            coefficient,
+            stress,
+            bands,
+            cg,
+            ..
+        } = self;
         // |b| = |M v*| and r = b - (M + dt K) v* = -dt K v*, on the free components
-        let mask = &self.mask;
+        cg.resize(n);
         u.par_chunks(CHUNK)
             .zip(mass.par_chunks(CHUNK).zip(mask.par_chunks(CHUNK)))
             .map(|(u, (m, k))| {
@@ -207,17 +218,49 @@ impl<const D: usize> ImplicitViscosity<D> {
                     .map(|i| (u[i] * m[i]).component_mul(&k[i]).norm_squared())
                     .sum::<f64>()
             })
-            .collect_into_vec(&mut self.partials);
-        let b_norm = self.partials.iter().sum::<f64>().sqrt();
-        self.apply_viscous(geo, shape, u);
-        {
-            let (r, q, mask) = (&mut self.r, &self.q, &self.mask);
-            r.resize(n, Vector::<D>::zeros());
-            r.par_iter_mut().enumerate().for_each(|(i, r)| {
-                *r = -q[i].component_mul(&mask[i]);
-            });
-        }
-        let stats = self.iterate(geo, shape, mass, u, b_norm)?;
+            .collect_into_vec(&mut cg.partials);
+        let b_norm = cg.partials.iter().sum::<f64>().sqrt();
+        let mut op = ViscousOperator {
+            geo,
+            shape,
+            mass,
+            mask,
+            points,
+            widths,
+            coefficient,
+            stress,
+            bands,
+        };
+        op.viscous(u, &mut cg.r);
+        cg.r.par_iter_mut().enumerate().for_each(|(i, r)| {
+            *r = -r.component_mul(&mask[i]);
+        });
+        // relative to |M v| on the free components, or to the first residual where the free
+        // nodes are at rest and only the held ones (a lid, a body) drive the flow
+        let r_norm = dot(&cg.r, &cg.r, &mut cg.partials).sqrt();
+        let params = SolveParams {
+            tolerance: *tolerance,
+            max_iterations: *max_iterations,
+        };
+        let mut diagonal = Diagonal(inverse_diagonal);
+        let stats = match cg.solve(&mut op, &mut diagonal, u, b_norm.max(r_norm), params) {
+            Ok(s) => ViscousStats {
+                iterations: s.iterations,
+                relative_residual: s.relative_residual,
+            },
+            Err(SolveError::NotConverged {
+                iterations,
+                residual,
+                tolerance,
+            }) => {
+                return Err(ViscousError::NotConverged {
+                    iterations,
+                    residual,
+                    tolerance,
+                })
+            }
+            Err(SolveError::Breakdown(why)) => return Err(ViscousError::Breakdown(why)),
+        };
         boundary.apply(u);
         Ok(stats)
     }
@@ -378,141 +421,6 @@ impl<const D: usize> ImplicitViscosity<D> {
             });
     }
 
-    /// q = (M + dt K) x on the free components, 0 on the others.
-    fn apply(
-        &mut self,
-        geo: &GridGeometry<D>,
-        shape: ShapeFunction,
-        mass: &[f64],
-        x: &[Vector<D>],
-    ) {
-        self.apply_viscous(geo, shape, x);
-        let (q, mask) = (&mut self.q, &self.mask);
-        q.par_iter_mut().enumerate().for_each(|(i, q)| {
-            *q = (*q + x[i] * mass[i]).component_mul(&mask[i]);
-        });
-    }
-
-    /// Conjugate gradients on the correction: u += alpha p until |r| <= tolerance |M v*|.
-    fn iterate(
-        &mut self,
-        geo: &GridGeometry<D>,
-        shape: ShapeFunction,
-        mass: &[f64],
-        u: &mut [Vector<D>],
-        b_norm: f64,
-    ) -> Result<ViscousStats, ViscousError> {
-        let n = u.len();
-        let mut r_norm = norm(&self.r, &mut self.partials);
-        if !r_norm.is_finite() {
-            return Err(ViscousError::Breakdown(
-                "the right-hand side is not finite".into(),
-            ));
-        }
-        // relative to |M v| on the free components, or to the first residual where the free
-        // nodes are at rest and only the held ones (a lid, a body) drive the flow
-        let b_norm = b_norm.max(r_norm);
-        let target = self.tolerance * b_norm;
-        if r_norm <= target || r_norm == 0.0 {
-            return Ok(ViscousStats {
-                iterations: 0,
-                relative_residual: if b_norm > 0.0 { r_norm / b_norm } else { 0.0 },
-            });
-        }
-        self.z.resize(n, Vector::<D>::zeros());
-        self.p.resize(n, Vector::<D>::zeros());
-        precondition(&self.inverse_diagonal, &self.r, &mut self.z);
-        self.p.copy_from_slice(&self.z);
-        let mut rz = dot(&self.r, &self.z, &mut self.partials);
-        for it in 1..=self.max_iterations {
-            // q = (M + dt K) p on the free components
-            let p = std::mem::take(&mut self.p);
-            self.apply(geo, shape, mass, &p);
-            let pq = dot(&p, &self.q, &mut self.partials);
-            if pq.is_nan() || pq <= 0.0 {
-                self.p = p;
-                return Err(ViscousError::Breakdown(format!(
-                    "curvature {pq:.3e} at iteration {it}"
-                )));
-            }
-            let alpha = rz / pq;
-            u.par_iter_mut()
-                .zip(p.par_iter())
-                .for_each(|(u, p)| *u += p * alpha);
-            self.r
-                .par_iter_mut()
-                .zip(self.q.par_iter())
-                .for_each(|(r, q)| *r -= q * alpha);
-            r_norm = norm(&self.r, &mut self.partials);
-            if !r_norm.is_finite() {
-                self.p = p;
-                return Err(ViscousError::Breakdown(format!(
-                    "the residual is not finite at iteration {it}"
-                )));
-            }
-            if r_norm <= target {
-                self.p = p;
-                return Ok(ViscousStats {
-                    iterations: it,
-                    relative_residual: r_norm / b_norm,
-                });
-            }
-            precondition(&self.inverse_diagonal, &self.r, &mut self.z);
-            let rz_new = dot(&self.r, &self.z, &mut self.partials);
-            let beta = rz_new / rz;
-            rz = rz_new;
-            self.p = p;
-            self.p
-                .par_iter_mut()
-                .zip(self.z.par_iter())
-                .for_each(|(p, z)| *p = z + *p * beta);
-        }
-        Err(ViscousError::NotConverged {
-            iterations: self.max_iterations,
-            residual: r_norm / b_norm,
-            tolerance: self.tolerance,
-        })
-    }
-
-    /// q = dt K v: the gather of each particle's L_p(v), its viscous stress 2 dt V_p mu_p dev
-    /// sym L_p, and the scatter of tau_p G_ip (into `self.q`, unmasked).
-    fn apply_viscous(&mut self, geo: &GridGeometry<D>, shape: ShapeFunction, v: &[Vector<D>]) {
-        self.stress.resize(self.points.len(), Matrix::<D>::zeros());
-        let (points, widths) = (&self.points, &self.widths);
-        crate::with_shape!(shape, S => {
-            let shape = ShapeFunction::from_code(S);
-            let coefficient = &self.coefficient;
-            self.stress
-                .par_iter_mut()
-                .enumerate()
-                .for_each(|(p, s)| {
-                    let c = coefficient[p];
-                    if c == 0.0 {
-                        *s = Matrix::<D>::zeros();
-                        return;
-                    }
-                    let st = Stencil::<D>::new(shape, &geo.to_cells(&points[p]), geo.h, widths[p]);
-                    let mut l = Matrix::<D>::zeros();
-                    st.for_each(|nw| l += v[geo.flat(&nw.node)] * nw.grad.transpose());
-                    *s = deviatoric_strain_rate(&l) * (2.0 * c);
-                });
-        });
-        let stress = &self.stress;
-        scatter_weighted(
-            &mut self.bands,
-            Points {
-                geo,
-                shape,
-                x: points,
-                half_width: widths,
-            },
-            Vector::<D>::zeros(),
-            |p| stress[p],
-            |s, nw| s * nw.grad,
-            &mut self.q,
-        );
-    }
-
     /// The inverse diagonal of M + dt K on the free components (0 elsewhere): component d of
     /// node i has m_i + sum_p dt V_p mu_p (|G_ip|^2 + G_ip,d^2 (1 - 2 / D)), the stress of
     /// a unit velocity of that component alone (|dev sym (e_d (x) G)|^2 = (|G|^2 + G_d^2) / 2
@@ -520,6 +428,8 @@ impl<const D: usize> ImplicitViscosity<D> {
     fn diagonal(&mut self, geo: &GridGeometry<D>, shape: ShapeFunction, mass: &[f64]) {
         let coefficient = &self.coefficient;
         let shear = 1.0 - 2.0 / D as f64;
+        self.inverse_diagonal
+            .resize(geo.node_count(), Vector::<D>::zeros());
         scatter_weighted(
             &mut self.bands,
             Points {
@@ -553,29 +463,81 @@ impl<const D: usize> ImplicitViscosity<D> {
     }
 }
 
-/// z = D^-1 r.
-fn precondition<const D: usize>(
-    inverse_diagonal: &[Vector<D>],
-    r: &[Vector<D>],
-    z: &mut [Vector<D>],
-) {
-    z.par_iter_mut()
-        .zip(inverse_diagonal.par_iter().zip(r.par_iter()))
-        .for_each(|(z, (d, r))| *z = d.component_mul(r));
+/// The solve's operator q = (M + dt K) x on the free components, 0 on the others, over the
+/// step's quadrature points.
+struct ViscousOperator<'a, const D: usize> {
+    geo: &'a GridGeometry<D>,
+    shape: ShapeFunction,
+    mass: &'a [f64],
+    mask: &'a [Vector<D>],
+    points: &'a [Vector<D>],
+    widths: &'a [f64],
+    coefficient: &'a [f64],
+    stress: &'a mut Vec<Matrix<D>>,
+    bands: &'a mut Vec<Band<Vector<D>>>,
 }
 
-/// sum_i a_i . b_i in fixed chunks summed in order.
-fn dot<const D: usize>(a: &[Vector<D>], b: &[Vector<D>], partials: &mut Vec<f64>) -> f64 {
-    a.par_chunks(CHUNK)
-        .zip(b.par_chunks(CHUNK))
-        .map(|(a, b)| a.iter().zip(b).map(|(x, y)| x.dot(y)).sum::<f64>())
-        .collect_into_vec(partials);
-    partials.iter().sum()
+impl<const D: usize> ViscousOperator<'_, D> {
+    /// q = dt K v: the gather of each particle's L_p(v), its viscous stress 2 dt V_p mu_p dev
+    /// sym L_p, and the scatter of tau_p G_ip (unmasked).
+    fn viscous(&mut self, v: &[Vector<D>], q: &mut [Vector<D>]) {
+        let (geo, shape) = (self.geo, self.shape);
+        self.stress.resize(self.points.len(), Matrix::<D>::zeros());
+        let (points, widths) = (self.points, self.widths);
+        crate::with_shape!(shape, S => {
+            let shape = ShapeFunction::from_code(S);
+            let coefficient = self.coefficient;
+            self.stress
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(p, s)| {
+                    let c = coefficient[p];
+                    if c == 0.0 {
+                        *s = Matrix::<D>::zeros();
+                        return;
+                    }
+                    let st = Stencil::<D>::new(shape, &geo.to_cells(&points[p]), geo.h, widths[p]);
+                    let mut l = Matrix::<D>::zeros();
+                    st.for_each(|nw| l += v[geo.flat(&nw.node)] * nw.grad.transpose());
+                    *s = deviatoric_strain_rate(&l) * (2.0 * c);
+                });
+        });
+        let stress = &*self.stress;
+        scatter_weighted(
+            self.bands,
+            Points {
+                geo,
+                shape,
+                x: points,
+                half_width: widths,
+            },
+            Vector::<D>::zeros(),
+            |p| stress[p],
+            |s, nw| s * nw.grad,
+            q,
+        );
+    }
 }
 
-/// |a|.
-fn norm<const D: usize>(a: &[Vector<D>], partials: &mut Vec<f64>) -> f64 {
-    dot(a, a, partials).sqrt()
+impl<const D: usize> Operator<Vector<D>> for ViscousOperator<'_, D> {
+    fn apply(&mut self, x: &[Vector<D>], q: &mut [Vector<D>]) {
+        self.viscous(x, q);
+        let (mass, mask) = (self.mass, self.mask);
+        q.par_iter_mut().enumerate().for_each(|(i, q)| {
+            *q = (*q + x[i] * mass[i]).component_mul(&mask[i]);
+        });
+    }
+}
+
+/// The diagonal preconditioner z = D^-1 r.
+struct Diagonal<'a, const D: usize>(&'a [Vector<D>]);
+
+impl<const D: usize> Precondition<Vector<D>> for Diagonal<'_, D> {
+    fn apply(&mut self, r: &[Vector<D>], z: &mut [Vector<D>]) {
+        z.par_iter_mut()
+            .zip(self.0.par_iter().zip(r.par_iter()))
+            .for_each(|(z, (d, r))| *z = d.component_mul(r));
+    }
 }
 
 #[cfg(test)]
@@ -653,11 +615,12 @@ particles_per_cell = 2
                     .collect()
             };
             let (a, b) = (field(0.37), field(1.13));
-            v.apply(&grid.geo, shape, &grid.mass, &b);
-            let ab: f64 = a.iter().zip(&v.q).map(|(x, y)| x.dot(y)).sum();
-            v.apply(&grid.geo, shape, &grid.mass, &a);
-            let ba: f64 = b.iter().zip(&v.q).map(|(x, y)| x.dot(y)).sum();
-            let aa: f64 = a.iter().zip(&v.q).map(|(x, y)| x.dot(y)).sum();
+            let mut q = vec![Vector::<2>::zeros(); n];
+            v.operator(&grid.geo, &grid.mass).apply(&b, &mut q);
+            let ab: f64 = a.iter().zip(&q).map(|(x, y)| x.dot(y)).sum();
+            v.operator(&grid.geo, &grid.mass).apply(&a, &mut q);
+            let ba: f64 = b.iter().zip(&q).map(|(x, y)| x.dot(y)).sum();
+            let aa: f64 = a.iter().zip(&q).map(|(x, y)| x.dot(y)).sum();
             assert!(
                 (ab - ba).abs() <= 1e-12 * ab.abs().max(ba.abs()),
                 "{ab} {ba}"
@@ -672,12 +635,12 @@ particles_per_cell = 2
                     }
                     let mut e = vec![Vector::<2>::zeros(); n];
                     e[i][c] = 1.0;
-                    v.apply(&grid.geo, shape, &grid.mass, &e);
+                    v.operator(&grid.geo, &grid.mass).apply(&e, &mut q);
                     let diagonal = 1.0 / v.inverse_diagonal[i][c];
                     assert!(
-                        (v.q[i][c] - diagonal).abs() <= 1e-12 * diagonal,
+                        (q[i][c] - diagonal).abs() <= 1e-12 * diagonal,
                         "node {i}, component {c}: {} against {diagonal}",
-                        v.q[i][c]
+                        q[i][c]
                     );
                     free += 1;
                 }
@@ -721,8 +684,9 @@ particles_per_cell = 2
             let implicit = implicit_mask(&sim.materials);
             let mut v = ImplicitViscosity::<2>::new(1e-8, 100, implicit, shape, 0.0);
             v.prepare(ps, grid, &sim.boundary, &sim.materials, 1.0);
-            v.apply_viscous(&grid.geo, shape, &field);
-            k.push(v.q.clone());
+            let mut q = vec![Vector::<2>::zeros(); n];
+            v.operator(&grid.geo, &grid.mass).viscous(&field, &mut q);
+            k.push(q);
         }
         // nodes whose four cells are all deep: two cells inside the block's edges
         let mut checked = 0;
@@ -753,6 +717,27 @@ particles_per_cell = 2
             checked += 1;
         }
         assert!(checked >= 20, "{checked} nodes checked");
+    }
+
+    impl<const D: usize> ImplicitViscosity<D> {
+        /// The operator of the last [`ImplicitViscosity::prepare`].
+        fn operator<'a>(
+            &'a mut self,
+            geo: &'a GridGeometry<D>,
+            mass: &'a [f64],
+        ) -> ViscousOperator<'a, D> {
+            ViscousOperator {
+                geo,
+                shape: self.shape,
+                mass,
+                mask: &self.mask,
+                points: &self.points,
+                widths: &self.widths,
+                coefficient: &self.coefficient,
+                stress: &mut self.stress,
+                bands: &mut self.bands,
+            }
+        }
     }
 
     /// `sim`'s solve at step `dt` by a solver of `tolerance` and `max_iterations`.

@@ -16,8 +16,10 @@
 //! filled container, and takes any [`Preconditioner`]. The direct solver is faer's sparse
 //! Cholesky.
 
+mod cg;
 pub mod multigrid;
 
+pub use cg::{dot, CgWork, Entry, Operator, Precondition};
 pub use multigrid::{GridLayout, Multigrid};
 
 use faer::linalg::solvers::Solve;
@@ -115,15 +117,6 @@ impl EllMatrix {
                 .sum();
         });
     }
-}
-
-/// Sum of a[i] * b[i], in fixed chunks summed in order: the same bits for any thread count.
-fn dot(a: &[f64], b: &[f64], partials: &mut Vec<f64>) -> f64 {
-    a.par_chunks(CHUNK)
-        .zip(b.par_chunks(CHUNK))
-        .map(|(a, b)| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>())
-        .collect_into_vec(partials);
-    partials.iter().sum()
 }
 
 /// Removes the mean of `x` (the null space of a pure-Neumann Laplacian is the constant).
@@ -328,14 +321,41 @@ pub enum SolveError {
     Breakdown(String),
 }
 
-/// Preconditioned conjugate gradient with its work vectors (kept between solves).
+/// Preconditioned conjugate gradient on an [`EllMatrix`] ([`CgWork`]), with its preconditioner
+/// and work vectors (kept between solves).
 pub struct Pcg {
     preconditioner: Box<dyn Preconditioner>,
-    r: Vec<f64>,
-    z: Vec<f64>,
-    p: Vec<f64>,
-    q: Vec<f64>,
-    partials: Vec<f64>,
+    work: CgWork<f64>,
+}
+
+/// A system's matrix as the conjugate gradient's operator, the constant removed where the
+/// system is singular.
+struct MatrixOperator<'a> {
+    matrix: &'a EllMatrix,
+    singular: bool,
+}
+
+impl Operator<f64> for MatrixOperator<'_> {
+    fn apply(&mut self, x: &[f64], y: &mut [f64]) {
+        self.matrix.matvec(x, y);
+    }
+    fn project(&self, v: &mut [f64], partials: &mut Vec<f64>) {
+        if self.singular {
+            remove_mean(v, partials);
+        }
+    }
+}
+
+/// A [`Preconditioner`] set up for `matrix`, as the conjugate gradient applies it.
+struct SetUp<'a> {
+    preconditioner: &'a mut dyn Preconditioner,
+    matrix: &'a EllMatrix,
+}
+
+impl Precondition<f64> for SetUp<'_> {
+    fn apply(&mut self, r: &[f64], z: &mut [f64]) {
+        self.preconditioner.apply(self.matrix, r, z);
+    }
 }
 
 impl Pcg {
@@ -343,11 +363,7 @@ impl Pcg {
     pub fn new(preconditioner: Box<dyn Preconditioner>) -> Self {
         Self {
             preconditioner,
-            r: Vec::new(),
-            z: Vec::new(),
-            p: Vec::new(),
-            q: Vec::new(),
-            partials: Vec::new(),
+            work: CgWork::default(),
         }
     }
 
@@ -361,24 +377,12 @@ impl Pcg {
         params: SolveParams,
         setup: bool,
     ) -> Result<SolveStats, SolveError> {
-        let (a, singular) = (system.matrix, system.singular);
-        let (tol, max_iterations) = (params.tolerance, params.max_iterations);
-        let n = a.n;
-        for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
-            v.resize(n, 0.0);
-        }
+        let a = system.matrix;
+        self.work.resize(a.n);
         if setup {
             self.preconditioner.setup(system);
         }
-        let Self {
-            preconditioner,
-            r,
-            z,
-            p,
-            q,
-            partials,
-        } = self;
-        let b_norm = dot(b, b, partials).sqrt();
+        let b_norm = dot(b, b, &mut self.work.partials).sqrt();
         if !b_norm.is_finite() {
             return Err(SolveError::Breakdown(
                 "the right-hand side is not finite".into(),
@@ -392,67 +396,20 @@ impl Pcg {
             });
         }
         // r = b - A x (x holds the initial guess)
+        let r = &mut self.work.r;
         a.matvec(x, r);
         r.par_iter_mut()
             .zip(b.par_iter())
             .for_each(|(r, b)| *r = b - *r);
-        if singular {
-            remove_mean(r, partials);
-        }
-        preconditioner.apply(a, r, z);
-        if singular {
-            remove_mean(z, partials);
-        }
-        p.copy_from_slice(z);
-        let mut rz = dot(r, z, partials);
-        let mut res = dot(r, r, partials).sqrt() / b_norm;
-        let mut it = 0;
-        while res > tol {
-            if it == max_iterations {
-                return Err(SolveError::NotConverged {
-                    iterations: it,
-                    residual: res,
-                    tolerance: tol,
-                });
-            }
-            a.matvec(p, q);
-            let pq = dot(p, q, partials);
-            if pq <= 0.0 || !pq.is_finite() {
-                return Err(SolveError::Breakdown(format!(
-                    "p.Ap = {pq:.3e} at iteration {it}: the matrix is not positive definite"
-                )));
-            }
-            let alpha = rz / pq;
-            x.par_iter_mut()
-                .zip(r.par_iter_mut())
-                .zip(p.par_iter().zip(q.par_iter()))
-                .for_each(|((x, r), (p, q))| {
-                    *x += alpha * p;
-                    *r -= alpha * q;
-                });
-            if singular {
-                remove_mean(r, partials);
-            }
-            preconditioner.apply(a, r, z);
-            if singular {
-                remove_mean(z, partials);
-            }
-            let rz_new = dot(r, z, partials);
-            let beta = rz_new / rz;
-            rz = rz_new;
-            p.par_iter_mut()
-                .zip(z.par_iter())
-                .for_each(|(p, z)| *p = z + beta * *p);
-            res = dot(r, r, partials).sqrt() / b_norm;
-            it += 1;
-        }
-        if singular {
-            remove_mean(x, partials);
-        }
-        Ok(SolveStats {
-            iterations: it,
-            relative_residual: res,
-        })
+        let mut op = MatrixOperator {
+            matrix: a,
+            singular: system.singular,
+        };
+        let mut pre = SetUp {
+            preconditioner: self.preconditioner.as_mut(),
+            matrix: a,
+        };
+        self.work.solve(&mut op, &mut pre, x, b_norm, params)
     }
 }
 
