@@ -306,15 +306,11 @@ impl GaugeDeck {
         }
         for (i, q) in gauges.iter().enumerate() {
             let k = format!("output.gauges[{i}]");
-            if q.name.is_empty() || q.name.contains([',', '"', '\n']) {
-                return Err(c.err(
-                    format!("{k}.name"),
-                    "must be non-empty, without commas or quotes (it heads CSV columns)",
-                ));
-            }
-            if gauges[..i].iter().any(|r| r.name == q.name) {
-                return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", q.name)));
-            }
+            c.column_name(
+                &format!("{k}.name"),
+                i,
+                gauges.iter().map(|e| e.name.as_str()),
+            )?;
             if q.kind == GaugeKind::WallForce {
                 if q.position.is_some() {
                     return Err(c.err(
@@ -394,18 +390,11 @@ impl ProbeDeck {
         let (lo, hi) = (&frame.lo, &frame.hi);
         for (i, pr) in probes.iter().enumerate() {
             let k = format!("output.probes[{i}]");
-            if pr.name.is_empty() || pr.name.contains([',', '"', '\n']) {
-                return Err(c.err(
-                    format!("{k}.name"),
-                    "must be non-empty, without commas or quotes (it heads CSV columns)",
-                ));
-            }
-            if probes[..i].iter().any(|q| q.name == pr.name) {
-                return Err(c.err(
-                    format!("{k}.name"),
-                    format!("\"{}\" is used twice", pr.name),
-                ));
-            }
+            c.column_name(
+                &format!("{k}.name"),
+                i,
+                probes.iter().map(|e| e.name.as_str()),
+            )?;
             c.vector(&format!("{k}.position"), &pr.position, dim)?;
             if let Some(r) = pr.radius {
                 if pr.sample != ProbeSample::Particles {

@@ -94,6 +94,29 @@ impl Check<'_> {
         Ok(())
     }
 
+    /// The name of entry `i` of a list whose names head CSV columns (gauges, probes, rigid
+    /// bodies; `names` the list's, in order): non-empty, without commas, quotes or line
+    /// breaks, and not that of an earlier entry.
+    pub(crate) fn column_name<'n>(
+        &self,
+        key: &str,
+        i: usize,
+        names: impl Iterator<Item = &'n str>,
+    ) -> Result<(), DeckError> {
+        let all: Vec<&str> = names.collect();
+        let name = all[i];
+        if name.is_empty() || name.contains([',', '"', '\n']) {
+            return Err(self.err(
+                key,
+                "must be non-empty, without commas or quotes (it heads CSV columns)",
+            ));
+        }
+        if all[..i].contains(&name) {
+            return Err(self.err(key, format!("\"{name}\" is used twice")));
+        }
+        Ok(())
+    }
+
     /// A shape that builds (reading any mesh), errors at `key` and the keys below.
     pub(crate) fn solid(
         &self,

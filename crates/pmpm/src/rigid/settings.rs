@@ -96,15 +96,11 @@ impl RigidBodyDeck {
         let (mut files, mut triangles) = (Vec::new(), 0);
         for (i, r) in bodies.iter().enumerate() {
             let k = format!("rigid_bodies[{i}]");
-            if r.name.is_empty() || r.name.contains([',', '"', '\n']) {
-                return Err(c.err(
-                    format!("{k}.name"),
-                    "must be non-empty, without commas or quotes (it heads CSV columns)",
-                ));
-            }
-            if bodies[..i].iter().any(|q| q.name == r.name) {
-                return Err(c.err(format!("{k}.name"), format!("\"{}\" is used twice", r.name)));
-            }
+            c.column_name(
+                &format!("{k}.name"),
+                i,
+                bodies.iter().map(|e| e.name.as_str()),
+            )?;
             let solid = c.solid(&format!("{k}.shape"), &r.shape, dim)?;
             files.extend(solid.mesh_sources().map(|m| (m.path.clone(), m.digest())));
             triangles += solid.meshes().map(|m| m.triangles).sum::<usize>();
