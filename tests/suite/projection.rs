@@ -390,7 +390,7 @@ rhs = "flux"
         run_at_rest::<2>(&d, RHO * G * 0.4, |y| RHO * G * (0.4 - y), true)
     });
     assert!(
-        sim.projection.as_ref().unwrap().last.singular,
+        sim.stepper.projection().unwrap().last.singular,
         "no free surface"
     );
     check_exact("closed box", &r);
@@ -445,7 +445,7 @@ shape = {{ type = "box", min = [0.07, 0.13], max = [0.13, 0.2] }}
         in_pool(2, || {
             let mut sim = Simulation::<2>::new(&d).unwrap();
             sim.step(1e-3).unwrap();
-            let pr = sim.projection.as_ref().unwrap();
+            let pr = sim.stepper.projection().unwrap();
             let surface = pr
                 .surface
                 .kinds
@@ -527,7 +527,7 @@ fn solvers_agree_and_the_matrix_is_symmetric_positive_definite() {
     assert!(diff <= 1e-6 * pmax);
     let particle = run("pcg", "particle");
     for (name, sim) in [("cell", &a), ("particle", &particle)] {
-        symmetric_positive_definite(name, &sim.projection.as_ref().unwrap().system.matrix);
+        symmetric_positive_definite(name, &sim.stepper.projection().unwrap().system.matrix);
     }
 }
 
@@ -627,7 +627,7 @@ fn further_pressure_passes_shrink_the_divergence_left() {
         let mut sim = Simulation::<2>::new(&d).unwrap();
         let (mut second, mut third) = (Vec::new(), Vec::new());
         drive(&d, &mut sim, |sim, _| {
-            let n = &sim.projection.as_ref().unwrap().last.pass_norms;
+            let n = &sim.stepper.projection().unwrap().last.pass_norms;
             assert!(n.len() >= 2, "step {}: {n:?}", sim.steps);
             second.push(n[1] / n[0]);
             if n.len() == 3 {

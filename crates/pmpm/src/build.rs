@@ -13,7 +13,7 @@ use crate::material::MaterialParams;
 use crate::particles::Particles;
 use crate::pressure::{PressureUnknowns, Projection};
 use crate::rigid::{Free, Motion, Pose, RigidBodies, RigidBox, ShapedBody};
-use crate::scheme::{least_density, Parts, Scheme, Simulation, StepPolicy, LIGHT_NODE};
+use crate::scheme::{least_density, Parts, Scheme, Simulation, StepPolicy, Stepper, LIGHT_NODE};
 use crate::seed::Seeding;
 use crate::transfer::TransferSettings;
 
@@ -82,8 +82,9 @@ impl<const D: usize> Simulation<D> {
         };
         let boundary = boundary(deck, &geo);
         let probes = probes(deck, &geo);
-        let projection = (deck.simulation.scheme == Scheme::Projection).then(|| {
-            Projection::new(
+        let stepper = match deck.simulation.scheme {
+            Scheme::Explicit => Stepper::Explicit,
+            Scheme::Projection => Stepper::Projection(Box::new(Projection::new(
                 &deck.pressure,
                 deck.simulation.shape_function,
                 deck.materials.iter().any(MaterialDeck::is_solid),
@@ -91,8 +92,8 @@ impl<const D: usize> Simulation<D> {
                 &boundary,
                 geo.cells.iter().product(),
                 settings.mass_epsilon,
-            )
-        });
+            ))),
+        };
         // the projection with nodal pressures reads J with the nodally averaged dilatation (the
         // F-bar idea): its velocity is divergence free node by node, in the weak sense, not at
         // each particle, and the density correction restores volumes node by node
@@ -118,7 +119,7 @@ impl<const D: usize> Simulation<D> {
             settings,
             boundary,
             probes,
-            projection,
+            stepper,
             averaging,
             body_force: (!gravity.is_constant()).then_some(gravity),
             viscosity: implicit_viscosity.then(|| {
@@ -174,7 +175,6 @@ pub fn step_policy(deck: &Deck) -> StepPolicy {
         volume_limits: s.volume_limits,
         max_dt: s.max_dt,
         dt: s.dt,
-        scheme: s.scheme,
     }
 }
 

@@ -266,7 +266,7 @@ pub fn write<const D: usize>(
     sim: &Simulation<D>,
     driver: &DriverState,
 ) -> Result<(), Error> {
-    let projection = sim.projection.as_ref();
+    let projection = sim.stepper.projection();
     let state = StateView {
         version: env!("CARGO_PKG_VERSION"),
         dimension: D,
@@ -556,7 +556,7 @@ fn check_particles<const D: usize>(
             ),
         ));
     }
-    let node_pressure_len = sim.projection.as_ref().map(|_| sim.grid.geo.node_count());
+    let node_pressure_len = sim.stepper.projection().map(|_| sim.grid.geo.node_count());
     let variable_body_force = sim.body_force_values().is_some();
     consistent::<D>(
         s,
@@ -584,7 +584,7 @@ fn restore<const D: usize>(
     if let Some(f) = sim.body_force_values_mut() {
         *f = <Vector<D> as FieldValue>::unflatten(&s.body_force);
     }
-    if let Some(p) = sim.projection.as_mut() {
+    if let Some(p) = sim.stepper.projection_mut() {
         p.last.stats.iterations = s.pressure_iterations;
         p.previous = s.node_pressure;
         p.restore_volume_over_density(s.volume_over_density);
@@ -867,7 +867,7 @@ particles_per_cell = 2
         );
         assert_eq!(
             state.node_pressure,
-            sim.projection.as_ref().unwrap().previous
+            sim.stepper.projection().unwrap().previous
         );
         let _ = std::fs::remove_dir_all(&dir);
     }

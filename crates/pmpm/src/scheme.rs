@@ -32,6 +32,41 @@ pub enum Scheme {
     Explicit,
 }
 
+/// The scheme a simulation steps with, and the state it keeps between steps.
+pub enum Stepper<const D: usize> {
+    /// Weakly compressible: the pressure is the particles' equation of state, p = K (1 - J).
+    Explicit,
+    /// Chorin's projection with its solves and their work (boxed: the explicit scheme keeps
+    /// nothing).
+    Projection(Box<Projection<D>>),
+}
+
+impl<const D: usize> Stepper<D> {
+    /// Which scheme.
+    pub fn scheme(&self) -> Scheme {
+        match self {
+            Stepper::Explicit => Scheme::Explicit,
+            Stepper::Projection(_) => Scheme::Projection,
+        }
+    }
+
+    /// The projection's state, under the projection.
+    pub fn projection(&self) -> Option<&Projection<D>> {
+        match self {
+            Stepper::Explicit => None,
+            Stepper::Projection(p) => Some(p),
+        }
+    }
+
+    /// The projection's state to change, under the projection.
+    pub fn projection_mut(&mut self) -> Option<&mut Projection<D>> {
+        match self {
+            Stepper::Explicit => None,
+            Stepper::Projection(p) => Some(p),
+        }
+    }
+}
+
 /// The most cells a particle's volume may cover before the run stops: a particle that large
 /// has lost touch with the grid's resolution (a volume that grew without bound).
 pub const MAX_PARTICLE_CELLS: f64 = 4.0;
@@ -63,8 +98,6 @@ pub struct StepPolicy {
     pub max_dt: Option<f64>,
     /// Fixed step (s).
     pub dt: Option<f64>,
-    /// Time-integration scheme.
-    pub scheme: Scheme,
 }
 
 /// What a probe reads about its point.
@@ -123,8 +156,8 @@ pub struct Parts<const D: usize> {
     pub boundary: Boundary<D>,
     /// Probe positions, and the radius of the particles' mean of those that read it.
     pub probes: Vec<(Vector<D>, Option<f64>)>,
-    /// The pressure projection (scheme = "projection").
-    pub projection: Option<Projection<D>>,
+    /// The scheme, with the projection's state under the projection.
+    pub stepper: Stepper<D>,
     /// The nodal averaging of the volumetric strain rate, where it applies.
     pub averaging: Option<NodalAveraging<D>>,
     /// A body force given by expressions that vary in space or time.
@@ -157,8 +190,8 @@ pub struct Simulation<const D: usize> {
     pub probes: Probes<D>,
     /// A body force given by expressions in x, y, z, t, and its value at each particle now.
     body_force: Option<(crate::field::CompiledField, Vec<Vector<D>>)>,
-    /// The pressure projection (scheme = "projection").
-    pub projection: Option<Projection<D>>,
+    /// The scheme, with the projection's state under the projection.
+    pub stepper: Stepper<D>,
     /// The nodal averaging of the volumetric strain rate (`volumetric_averaging = "nodal"`).
     averaging: Option<NodalAveraging<D>>,
     /// The implicit viscous solve (`simulation.viscosity = "implicit"`).
@@ -181,7 +214,7 @@ impl<const D: usize> Simulation<D> {
         });
         Self {
             body_force,
-            projection: parts.projection,
+            stepper: parts.stepper,
             averaging: parts.averaging,
             viscosity: parts.viscosity,
             policy: parts.policy,
@@ -234,10 +267,7 @@ impl<const D: usize> Simulation<D> {
         // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure)
         self.predict(dt);
         // 3. boundary conditions on v*; the projection's pressure
-        match self.policy.scheme {
-            Scheme::Explicit => self.hold_walls(dt),
-            Scheme::Projection => self.project(dt)?,
-        }
+        self.pressure(dt)?;
         // 3b. the fluids' viscous stress at the new velocity (implicit viscosity)
         self.solve_viscosity(dt)?;
         // 4. grid -> particles (PIC / FLIP / APIC) and move
@@ -276,7 +306,7 @@ impl<const D: usize> Simulation<D> {
     /// conditions: P2G extrapolates the particles' velocity onto wall nodes, and the flux form
     /// of the Poisson equation would read that as flow through the wall.
     fn predict(&mut self, dt: f64) {
-        if self.policy.scheme == Scheme::Projection {
+        if self.stepper.scheme() == Scheme::Projection {
             self.boundary.apply(&mut self.grid.velocity);
         }
         self.grid.predict(
@@ -337,14 +367,29 @@ impl<const D: usize> Simulation<D> {
         self.timers.lap(Phase::Predictor);
     }
 
+    /// Step 3 by the scheme: the walls' conditions on v* (explicit), or the projection. The
+    /// projection's state is taken out of the simulation for the stage and put back.
+    fn pressure(&mut self, dt: f64) -> Result<(), Error> {
+        match std::mem::replace(&mut self.stepper, Stepper::Explicit) {
+            Stepper::Explicit => {
+                self.hold_walls(dt);
+                Ok(())
+            }
+            Stepper::Projection(mut projection) => {
+                let projected = self.project(&mut projection, dt);
+                self.stepper = Stepper::Projection(projection);
+                projected
+            }
+        }
+    }
+
     /// Step 3 of the projection: boundary conditions on v* (applied by the projection, after
     /// it has taken the walls' flux of v* into the Poisson equation), free surface, Poisson
     /// equation, corrector, pressure to particles; then the rigid bodies' force with the new
     /// pressure, and the wall conditions again (the corrector changed the wall nodes' normal
     /// velocity).
-    fn project(&mut self, dt: f64) -> Result<(), Error> {
+    fn project(&mut self, projection: &mut Projection<D>, dt: f64) -> Result<(), Error> {
         self.timers.lap(Phase::Predictor);
-        let projection = self.projection.as_mut().expect("set up for this scheme");
         projection
             .project(
                 &mut self.particles,
@@ -371,7 +416,6 @@ impl<const D: usize> Simulation<D> {
                     self.time
                 ))
             })?;
-        let projection = self.projection.as_ref().expect("set up for this scheme");
         let pressure = match projection.cell_pressure_force() {
             Some(f) => crate::rigid::PressureForce::Nodal(f),
             None => crate::rigid::PressureForce::Particles {
@@ -442,17 +486,17 @@ impl<const D: usize> Simulation<D> {
         if let Some(averaging) = &mut self.averaging {
             averaging.average_strain_rate(&mut self.particles, geo, shape);
         }
-        if let Some(projection) = &self.projection {
+        if let Some(projection) = self.stepper.projection() {
             projection.hold_spray_volumes(&mut self.particles, geo);
         }
         material::update(
             &mut self.particles,
             &self.materials,
             dt,
-            self.policy.scheme == Scheme::Explicit,
+            self.stepper.scheme() == Scheme::Explicit,
         );
         if let Some(averaging) = &mut self.averaging {
-            if self.policy.scheme == Scheme::Explicit {
+            if self.stepper.scheme() == Scheme::Explicit {
                 averaging.average_pressure(&mut self.particles, geo, shape);
             }
         }
@@ -462,8 +506,8 @@ impl<const D: usize> Simulation<D> {
     /// of the flow (a few corrections per cell crossing).
     fn correct_density(&mut self, dt: f64) -> Result<(), Error> {
         let corrects = self
-            .projection
-            .as_ref()
+            .stepper
+            .projection()
             .is_some_and(|p| p.corrects_density());
         let rate = if corrects {
             crate::pressure::density::PositionCorrection::<D>::rate(
@@ -475,7 +519,7 @@ impl<const D: usize> Simulation<D> {
         } else {
             0.0
         };
-        if let Some(projection) = &mut self.projection {
+        if let Some(projection) = self.stepper.projection_mut() {
             projection
                 .correct_density(&mut self.particles, &self.grid.geo, &self.boundary, rate)
                 .map_err(|e| {
@@ -524,7 +568,7 @@ impl<const D: usize> Simulation<D> {
             "a volume ratio must be positive".to_string()
         };
         let verb = if j < 1.0 { "compressed" } else { "expanded" };
-        let cause = match self.policy.scheme {
+        let cause = match self.stepper.scheme() {
             Scheme::Explicit => format!(
                 "the equation of state let it be {verb} that far: a bulk_modulus too low for \
                  the flow's speed, or a step above the stability limit"
@@ -584,7 +628,7 @@ impl<const D: usize> Simulation<D> {
             if let Some((_, f)) = &mut self.body_force {
                 crate::particles::keep(f, kept);
             }
-            if let Some(projection) = &mut self.projection {
+            if let Some(projection) = self.stepper.projection_mut() {
                 projection.keep_particles(kept);
             }
         }
@@ -600,7 +644,7 @@ impl<const D: usize> Simulation<D> {
             q.emit(&self.particles, self.time, &mut self.ledger, &mut entering);
         }
         if !entering.is_empty() {
-            if let Some(projection) = &mut self.projection {
+            if let Some(projection) = self.stepper.projection_mut() {
                 projection.add_particles(&entering);
             }
             self.particles.append(&mut entering);
@@ -627,7 +671,7 @@ impl<const D: usize> Simulation<D> {
             f.truncate(n);
             f.extend(self.particles.x[from..].iter().map(|x| field.eval(x, t)));
         }
-        if let Some(projection) = &mut self.projection {
+        if let Some(projection) = self.stepper.projection_mut() {
             projection.fit_particles(n);
         }
     }
@@ -643,7 +687,7 @@ impl<const D: usize> Simulation<D> {
         if let Some((_, f)) = &mut self.body_force {
             crate::particles::permute(f, order, scratch);
         }
-        if let Some(projection) = &mut self.projection {
+        if let Some(projection) = self.stepper.projection_mut() {
             projection.permute_particles(order, scratch);
         }
     }
@@ -715,7 +759,7 @@ impl<const D: usize> Simulation<D> {
     /// solid's shear wave speed (projection, 0 for a fluid), bounded by cfl sqrt(h / |g|), the
     /// viscous limit and `max_dt`.
     pub fn stable_dt(&self, cfl: f64) -> f64 {
-        let explicit = self.policy.scheme == Scheme::Explicit;
+        let explicit = self.stepper.scheme() == Scheme::Explicit;
         let mats = &self.materials;
         let ps = &self.particles;
         let speed =
@@ -797,8 +841,8 @@ impl<const D: usize> Simulation<D> {
     /// Pressure iterations of the last step, summed over its passes (0 for the explicit
     /// scheme).
     pub fn pressure_iterations(&self) -> usize {
-        self.projection
-            .as_ref()
+        self.stepper
+            .projection()
             .map_or(0, |p| p.last.stats.iterations)
     }
 
@@ -842,7 +886,7 @@ impl<const D: usize> Simulation<D> {
              flow through, or a body pushed out by its initial velocity",
         );
         if let Some(dt) = self.policy.dt {
-            let limit = match self.policy.scheme {
+            let limit = match self.stepper.scheme() {
                 Scheme::Explicit => "h / max(|v| + c)",
                 Scheme::Projection => "h / max |v|",
             };
