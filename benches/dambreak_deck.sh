@@ -7,18 +7,20 @@
 # whole particle rows as the script does, so both codes hold the same particles.
 # Keys: K (bulk modulus, default 400), dt (fixed step; default none), cfl, end (end time, s),
 # update (musl|usl), pc (multigrid|jacobi), shape (bspline2|linear), sort (steps between particle
-# sorts, 0 = never; default 20), out (output directory).
+# sorts, 0 = never; default 20), out (output directory), tank (the tank's size, default "1.0, 1.0"
+# or "1.0, 1.0, 1.0"; the cell size stays 1 / N).
 set -eu
 dim=$1; n=$2; scheme=$3; shift 3
 K=400; dt=""; cfl=0.5; end=0.4; update=usl; pc=multigrid; shape=bspline2; sort=20; out=out/bench
+tank=""
 for kv in "$@"; do eval "$kv"; done
 side() { python3 -c "print(int($1 * $n * 2) / (2 * $n))"; }
 h=$(python3 -c "print(1 / $n)")
 if [ "$dim" = 2 ]; then
-  g="[0.0, -9.8]"; size="[1.0, 1.0]"; lo="[0.0, 0.0]"; hi="[$(side 0.4), $(side 0.8)]"
+  g="[0.0, -9.8]"; size="[${tank:-1.0, 1.0}]"; lo="[0.0, 0.0]"; hi="[$(side 0.4), $(side 0.8)]"
   faces="x_min = \"slip\"\nx_max = \"slip\"\ny_min = \"slip\"\ny_max = \"slip\""
 else
-  g="[0.0, -9.8, 0.0]"; size="[1.0, 1.0, 1.0]"; lo="[0.0, 0.0, 0.0]"
+  g="[0.0, -9.8, 0.0]"; size="[${tank:-1.0, 1.0, 1.0}]"; lo="[0.0, 0.0, 0.0]"
   hi="[$(side 0.4), $(side 0.8), $(side 0.25)]"
   faces="x_min = \"slip\"\nx_max = \"slip\"\ny_min = \"slip\"\ny_max = \"slip\"\nz_min = \"slip\"\nz_max = \"slip\""
 fi
