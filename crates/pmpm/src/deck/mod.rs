@@ -749,8 +749,14 @@ impl Deck {
         )?;
         self.check_cells_hold_solids(&c)?;
         self.check_bodies(&c)?;
-        self.check_rigid_bodies(&c)?;
-        InflowDeck::check_all(&self.inflows, &self.frame(), &self.rigid_solids(), &c)?;
+        let solids = self.check_rigid_bodies(&c)?;
+        let rigid: Vec<_> = self
+            .rigid_bodies
+            .iter()
+            .map(|r| r.name.as_str())
+            .zip(solids)
+            .collect();
+        InflowDeck::check_all(&self.inflows, &self.frame(), &rigid, &c)?;
         DampingZoneDeck::check_all(&self.damping_zones, &self.frame(), &c)?;
         self.check_output(&c)?;
         self.check_time_step(&c)?;
@@ -1171,13 +1177,18 @@ impl Deck {
     }
 
     /// The `[[rigid_bodies]]` ([`RigidBodyDeck::check_all`]), and the mesh files they read.
-    fn check_rigid_bodies(&mut self, c: &Check) -> Result<(), DeckError> {
+    /// Gives each body's region.
+    fn check_rigid_bodies(&mut self, c: &Check) -> Result<Vec<crate::geometry::Solid>, DeckError> {
         let dir = Path::new(c.file).parent().unwrap_or(Path::new(""));
         let frame = frame(&self.simulation, &self.grid, &self.materials);
-        let (files, triangles) = RigidBodyDeck::check_all(&mut self.rigid_bodies, dir, &frame, c)?;
-        self.mesh_files.extend(files);
-        self.mesh_triangles += triangles;
-        Ok(())
+        let solids = RigidBodyDeck::check_all(&mut self.rigid_bodies, dir, &frame, c)?;
+        for solid in &solids {
+            for m in solid.mesh_sources() {
+                self.mesh_files.insert(m.path.clone(), m.digest());
+            }
+            self.mesh_triangles += solid.meshes().map(|m| m.triangles).sum::<usize>();
+        }
+        Ok(solids)
     }
 
     /// The `[output]` table: intervals, formats and probes.
@@ -1295,15 +1306,6 @@ impl Deck {
     /// The gauges the run reads, of a validated deck.
     pub fn gauges(&self) -> Vec<crate::gauges::Gauge> {
         crate::gauges::Gauge::build(&self.output.gauges, &self.frame())
-    }
-
-    /// Each rigid body's name and region (the bodies whose shape builds).
-    fn rigid_solids(&self) -> Vec<(&str, crate::geometry::Solid)> {
-        let dim = self.simulation.dimension;
-        self.rigid_bodies
-            .iter()
-            .filter_map(|r| Some((r.name.as_str(), r.shape.solid(dim).ok()?)))
-            .collect()
     }
 
     /// The grid's lower and upper corners.

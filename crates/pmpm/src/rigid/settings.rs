@@ -4,7 +4,7 @@
 use super::{Reach, RigidSides, Shaped};
 use crate::error::DeckError;
 use crate::field::{Component, VectorField};
-use crate::geometry::ShapeDeck;
+use crate::geometry::{ShapeDeck, Solid};
 use crate::keys::{point, Check, Frame, AXES};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -82,18 +82,17 @@ impl RigidBodyDeck {
     /// The `[[rigid_bodies]]` (their mesh files' paths resolved against `dir`, the deck's
     /// folder): names that head CSV columns, once each; shapes that build; a box's corners
     /// and velocity, or the general path's motion; free bodies apart from the others. Gives
-    /// the mesh files read (path and digest) and their triangles.
+    /// each body's region, in order.
     pub(crate) fn check_all(
         bodies: &mut [RigidBodyDeck],
         dir: &Path,
         frame: &Frame,
         c: &Check,
-    ) -> Result<(Vec<(String, String)>, usize), DeckError> {
-        let dim = frame.dim;
+    ) -> Result<Vec<Solid>, DeckError> {
         for r in bodies.iter_mut() {
             r.shape.resolve_files(dir);
         }
-        let (mut files, mut triangles) = (Vec::new(), 0);
+        let mut solids = Vec::with_capacity(bodies.len());
         for (i, r) in bodies.iter().enumerate() {
             let k = format!("rigid_bodies[{i}]");
             c.column_name(
@@ -101,9 +100,7 @@ impl RigidBodyDeck {
                 i,
                 bodies.iter().map(|e| e.name.as_str()),
             )?;
-            let solid = c.solid(&format!("{k}.shape"), &r.shape, dim)?;
-            files.extend(solid.mesh_sources().map(|m| (m.path.clone(), m.digest())));
-            triangles += solid.meshes().map(|m| m.triangles).sum::<usize>();
+            let solid = c.solid(&format!("{k}.shape"), &r.shape, frame.dim)?;
             if r.is_shaped()
                 || r.motion == RigidMotion::Free
                 || r.density.is_some()
@@ -111,25 +108,32 @@ impl RigidBodyDeck {
                 || r.centre.is_some()
             {
                 r.check_shaped(&k, &solid, frame, c)?;
-                if r.is_shaped() {
-                    continue;
-                }
             }
-            let (Some(mn), Some(mx)) = (&r.shape.min, &r.shape.max) else {
-                return Err(c.err(format!("{k}.shape"), "a box needs both min and max"));
-            };
-            c.vector(&format!("{k}.shape.min"), mn, dim)?;
-            c.vector(&format!("{k}.shape.max"), mx, dim)?;
-            if let Some(d) = (0..dim).find(|&d| mx[d] <= mn[d]) {
-                return Err(c.err(
-                    format!("{k}.shape.max"),
-                    format!("must exceed min along {}: {} <= {}", AXES[d], mx[d], mn[d]),
-                ));
+            if !r.is_shaped() {
+                r.check_box(&k, frame, c)?;
             }
-            r.check_velocity(&k, dim, frame.end_time, c)?;
+            solids.push(solid);
         }
-        check_free_apart(bodies, frame, c)?;
-        Ok((files, triangles))
+        check_free_apart(bodies, &solids, frame, c)?;
+        Ok(solids)
+    }
+
+    /// A box moved by its velocity alone (key `k`): both corners, apart along every axis, and
+    /// its velocity.
+    fn check_box(&self, k: &str, frame: &Frame, c: &Check) -> Result<(), DeckError> {
+        let dim = frame.dim;
+        let (Some(mn), Some(mx)) = (&self.shape.min, &self.shape.max) else {
+            return Err(c.err(format!("{k}.shape"), "a box needs both min and max"));
+        };
+        c.vector(&format!("{k}.shape.min"), mn, dim)?;
+        c.vector(&format!("{k}.shape.max"), mx, dim)?;
+        if let Some(d) = (0..dim).find(|&d| mx[d] <= mn[d]) {
+            return Err(c.err(
+                format!("{k}.shape.max"),
+                format!("must exceed min along {}: {} <= {}", AXES[d], mx[d], mn[d]),
+            ));
+        }
+        self.check_velocity(k, dim, frame.end_time, c)
     }
 
     /// A rigid body of the general path: its motion's keys, and a shape that holds a volume
@@ -137,7 +141,7 @@ impl RigidBodyDeck {
     fn check_shaped(
         &self,
         k: &str,
-        solid: &crate::geometry::Solid,
+        solid: &Solid,
         frame: &Frame,
         c: &Check,
     ) -> Result<(), DeckError> {
@@ -432,20 +436,20 @@ fn time_only(
 
 /// A free body starts apart from every other rigid body: the contact parts bodies that
 /// meet as they move, not one placed through another.
-fn check_free_apart(bodies: &[RigidBodyDeck], frame: &Frame, c: &Check) -> Result<(), DeckError> {
-    let dim = frame.dim;
+fn check_free_apart(
+    bodies: &[RigidBodyDeck],
+    solids: &[Solid],
+    frame: &Frame,
+    c: &Check,
+) -> Result<(), DeckError> {
     let (lo, hi) = (&frame.lo, &frame.hi);
-    let solids: Vec<_> = bodies.iter().map(|r| r.shape.solid(dim).ok()).collect();
     let free = |r: &RigidBodyDeck| r.motion == RigidMotion::Free;
     for (b, rb) in bodies.iter().enumerate() {
         for (a, ra) in bodies[..b].iter().enumerate() {
             if !(free(ra) || free(rb)) {
                 continue;
             }
-            let (Some(sa), Some(sb)) = (&solids[a], &solids[b]) else {
-                continue;
-            };
-            if let Some(x) = sa.common_point(sb, (lo, hi)) {
+            if let Some(x) = solids[a].common_point(&solids[b], (lo, hi)) {
                 let (f, o) = if free(rb) { (b, a) } else { (a, b) };
                 return Err(c.err(
                     format!("rigid_bodies[{f}].shape"),
