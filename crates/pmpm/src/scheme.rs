@@ -422,8 +422,8 @@ impl<const D: usize> Simulation<D> {
                 particles: &self.particles,
                 shape: self.settings.shape,
                 pressure: &projection.previous,
-                level_set: projection.surface.level_set(),
-                kinds: &projection.surface.kinds,
+                level_set: projection.shared.surface.level_set(),
+                kinds: &projection.shared.surface.kinds,
             },
         };
         self.boundary.rigid.end_step(&self.grid, dt, pressure);

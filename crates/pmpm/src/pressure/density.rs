@@ -27,12 +27,12 @@
 //! below the grid's resolution, which each particle carries along its own path, are not ones
 //! the correction could ever give back.
 
-use super::free_surface::{self, Surface};
+use super::free_surface::{self, NodeKind};
 use super::PressureSettings;
-use super::{describe_layout, FluidDomain, GaussPoints, Unknowns};
+use super::{describe_layout, FluidDomain, Shared};
 use crate::boundary::Boundary;
-use crate::grid::{CellBins, GridGeometry, Vector};
-use crate::linalg::{EllMatrix, LinearSolver, SolveError, SolveParams, SolveStats, System};
+use crate::grid::{GridGeometry, Vector};
+use crate::linalg::{LinearSolver, SolveError, SolveParams, SolveStats, System};
 use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
 use crate::transfer::{scatter_to_nodes, Band, Points};
@@ -55,10 +55,6 @@ pub struct PositionCorrection<const D: usize> {
     shape: ShapeFunction,
     tolerance: f64,
     max_iterations: usize,
-    surface: Surface,
-    unknowns: Unknowns,
-    bins: CellBins,
-    gauss: GaussPoints<D>,
     /// sum_p V_p N_ip per node (the particles' volume at the node).
     weight: Vec<f64>,
     /// sum_p V0_p (1 - J_p) N_ip per node.
@@ -68,14 +64,8 @@ pub struct PositionCorrection<const D: usize> {
     sums: Vec<nalgebra::Vector2<f64>>,
     /// The per-thread sums of sum_p V_p N_ip (grad q)_p.
     displacement_bands: Vec<Band<Vector<D>>>,
-    matrix: EllMatrix,
-    rhs: Vec<f64>,
-    solution: Vec<f64>,
     /// q per node (the ghost values on free-surface nodes).
     potential: Vec<f64>,
-    scratch: Vec<f64>,
-    /// Scratch for the first layer of ghost values.
-    first_layer: Vec<f64>,
     /// (grad q)_p per particle.
     gradient: Vec<Vector<D>>,
     /// u_i per node.
@@ -108,27 +98,18 @@ impl<const D: usize> PositionCorrection<D> {
         (PACE * dt * max_speed / h).max(fall).min(1.0)
     }
 
-    /// The correction with the pressure's solver settings and free surface.
-    pub fn new(pd: &PressureSettings, shape: ShapeFunction, boundary: &Boundary<D>) -> Self {
+    /// The correction with the pressure's solver settings.
+    pub fn new(pd: &PressureSettings, shape: ShapeFunction) -> Self {
         Self {
             shape,
             tolerance: pd.tolerance,
             max_iterations: pd.max_iterations,
-            surface: Surface::new(pd, boundary),
-            unknowns: Unknowns::default(),
-            bins: CellBins::default(),
-            gauss: GaussPoints::default(),
             weight: Vec::new(),
             excess: Vec::new(),
             bands: Vec::new(),
             sums: Vec::new(),
             displacement_bands: Vec::new(),
-            matrix: EllMatrix::default(),
-            rhs: Vec::new(),
-            solution: Vec::new(),
             potential: Vec::new(),
-            scratch: Vec::new(),
-            first_layer: Vec::new(),
             gradient: Vec::new(),
             displacement: Vec::new(),
             shift: Vec::new(),
@@ -145,16 +126,17 @@ impl<const D: usize> PositionCorrection<D> {
 
     /// Moves the particles (positions, F and J) so that their volumes return the share `rate`
     /// (0 to 1) of the way to V0, in the stages of the projection: free surface, unknowns,
-    /// assembly, solve, correction. `solver` is the projection's: the two solves run one after
-    /// the other, so they share its work vectors and multigrid levels instead of keeping two
-    /// sets (it is set up again for this system).
+    /// assembly, solve, correction. The solver and the stages' buffers are the projection's:
+    /// the two solves run one after the other, so they share its work vectors, multigrid
+    /// levels, free surface, Gauss points and matrix instead of keeping two sets (each is set
+    /// up again for this system).
     pub fn correct(
         &mut self,
         ps: &mut Particles<D>,
         geo: &GridGeometry<D>,
         boundary: &Boundary<D>,
         rate: f64,
-        solver: &mut LinearSolver,
+        (solver, shared): (&mut LinearSolver, &mut Shared<D>),
     ) -> Result<SolveStats, SolveError> {
         let shape = self.shape;
         let rate = rate.clamp(0.0, 1.0);
@@ -162,20 +144,29 @@ impl<const D: usize> PositionCorrection<D> {
         // sees J only through its nodal averages, and cannot give one particle's volume back
         // against its neighbour's in the same cell
         self.averaging.smooth_jacobian(ps, geo, shape, rate);
-        self.bins.sort(geo, &ps.x);
+        let Shared {
+            bins,
+            surface,
+            system,
+            gauss,
+            solution,
+            ghost: [scratch, first_layer],
+        } = shared;
+        bins.sort(geo, &ps.x);
         self.gather_volumes(ps, geo, rate);
         // free surface and unknowns, from where the particles are now
         let epsilon = 1e-9 * ps.volume0.iter().copied().fold(f64::INFINITY, f64::min);
-        self.surface.detect(
+        surface.detect(
             geo,
-            &self.bins,
+            bins,
             &ps.volume0,
             &self.weight,
             epsilon,
             &boundary.rigid,
         );
-        let free = self.unknowns.number(geo, &self.surface.kinds);
-        let rows = self.unknowns.node_of_row.len();
+        let unknowns = &mut system.unknowns;
+        let free = unknowns.number(geo, &surface.kinds);
+        let rows = unknowns.node_of_row.len();
         self.stats = SolveStats {
             iterations: 0,
             relative_residual: 0.0,
@@ -186,67 +177,57 @@ impl<const D: usize> PositionCorrection<D> {
         // K over whole cells (density 1: the particles' volumes as their masses), and b
         let domain = FluidDomain {
             shape,
-            kinds: &self.surface.kinds,
-            solid: self.surface.solid(),
+            kinds: &surface.kinds,
+            solid: surface.solid(),
             cut: boundary.rigid.cuts_cells().then_some(&boundary.rigid),
         };
-        let fraction = &self.surface.fraction;
         let v0 = &ps.volume0;
-        self.gauss
-            .build(geo, (&self.bins, v0, v0), fraction, shape, Some(domain));
-        self.gauss.divergence.fill(0.0);
-        self.gauss.velocity.fill(Vector::<D>::zeros());
+        gauss.build(geo, (bins, v0, v0), &surface.fraction, shape, Some(domain));
+        gauss.divergence.fill(0.0);
+        gauss.velocity.fill(Vector::<D>::zeros());
         self.potential.clear();
         self.potential.resize(geo.node_count(), 0.0);
-        let g = &self.gauss;
-        let quadrature = g.quadrature(false);
         let system_rows = super::assemble::Rows {
-            kinds: &self.surface.kinds,
-            phi: self.surface.level_set(),
-            unknowns: &self.unknowns,
+            kinds: &surface.kinds,
+            phi: surface.level_set(),
+            unknowns: &system.unknowns,
             dirichlet: &self.potential,
         };
-        let (matrix, rhs) = (&mut self.matrix, &mut self.rhs);
+        let (matrix, rhs) = (&mut system.matrix, &mut system.rhs);
+        let quadrature = gauss.quadrature(false);
         super::assemble::assemble(geo, shape, &quadrature, &system_rows, 1.0, matrix, rhs);
-        for (b, &i) in self.rhs.iter_mut().zip(&self.unknowns.node_of_row) {
+        for (b, &i) in rhs.iter_mut().zip(&system.unknowns.node_of_row) {
             *b += self.excess[i as usize];
         }
-        self.matrix.pin_empty_rows(&mut self.rhs);
+        matrix.pin_empty_rows(rhs);
         // solve
-        self.solution.clear();
-        self.solution.resize(rows, 0.0);
-        let u = &mut self.unknowns;
+        solution.clear();
+        solution.resize(rows, 0.0);
+        let u = &mut system.unknowns;
         describe_layout(&mut u.layout, geo, shape, &u.node_of_row);
-        let system = System {
-            matrix: &self.matrix,
-            layout: &self.unknowns.layout,
+        let linear = System {
+            matrix: &system.matrix,
+            layout: &system.unknowns.layout,
             singular: free == 0,
         };
         let params = SolveParams {
             tolerance: self.tolerance,
             max_iterations: self.max_iterations,
         };
-        self.stats = solver.solve(&system, &self.rhs, &mut self.solution, params)?;
-        for (r, &i) in self.unknowns.node_of_row.iter().enumerate() {
-            self.potential[i as usize] = self.solution[r];
+        self.stats = solver.solve(&linear, &system.rhs, solution, params)?;
+        for (r, &i) in system.unknowns.node_of_row.iter().enumerate() {
+            self.potential[i as usize] = solution[r];
         }
         geo.copy_to_images(&mut self.potential);
-        if let Some(phi) = self.surface.level_set() {
-            let kinds = &self.surface.kinds;
-            free_surface::ghost_values(
-                geo,
-                kinds,
-                phi,
-                &self.potential,
-                &mut self.scratch,
-                &mut self.first_layer,
-            );
-            std::mem::swap(&mut self.potential, &mut self.scratch);
+        if let Some(phi) = surface.level_set() {
+            let kinds = &surface.kinds;
+            free_surface::ghost_values(geo, kinds, phi, &self.potential, scratch, first_layer);
+            std::mem::swap(&mut self.potential, scratch);
             geo.copy_to_images(&mut self.potential);
         }
         // correction: u on the nodes, then the particles moved and deformed by it
         self.node_displacement(ps, geo, boundary);
-        self.move_particles(ps, geo);
+        self.move_particles(ps, geo, &surface.kinds);
         Ok(self.stats)
     }
 
@@ -355,7 +336,7 @@ impl<const D: usize> PositionCorrection<D> {
     /// step's own strain rate under the projection, [`crate::averaging`]): a nodal
     /// displacement cannot correct the volume of one particle against its neighbour in the same
     /// cell, and the raw tr H_p, which varies across a cell, would stir such differences up.
-    fn move_particles(&mut self, ps: &mut Particles<D>, geo: &GridGeometry<D>) {
+    fn move_particles(&mut self, ps: &mut Particles<D>, geo: &GridGeometry<D>, kinds: &[NodeKind]) {
         let shape = self.shape;
         let u = &self.displacement;
         let n = ps.len();
@@ -363,7 +344,6 @@ impl<const D: usize> PositionCorrection<D> {
         self.strain.resize(n, Matrix::<D>::zeros());
         self.dilatation.resize(n, 0.0);
         self.spray.resize(n, false);
-        let kinds = &self.surface.kinds;
         (
             ps.x.par_iter(),
             ps.half_width.par_iter(),
@@ -383,7 +363,7 @@ impl<const D: usize> PositionCorrection<D> {
                     let ui = u[i];
                     *dx += ui * nw.n;
                     *h += ui * nw.grad.transpose();
-                    reached |= nw.n > 0.0 && kinds[i] == free_surface::NodeKind::Interior;
+                    reached |= nw.n > 0.0 && kinds[i] == NodeKind::Interior;
                 });
                 *tr = h.trace();
                 *spray = !reached;
@@ -452,13 +432,19 @@ mod tests {
         }
         let cells = sim.grid.geo.cells.iter().product();
         let mut solver = super::super::linear_solver(&deck.pressure, cells);
-        let mut c =
-            PositionCorrection::<2>::new(&deck.pressure, ShapeFunction::Linear, &sim.boundary);
+        let mut c = PositionCorrection::<2>::new(&deck.pressure, ShapeFunction::Linear);
+        let mut shared = Shared::new(&deck.pressure, &sim.boundary);
         let (max0, mean0) = errors(&ps);
         let mut last = max0;
         for pass in 0..5 {
-            c.correct(&mut ps, &sim.grid.geo, &sim.boundary, 1.0, &mut solver)
-                .unwrap();
+            c.correct(
+                &mut ps,
+                &sim.grid.geo,
+                &sim.boundary,
+                1.0,
+                (&mut solver, &mut shared),
+            )
+            .unwrap();
             let (max, mean) = errors(&ps);
             assert!(max < last, "pass {pass}: max |J - 1| = {max} after {last}");
             if pass == 0 {
@@ -525,10 +511,17 @@ particles_per_cell = 2
             let mut ps = sim.particles.clone();
             let cells = sim.grid.geo.cells.iter().product();
             let mut solver = super::super::linear_solver(&deck.pressure, cells);
-            let mut c = PositionCorrection::<2>::new(&deck.pressure, shape, &sim.boundary);
+            let mut c = PositionCorrection::<2>::new(&deck.pressure, shape);
+            let mut shared = Shared::new(&deck.pressure, &sim.boundary);
             for _ in 0..3 {
-                c.correct(&mut ps, &sim.grid.geo, &sim.boundary, 1.0, &mut solver)
-                    .unwrap();
+                c.correct(
+                    &mut ps,
+                    &sim.grid.geo,
+                    &sim.boundary,
+                    1.0,
+                    (&mut solver, &mut shared),
+                )
+                .unwrap();
             }
             for p in 0..ps.len() {
                 let moved = (ps.x[p] - sim.particles.x[p]).norm();

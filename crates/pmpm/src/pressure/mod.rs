@@ -112,7 +112,6 @@ struct Settings {
 /// The projection's work buffers, sized as the particles and the grid need them.
 #[derive(Default)]
 struct Work<const D: usize> {
-    solution: Vec<f64>,
     /// V_p^0 V_p^0 / m_p = V_p / rho_p per particle (permuted with the particles).
     volume_over_density: Vec<f64>,
     /// The particle quadrature's (div v*)_p and w_p (the cell quadrature keeps them at its
@@ -123,18 +122,48 @@ struct Work<const D: usize> {
     unconstrained: Vec<Vector<D>>,
     /// Per cell, the particles' volume ratio J averaged with the weights V_p^0.
     cell_jacobian: Vec<f64>,
-    /// Scratch for the ghost values (the second and the first layer).
-    ghost: [Vec<f64>; 2],
     /// Per node, 0 in the velocity components the walls and rigid bodies hold, 1 elsewhere.
     held: Vec<Vector<D>>,
     extended: Vec<Vector<D>>,
-    gauss: GaussPoints<D>,
     pressure_gradient: Vec<Vector<D>>,
     /// The corrector's per-thread sums sum_p V_p N_ip (grad p)_p, and their total per node.
     force_bands: Vec<Band<Vector<D>>>,
     force: Vec<Vector<D>>,
     /// p^{n+1} on the free-surface nodes when `traction_free` (0 elsewhere).
     surface_pressure: Vec<f64>,
+}
+
+/// The buffers of the stages the pressure solve and the density correction both run: the
+/// particles binned by cell, the free surface, the Gauss points, the linear system and its
+/// solution. The correction runs after the projection in the step and each rebuilds them from
+/// the particles, so the two keep one set: a second cost as much memory as the first (at 2D
+/// 512^2, some 70 MB of 460).
+pub struct Shared<const D: usize> {
+    /// The particles (or, in the quadrature, the Gauss points) binned by cell.
+    bins: CellBins,
+    /// The free surface of the last solve (the density correction's after a step that ran
+    /// it): volume fractions, level set, each node's role.
+    pub surface: free_surface::Surface,
+    /// The last solve's linear system (the density correction's after a step that ran it).
+    pub system: Assembled,
+    gauss: GaussPoints<D>,
+    solution: Vec<f64>,
+    /// Scratch for the ghost values (the second and the first layer).
+    ghost: [Vec<f64>; 2],
+}
+
+impl<const D: usize> Shared<D> {
+    /// Empty buffers, with the free surface of `[pressure]` and the boundary's open faces.
+    pub fn new(pd: &PressureSettings, boundary: &Boundary<D>) -> Self {
+        Self {
+            bins: CellBins::default(),
+            surface: free_surface::Surface::new(pd, boundary),
+            system: Assembled::default(),
+            gauss: GaussPoints::default(),
+            solution: Vec::new(),
+            ghost: Default::default(),
+        }
+    }
 }
 
 /// The linear system of the last pass: the numbering of its unknowns, its matrix and its
@@ -165,11 +194,8 @@ pub struct Outcome {
 pub struct Projection<const D: usize> {
     settings: Settings,
     solver: LinearSolver,
-    bins: CellBins,
-    /// The free surface of the last solve: volume fractions, level set, each node's role.
-    pub surface: free_surface::Surface,
-    /// The last pass's linear system.
-    pub system: Assembled,
+    /// The stages' buffers, shared with the density correction.
+    pub shared: Shared<D>,
     /// The last pass's solved pressure increment per node: p^{n+1} - beta p^n after the first
     /// (the Dirichlet values on the free surface, 0 on empty nodes), the increment of a further
     /// one (0 on the free surface).
@@ -223,9 +249,7 @@ impl<const D: usize> Projection<D> {
                 mass_epsilon,
             },
             solver,
-            bins: CellBins::default(),
-            surface: free_surface::Surface::new(pd, boundary),
-            system: Assembled::default(),
+            shared: Shared::new(pd, boundary),
             node_pressure: Vec::new(),
             previous: Vec::new(),
             work: Work {
@@ -250,7 +274,7 @@ impl<const D: usize> Projection<D> {
             }),
             density: (pd.unknowns == PressureUnknowns::Nodes
                 && pd.density_correction == Some(DensityCorrection::Positions))
-            .then(|| density::PositionCorrection::new(pd, shape, boundary)),
+            .then(|| density::PositionCorrection::new(pd, shape)),
         }
     }
 
@@ -265,7 +289,7 @@ impl<const D: usize> Projection<D> {
     /// that come together fill their cells again, their nodes take equations, and J measures
     /// them as before.
     pub fn hold_spray_volumes(&self, ps: &mut Particles<D>, geo: &crate::grid::GridGeometry<D>) {
-        let kinds = &self.surface.kinds;
+        let kinds = &self.shared.surface.kinds;
         if self.cells.is_some() || kinds.is_empty() {
             return;
         }
@@ -305,7 +329,13 @@ impl<const D: usize> Projection<D> {
     ) -> Result<usize, SolveError> {
         match &mut self.density {
             Some(d) => Ok(d
-                .correct(ps, geo, boundary, rate, &mut self.solver)?
+                .correct(
+                    ps,
+                    geo,
+                    boundary,
+                    rate,
+                    (&mut self.solver, &mut self.shared),
+                )?
                 .iterations),
             None => Ok(0),
         }
@@ -383,11 +413,11 @@ impl<const D: usize> Projection<D> {
         let n_nodes = grid.geo.node_count();
         self.node_pressure.resize(n_nodes, 0.0);
         self.previous.resize(n_nodes, 0.0);
-        self.bins.sort(&grid.geo, &ps.x);
+        self.shared.bins.sort(&grid.geo, &ps.x);
         if let Some(cells) = &mut self.cells {
             timers.lap(Phase::FreeSurface);
             self.last.stats = cells.project(
-                (ps, &self.bins),
+                (ps, &self.shared.bins),
                 grid,
                 boundary,
                 &mut self.solver,
@@ -406,15 +436,19 @@ impl<const D: usize> Projection<D> {
         }
         let geo = &grid.geo;
         // 3. free surface: each node's role, and the level set where the surface lies
-        self.surface.detect(
+        self.shared.surface.detect(
             geo,
-            &self.bins,
+            &self.shared.bins,
             &ps.volume0,
             &grid.mass,
             mass_epsilon,
             &boundary.rigid,
         );
-        let free = self.system.unknowns.number(geo, &self.surface.kinds);
+        let free = self
+            .shared
+            .system
+            .unknowns
+            .number(geo, &self.shared.surface.kinds);
         // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is
         self.work.surface_pressure.resize(n_nodes, 0.0);
         if self.settings.traction_free {
@@ -424,10 +458,10 @@ impl<const D: usize> Projection<D> {
                 x: &ps.x,
                 half_width: &ps.half_width,
             };
-            let s = &self.surface;
+            let s = &self.shared.surface;
             free_surface::surface_normal_stress(
                 points,
-                &self.bins,
+                &self.shared.bins,
                 (&ps.volume0, &ps.tau),
                 (&s.fraction, &s.open, &s.kinds),
                 &mut self.work.surface_pressure,
@@ -437,7 +471,7 @@ impl<const D: usize> Projection<D> {
         // the unknown is p^{n+1} - beta p^n
         {
             let (kinds, prev, surface) = (
-                &self.surface.kinds,
+                &self.shared.surface.kinds,
                 &self.previous,
                 &self.work.surface_pressure,
             );
@@ -454,7 +488,7 @@ impl<const D: usize> Projection<D> {
         // 4. and 5. in passes: the first projects v*; each further one projects the
         //    divergence the corrector and the wall conditions left, until it is below the
         //    solver's tolerance relative to the first, stops shrinking, or `passes` are done
-        self.last.singular = free == 0 && !self.system.unknowns.node_of_row.is_empty();
+        self.last.singular = free == 0 && !self.shared.system.unknowns.node_of_row.is_empty();
         let (mut first_norm, mut last_norm) = (0.0, f64::INFINITY);
         self.last.pass_norms.clear();
         let mut iterations = 0;
@@ -507,7 +541,14 @@ impl<const D: usize> Projection<D> {
         self.assemble_pass(ps, grid, boundary, dt, first);
         timers.lap(Phase::Assembly);
         // a sequential sum: the same bits on any number of threads
-        let norm = self.system.rhs.iter().map(|b| b * b).sum::<f64>().sqrt();
+        let norm = self
+            .shared
+            .system
+            .rhs
+            .iter()
+            .map(|b| b * b)
+            .sum::<f64>()
+            .sqrt();
         self.last.pass_norms.push(norm);
         let mut further_tolerance = 0.0;
         if let Some((residual, last_norm)) = further {
@@ -517,7 +558,7 @@ impl<const D: usize> Projection<D> {
             further_tolerance = residual / norm;
         }
         let stats = self.solve(&grid.geo, first, further_tolerance)?;
-        let level_set = self.surface.level_set().is_some();
+        let level_set = self.shared.surface.level_set().is_some();
         self.store_pressure(&grid.geo, first, level_set);
         timers.lap(Phase::Solve);
         // 5. particle pressure and (grad dp)_p, then the corrector
@@ -556,25 +597,25 @@ impl<const D: usize> Projection<D> {
         let v_star = &grid.velocity_new;
         let v_free = &self.work.unconstrained;
         let geo = &grid.geo;
-        let level_set = self.surface.level_set().is_some();
+        let level_set = self.shared.surface.level_set().is_some();
         let cell = self.cell_quadrature();
         if cell && first {
             let domain = level_set.then(|| FluidDomain {
                 shape,
-                kinds: &self.surface.kinds,
-                solid: self.surface.solid(),
+                kinds: &self.shared.surface.kinds,
+                solid: self.shared.surface.solid(),
                 cut: boundary.rigid.cuts_cells().then_some(&boundary.rigid),
             });
-            self.work.gauss.build(
+            self.shared.gauss.build(
                 geo,
-                (&self.bins, &ps.mass, &ps.volume0),
-                &self.surface.fraction,
+                (&self.shared.bins, &ps.mass, &ps.volume0),
+                &self.shared.surface.fraction,
                 shape,
                 domain,
             );
         }
         let (qx, qhw, qdiv, qw, qcell) = if cell {
-            let g = &mut self.work.gauss;
+            let g = &mut self.shared.gauss;
             (
                 &g.x,
                 &g.half_width,
@@ -599,7 +640,7 @@ impl<const D: usize> Projection<D> {
             // fraction alpha of the drift per step.
             let rate = self.settings.volume_correction / dt;
             let cj = &mut self.work.cell_jacobian;
-            aim_at_volume(geo, &self.bins, ps, qcell, rate, cj, qdiv);
+            aim_at_volume(geo, &self.shared.bins, ps, qcell, rate, cj, qdiv);
         }
         if flux {
             boundary.apply(&mut grid.velocity_new);
@@ -609,7 +650,7 @@ impl<const D: usize> Projection<D> {
     /// Whether this step integrates at the cells' Gauss points: asked for, or needed by the
     /// ghost-fluid condition, whose matrix is taken over whole cells.
     fn cell_quadrature(&self) -> bool {
-        self.settings.quadrature == Quadrature::Cell || self.surface.level_set().is_some()
+        self.settings.quadrature == Quadrature::Cell || self.shared.surface.level_set().is_some()
     }
 
     /// Stage 4 of a pass, second half: L (first pass only) and the right-hand side, with the
@@ -627,10 +668,10 @@ impl<const D: usize> Projection<D> {
         let geo = &grid.geo;
         let cell = self.cell_quadrature();
         let quadrature = if cell {
-            self.work.gauss.quadrature(flux)
+            self.shared.gauss.quadrature(flux)
         } else {
             ParticleQuadrature {
-                bins: &self.bins,
+                bins: &self.shared.bins,
                 x: &ps.x,
                 half_width: &ps.half_width,
                 volume: &ps.volume0,
@@ -643,21 +684,21 @@ impl<const D: usize> Projection<D> {
         };
         if first {
             let rows = assemble::Rows {
-                kinds: &self.surface.kinds,
-                phi: self.surface.level_set(),
-                unknowns: &self.system.unknowns,
+                kinds: &self.shared.surface.kinds,
+                phi: self.shared.surface.level_set(),
+                unknowns: &self.shared.system.unknowns,
                 dirichlet: &self.node_pressure,
             };
-            let (matrix, rhs) = (&mut self.system.matrix, &mut self.system.rhs);
+            let (matrix, rhs) = (&mut self.shared.system.matrix, &mut self.shared.system.rhs);
             assemble::assemble(geo, shape, &quadrature, &rows, dt, matrix, rhs);
         } else {
             assemble::right_hand_side(
                 geo,
                 shape,
                 &quadrature,
-                &self.system.unknowns.node_of_row,
+                &self.shared.system.unknowns.node_of_row,
                 dt,
-                &mut self.system.rhs,
+                &mut self.shared.system.rhs,
             );
         }
         if boundary.rigid.cuts_cells() {
@@ -667,9 +708,12 @@ impl<const D: usize> Projection<D> {
                 geo,
                 shape,
                 &grid.velocity_new,
-                self.surface.level_set(),
+                self.shared.surface.level_set(),
                 dt,
-                (&self.system.unknowns.row_of, &mut self.system.rhs),
+                (
+                    &self.shared.system.unknowns.row_of,
+                    &mut self.shared.system.rhs,
+                ),
             );
         }
     }
@@ -685,16 +729,16 @@ impl<const D: usize> Projection<D> {
     ) -> Result<SolveStats, SolveError> {
         // solve; Chorin's form starts from the last step's pressure at the same nodes, a
         // further pass from zero
-        self.work
+        self.shared
             .solution
-            .resize(self.system.unknowns.node_of_row.len(), 0.0);
+            .resize(self.shared.system.unknowns.node_of_row.len(), 0.0);
         {
             let prev = &self.previous;
             let warm = first && self.settings.beta == 0.0;
-            self.work
+            self.shared
                 .solution
                 .par_iter_mut()
-                .zip(self.system.unknowns.node_of_row.par_iter())
+                .zip(self.shared.system.unknowns.node_of_row.par_iter())
                 .for_each(|(x, &i)| *x = if warm { prev[i as usize] } else { 0.0 });
         }
         if !first {
@@ -702,13 +746,16 @@ impl<const D: usize> Projection<D> {
             self.node_pressure.fill(0.0);
         }
         if first {
-            let u = &mut self.system.unknowns;
+            let u = &mut self.shared.system.unknowns;
             describe_layout(&mut u.layout, geo, self.settings.shape, &u.node_of_row);
         }
-        self.system.matrix.pin_empty_rows(&mut self.system.rhs);
+        self.shared
+            .system
+            .matrix
+            .pin_empty_rows(&mut self.shared.system.rhs);
         let system = System {
-            matrix: &self.system.matrix,
-            layout: &self.system.unknowns.layout,
+            matrix: &self.shared.system.matrix,
+            layout: &self.shared.system.unknowns.layout,
             singular: self.last.singular,
         };
         let mut params = SolveParams {
@@ -716,13 +763,21 @@ impl<const D: usize> Projection<D> {
             max_iterations: self.settings.max_iterations,
         };
         let stats = if first {
-            self.solver
-                .solve(&system, &self.system.rhs, &mut self.work.solution, params)?
+            self.solver.solve(
+                &system,
+                &self.shared.system.rhs,
+                &mut self.shared.solution,
+                params,
+            )?
         } else {
             // to the first solve's accuracy: its tolerance relative to the first right-hand side
             params.tolerance = further_tolerance;
-            self.solver
-                .solve_again(&system, &self.system.rhs, &mut self.work.solution, params)?
+            self.solver.solve_again(
+                &system,
+                &self.shared.system.rhs,
+                &mut self.shared.solution,
+                params,
+            )?
         };
         Ok(stats)
     }
@@ -731,7 +786,10 @@ impl<const D: usize> Projection<D> {
     /// solids' extension), and p^{n+1} kept for the next step.
     fn store_pressure(&mut self, geo: &crate::grid::GridGeometry<D>, first: bool, level_set: bool) {
         {
-            let (sol, node_of_row) = (&self.work.solution, &self.system.unknowns.node_of_row);
+            let (sol, node_of_row) = (
+                &self.shared.solution,
+                &self.shared.system.unknowns.node_of_row,
+            );
             let dp = &mut self.node_pressure;
             for (r, &i) in node_of_row.iter().enumerate() {
                 dp[i as usize] = sol[r];
@@ -739,11 +797,11 @@ impl<const D: usize> Projection<D> {
             geo.copy_to_images(dp);
             if level_set {
                 // the free-surface nodes take the ghost values that put p = 0 on the surface
-                let (kinds, phi) = (&self.surface.kinds, &self.surface.phi);
-                let [out, first] = &mut self.work.ghost;
+                let (kinds, phi) = (&self.shared.surface.kinds, &self.shared.surface.phi);
+                let [out, first] = &mut self.shared.ghost;
                 free_surface::ghost_values(geo, kinds, phi, dp, out, first);
                 std::mem::swap(dp, out);
-                if self.surface.solid().is_some() {
+                if self.shared.surface.solid().is_some() {
                     free_surface::extend_into_solids(geo, kinds, dp, first);
                 }
                 geo.copy_to_images(dp);
@@ -752,7 +810,7 @@ impl<const D: usize> Projection<D> {
             // each further one: the memory of the next step (on the free surface its own
             // value, or the ghost value)
             let keep = if first { self.settings.beta } else { 1.0 };
-            let kinds = &self.surface.kinds;
+            let kinds = &self.shared.surface.kinds;
             self.previous
                 .par_iter_mut()
                 .zip(self.node_pressure.par_iter())
@@ -792,7 +850,7 @@ impl<const D: usize> Projection<D> {
             boundary.hold_still(&mut self.work.held);
             free_surface::extend_velocity(
                 &grid.geo,
-                &self.surface.kinds,
+                &self.shared.surface.kinds,
                 &self.work.held,
                 &mut grid.velocity_new,
                 &mut self.work.extended,
