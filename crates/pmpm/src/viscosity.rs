@@ -71,6 +71,17 @@ pub fn implicit_mask(materials: &[MaterialParams]) -> u64 {
         .fold(0, |mask, (k, _)| mask | 1 << k)
 }
 
+/// Whether the implicit solve has work with these materials: one of those it takes
+/// ([`implicit_mask`]) is viscous. An inviscid Newtonian fluid (viscosity 0, the default) has no
+/// stress: its solve would leave v* as it is to the bit and only cost a pass over the grid and
+/// a set of node-sized buffers.
+pub fn any_viscous(materials: &[MaterialParams]) -> bool {
+    materials.iter().take(64).any(|m| match &m.law {
+        Law::Newtonian(n) => n.viscosity != 0.0,
+        law => is_implicit(law),
+    })
+}
+
 /// Apparent viscosity of a particle of material `law` whose velocity gradient is `l`.
 fn apparent_viscosity<const D: usize>(law: &Law, l: &Matrix<D>) -> f64 {
     match law {
@@ -550,6 +561,11 @@ mod tests {
     /// with particle velocities v = (sin 3y, x^2) so that the strain rates (and a
     /// Bingham fluid's lagged viscosity) vary.
     fn block(model: &str, faces: &str) -> Simulation<2> {
+        block_with(model, faces, 50.0)
+    }
+
+    /// [`block`] of a mud of viscosity `mu`.
+    fn block_with(model: &str, faces: &str, mu: f64) -> Simulation<2> {
         let src = format!(
             r#"
 [simulation]
@@ -566,7 +582,7 @@ cell_size = 0.05
 name = "mud"
 {model}
 density = 1000.0
-viscosity = 50.0
+viscosity = {mu:?}
 [[bodies]]
 material = "mud"
 shape = {{ type = "box", min = [0.2, 0.0], max = [0.7, 0.45] }}
@@ -769,6 +785,30 @@ particles_per_cell = 2
         let stats = solve(&mut sim, 1e-10, 100, 1.0).unwrap();
         assert_eq!(stats.iterations, 0);
         assert!(sim.grid.velocity_new.iter().all(|u| *u == uniform));
+    }
+
+    /// An inviscid fluid has no viscous stress: its solve would leave a sheared, stirred v* as
+    /// it is, bit for bit, so a run of one takes none (and keeps none of its buffers).
+    #[test]
+    fn an_inviscid_fluid_takes_no_solve() {
+        let mut sim = block("model = \"newtonian\"", WALLS);
+        assert!(sim.viscosity.is_some(), "a viscous fluid takes the solve");
+        sim.materials[0].law = Law::Newtonian(crate::material::Newtonian { viscosity: 0.0 });
+        assert!(!any_viscous(&sim.materials));
+        sim.grid.velocity_new.clone_from(&sim.grid.velocity);
+        sim.boundary.apply(&mut sim.grid.velocity_new);
+        let before = sim.grid.velocity_new.clone();
+        let stats = solve(&mut sim, 1e-10, 100, 1.0).unwrap();
+        assert_eq!(stats.iterations, 0);
+        assert!(sim
+            .grid
+            .velocity_new
+            .iter()
+            .zip(&before)
+            .all(|(u, v)| u == v));
+        assert!(block_with("model = \"newtonian\"", WALLS, 0.0)
+            .viscosity
+            .is_none());
     }
 
     /// A solve that cannot reach its tolerance in its iterations says so, with the keys.
