@@ -66,13 +66,9 @@ pub struct PositionCorrection<const D: usize> {
     displacement_bands: Vec<Band<Vector<D>>>,
     /// q per node (the ghost values on free-surface nodes).
     potential: Vec<f64>,
-    /// (grad q)_p per particle.
-    gradient: Vec<Vector<D>>,
     /// u_i per node.
     displacement: Vec<Vector<D>>,
-    /// Per particle: its shift, H_p and tr H_p (averaged at the nodes).
-    shift: Vec<Vector<D>>,
-    strain: Vec<Matrix<D>>,
+    /// Per particle: tr H_p (averaged at the nodes).
     dilatation: Vec<f64>,
     /// Per particle, whether none of its nodes holds an equation of the correction (spray).
     spray: Vec<bool>,
@@ -110,10 +106,7 @@ impl<const D: usize> PositionCorrection<D> {
             sums: Vec::new(),
             displacement_bands: Vec::new(),
             potential: Vec::new(),
-            gradient: Vec::new(),
             displacement: Vec::new(),
-            shift: Vec::new(),
-            strain: Vec::new(),
             dilatation: Vec::new(),
             spray: Vec::new(),
             averaging: crate::averaging::NodalAveraging::new(rayon::current_num_threads(), 0),
@@ -285,30 +278,24 @@ impl<const D: usize> PositionCorrection<D> {
     fn node_displacement(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>, b: &Boundary<D>) {
         let shape = self.shape;
         let q = &self.potential;
-        self.gradient.resize(ps.len(), Vector::<D>::zeros());
-        (
-            ps.x.par_iter(),
-            ps.half_width.par_iter(),
-            self.gradient.par_iter_mut(),
-        )
-            .into_par_iter()
-            .for_each(|(x, &lp, g)| {
-                let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
-                let mut s = Vector::<D>::zeros();
-                st.for_each(|nw| s += nw.grad * q[geo.flat(&nw.node)]);
-                *g = s;
-            });
-        let (v0, jac, grad) = (&ps.volume0, &ps.jacobian, &self.gradient);
+        let (x, half_width, v0, jac) = (&ps.x, &ps.half_width, &ps.volume0, &ps.jacobian);
+        // (grad q)_p = sum_i G_ip q_i, taken where the scatter asks for the particle's value
+        let grad = |p: usize| {
+            let st = Stencil::<D>::new(shape, &geo.to_cells(&x[p]), geo.h, half_width[p]);
+            let mut s = Vector::<D>::zeros();
+            st.for_each(|nw| s += nw.grad * q[geo.flat(&nw.node)]);
+            s
+        };
         scatter_to_nodes(
             &mut self.displacement_bands,
             Points {
                 geo,
                 shape,
-                x: &ps.x,
-                half_width: &ps.half_width,
+                x,
+                half_width,
             },
             Vector::<D>::zeros(),
-            |p| grad[p] * (v0[p] * jac[p]),
+            |p| grad(p) * (v0[p] * jac[p]),
             &mut self.displacement,
         );
         let weight = &self.weight;
@@ -336,56 +323,47 @@ impl<const D: usize> PositionCorrection<D> {
     /// step's own strain rate under the projection, [`crate::averaging`]): a nodal
     /// displacement cannot correct the volume of one particle against its neighbour in the same
     /// cell, and the raw tr H_p, which varies across a cell, would stir such differences up.
+    ///
+    /// The shift and H_p are taken twice, for tr H before the averaging and for the move after
+    /// it, rather than kept per particle in between (D + D^2 numbers a particle, the largest
+    /// of the correction's buffers).
     fn move_particles(&mut self, ps: &mut Particles<D>, geo: &GridGeometry<D>, kinds: &[NodeKind]) {
         let shape = self.shape;
         let u = &self.displacement;
         let n = ps.len();
-        self.shift.resize(n, Vector::<D>::zeros());
-        self.strain.resize(n, Matrix::<D>::zeros());
         self.dilatation.resize(n, 0.0);
         self.spray.resize(n, false);
         (
             ps.x.par_iter(),
             ps.half_width.par_iter(),
-            self.shift.par_iter_mut(),
-            self.strain.par_iter_mut(),
             self.dilatation.par_iter_mut(),
             self.spray.par_iter_mut(),
         )
             .into_par_iter()
-            .for_each(|(x, &lp, dx, h, tr, spray)| {
-                let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
-                *dx = Vector::<D>::zeros();
-                *h = Matrix::<D>::zeros();
-                let mut reached = false;
-                st.for_each(|nw| {
-                    let i = geo.flat(&nw.node);
-                    let ui = u[i];
-                    *dx += ui * nw.n;
-                    *h += ui * nw.grad.transpose();
-                    reached |= nw.n > 0.0 && kinds[i] == NodeKind::Interior;
-                });
+            .for_each(|(x, &lp, tr, spray)| {
+                let (_, h, reached) = shift_at(shape, geo, (u, kinds), x, lp);
                 *tr = h.trace();
                 *spray = !reached;
             });
         self.averaging.smooth(ps, geo, shape, &mut self.dilatation);
-        let (shift, strain, dilatation) = (&self.shift, &self.strain, &self.dilatation);
-        let spray = &self.spray;
+        let (dilatation, spray) = (&self.dilatation, &self.spray);
         (
             ps.x.par_iter_mut(),
+            ps.half_width.par_iter(),
             ps.deformation.par_iter_mut(),
             ps.jacobian.par_iter_mut(),
         )
             .into_par_iter()
             .enumerate()
-            .for_each(|(p, (x, f, j))| {
+            .for_each(|(p, (x, &lp, f, j))| {
+                let (shift, strain, _) = shift_at(shape, geo, (u, kinds), x, lp);
                 // spray keeps its volume here too, as in the step
                 // ([`super::Projection::hold_spray_volumes`]): no equation of the correction
                 // reaches it, and its nodes' shifts only carry it with its neighbours (a small
                 // droplet's J would grow without bound)
                 let volumetric = if spray[p] { 0.0 } else { dilatation[p] };
-                let h = strain[p]
-                    + Matrix::<D>::identity() * ((volumetric - strain[p].trace()) / D as f64);
+                let h =
+                    strain + Matrix::<D>::identity() * ((volumetric - strain.trace()) / D as f64);
                 // a particle whose correction would more than halve or double it (or turn it
                 // inside out, det <= 0, where the nodes' shifts cross within its cell) takes the
                 // largest part 2^-k of it that does not: shift and deformation alike, so that
@@ -401,9 +379,33 @@ impl<const D: usize> PositionCorrection<D> {
                 }
                 *f = inc * *f;
                 *j *= crate::material::det(&inc);
-                *x += shift[p] * s;
+                *x += shift * s;
             });
     }
+}
+
+/// A particle's shift sum_i N_ip u_i and H_p = sum_i u_i (x) G_ip from the nodes'
+/// displacements `u`, and whether one of its nodes (of weight > 0) holds an equation (`kinds`).
+#[inline]
+fn shift_at<const D: usize>(
+    shape: ShapeFunction,
+    geo: &GridGeometry<D>,
+    (u, kinds): (&[Vector<D>], &[NodeKind]),
+    x: &Vector<D>,
+    lp: f64,
+) -> (Vector<D>, Matrix<D>, bool) {
+    let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
+    let mut dx = Vector::<D>::zeros();
+    let mut h = Matrix::<D>::zeros();
+    let mut reached = false;
+    st.for_each(|nw| {
+        let i = geo.flat(&nw.node);
+        let ui = u[i];
+        dx += ui * nw.n;
+        h += ui * nw.grad.transpose();
+        reached |= nw.n > 0.0 && kinds[i] == NodeKind::Interior;
+    });
+    (dx, h, reached)
 }
 
 #[cfg(test)]
