@@ -25,6 +25,7 @@ for deck in "${decks[@]}"; do
   fi
   # the deck's neighbouring folders (meshes/ its shapes name by relative path) beside the copy
   for folder in "$(dirname "$deck")"/*/; do
+    [ -d "$folder" ] || continue
     link="$work/$(basename "$folder")"
     [ -e "$link" ] || ln -s "$(realpath "$folder")" "$link"
   done
