@@ -8,11 +8,12 @@
 # Keys: K (bulk modulus, default 400), dt (fixed step; default none), cfl, end (end time, s),
 # update (musl|usl), pc (multigrid|jacobi), shape (bspline2|linear), sort (steps between particle
 # sorts, 0 = never; default 20), out (output directory), tank (the tank's size, default "1.0, 1.0"
-# or "1.0, 1.0, 1.0"; the cell size stays 1 / N).
+# or "1.0, 1.0, 1.0"; the cell size stays 1 / N), mu (the water's viscosity, Pa s; default none:
+# inviscid).
 set -eu
 dim=$1; n=$2; scheme=$3; shift 3
 K=400; dt=""; cfl=0.5; end=0.4; update=usl; pc=multigrid; shape=bspline2; sort=20; out=out/bench
-tank=""
+tank=""; mu=""
 for kv in "$@"; do eval "$kv"; done
 side() { python3 -c "print(int($1 * $n * 2) / (2 * $n))"; }
 h=$(python3 -c "print(1 / $n)")
@@ -52,6 +53,7 @@ preconditioner = "$pc"
 name = "water"
 density = 1.0
 bulk_modulus = $K
+${mu:+viscosity = $mu}
 
 [[bodies]]
 material = "water"

@@ -839,7 +839,6 @@ fn output_and_memory<const D: usize>(
         bytes(per_frame * frames as f64),
         bytes(n * checkpoint + 8.0 * geo.node_count() as f64)
     );
-    let k = usize::from(D == 3);
     let triangles = deck.mesh_triangles as f64;
     let meshes = if triangles > 0.0 {
         format!(
@@ -849,16 +848,16 @@ fn output_and_memory<const D: usize>(
     } else {
         String::new()
     };
+    let model = pmpm::limits::MemoryModel::of(deck);
     *out += &format!(
         "  memory           about {} ({} MB, {} B per particle and {} B per grid node{meshes}, \
          from the benchmarks)\n",
         bytes(
-            pmpm::limits::memory(D, n, geo.node_count() as f64)
-                + triangles * pmpm::limits::BYTES_PER_TRIANGLE
+            model.memory(n, geo.node_count() as f64) + triangles * pmpm::limits::BYTES_PER_TRIANGLE
         ),
         pmpm::limits::BYTES_BASE / 1e6,
-        pmpm::limits::BYTES_PER_PARTICLE[k],
-        pmpm::limits::BYTES_PER_NODE[k],
+        model.per_particle,
+        model.per_node,
     );
 }
 

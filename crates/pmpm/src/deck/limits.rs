@@ -10,11 +10,66 @@ pub use crate::keys::short;
 /// The most steps a deck may need without `--allow-large`.
 pub const MAX_STEPS: f64 = 1e9;
 
-/// Bytes per particle and per grid node (2D, 3D): the peak resident sizes of the largest runs in
-/// BENCHMARKS.md (projection scheme, multigrid), rounded up.
-pub const BYTES_PER_PARTICLE: [f64; 2] = [330.0, 580.0];
-/// See [`BYTES_PER_PARTICLE`].
-pub const BYTES_PER_NODE: [f64; 2] = [420.0, 290.0];
+/// Peak resident memory per particle and per grid node (ghost layers included) of a run,
+/// fitted by `benches/memory_model.sh` (BENCHMARKS.md, "The memory model of check") and
+/// rounded up: the benchmarks' dam break in a tight tank and in a loose one, the same particles
+/// in both, so the pair separates what follows the particles from what follows the grid.
+/// The scheme sets the solver's buffers; the shape functions' width sets the matrix rows and
+/// the transfers' bands; the implicit viscous solve, where a fluid is viscous, adds its own.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MemoryModel {
+    /// Bytes per particle.
+    pub per_particle: f64,
+    /// Bytes per grid node.
+    pub per_node: f64,
+}
+
+impl MemoryModel {
+    /// The model of a validated deck: its dimension, scheme and shape functions.
+    pub fn of(deck: &Deck) -> Self {
+        use crate::scheme::Scheme;
+        use crate::shape::ShapeFunction;
+        // (per particle, per node) in 2D and 3D, for linear shapes, the 3-wide ones (GIMP,
+        // quadratic B-splines) and cubic B-splines
+        const PROJECTION: [[(f64, f64); 3]; 2] = [
+            [(590.0, 390.0), (650.0, 390.0), (730.0, 390.0)],
+            [(810.0, 500.0), (1130.0, 470.0), (1650.0, 360.0)],
+        ];
+        const EXPLICIT: [[(f64, f64); 3]; 2] = [
+            [(270.0, 130.0), (270.0, 130.0), (270.0, 130.0)],
+            [(500.0, 150.0), (500.0, 150.0), (500.0, 150.0)],
+        ];
+        let s = &deck.simulation;
+        let table = match s.scheme {
+            Scheme::Projection => &PROJECTION,
+            Scheme::Explicit => &EXPLICIT,
+        };
+        let width = match s.shape_function {
+            ShapeFunction::Linear => 0,
+            ShapeFunction::Gimp | ShapeFunction::Bspline2 => 1,
+            ShapeFunction::Bspline3 => 2,
+        };
+        let three = usize::from(s.dimension == 3);
+        let (mut per_particle, mut per_node) = table[three][width];
+        // the implicit viscous solve's quadrature points, mask, diagonal and work vectors
+        let materials: Vec<_> = deck.materials.iter().map(|m| m.params()).collect();
+        if s.viscosity == Some(crate::viscosity::ViscosityTreatment::Implicit)
+            && crate::viscosity::any_viscous(&materials)
+        {
+            per_particle += [100.0, 190.0][three];
+            per_node += [130.0, 140.0][three];
+        }
+        Self {
+            per_particle,
+            per_node,
+        }
+    }
+
+    /// Peak memory in bytes of a run of `particles` particles on `nodes` grid nodes.
+    pub fn memory(&self, particles: f64, nodes: f64) -> f64 {
+        BYTES_BASE + particles * self.per_particle + nodes * self.per_node
+    }
+}
 /// The program itself with its threads.
 pub const BYTES_BASE: f64 = 8e6;
 /// Per triangle of a mesh shape: the file's bytes, the welded vertices, the edge check and
@@ -148,7 +203,8 @@ pub fn estimate(deck: &Deck) -> Estimate {
             (boxed * fill / spacing.powi(dim as i32)).round()
         })
         .sum();
-    let memory = memory(dim, particles, nodes) + deck.mesh_triangles as f64 * BYTES_PER_TRIANGLE;
+    let memory = MemoryModel::of(deck).memory(particles, nodes)
+        + deck.mesh_triangles as f64 * BYTES_PER_TRIANGLE;
     let (speeds, rigid) = prescribed_speeds(deck);
     let (flow_steps, steps) = steps(deck, &speeds);
     Estimate {
@@ -159,12 +215,6 @@ pub fn estimate(deck: &Deck) -> Estimate {
         steps,
         rigid,
     }
-}
-
-/// Peak memory in bytes of a run of `particles` particles on `nodes` grid nodes.
-pub fn memory(dimension: usize, particles: f64, nodes: f64) -> f64 {
-    let k = usize::from(dimension == 3);
-    BYTES_BASE + particles * BYTES_PER_PARTICLE[k] + nodes * BYTES_PER_NODE[k]
 }
 
 /// [`Estimate::flow_steps`] and [`Estimate::steps`], with `rigid` the fastest prescribed
