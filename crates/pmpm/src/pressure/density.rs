@@ -62,12 +62,8 @@ pub struct PositionCorrection<const D: usize> {
     /// The per-thread sums of the two above, and their totals per node.
     bands: Vec<Band<nalgebra::Vector2<f64>>>,
     sums: Vec<nalgebra::Vector2<f64>>,
-    /// The per-thread sums of sum_p V_p N_ip (grad q)_p.
-    displacement_bands: Vec<Band<Vector<D>>>,
     /// q per node (the ghost values on free-surface nodes).
     potential: Vec<f64>,
-    /// u_i per node.
-    displacement: Vec<Vector<D>>,
     /// Per particle: tr H_p (averaged at the nodes).
     dilatation: Vec<f64>,
     /// Per particle, whether none of its nodes holds an equation of the correction (spray).
@@ -104,9 +100,7 @@ impl<const D: usize> PositionCorrection<D> {
             excess: Vec::new(),
             bands: Vec::new(),
             sums: Vec::new(),
-            displacement_bands: Vec::new(),
             potential: Vec::new(),
-            displacement: Vec::new(),
             dilatation: Vec::new(),
             spray: Vec::new(),
             averaging: crate::averaging::NodalAveraging::new(rayon::current_num_threads(), 0),
@@ -144,6 +138,8 @@ impl<const D: usize> PositionCorrection<D> {
             gauss,
             solution,
             ghost: [scratch, first_layer],
+            vector_bands,
+            nodal: displacement,
         } = shared;
         bins.sort(geo, &ps.x);
         self.gather_volumes(ps, geo, rate);
@@ -219,8 +215,8 @@ impl<const D: usize> PositionCorrection<D> {
             geo.copy_to_images(&mut self.potential);
         }
         // correction: u on the nodes, then the particles moved and deformed by it
-        self.node_displacement(ps, geo, boundary);
-        self.move_particles(ps, geo, &surface.kinds);
+        self.node_displacement(ps, geo, boundary, (vector_bands, displacement));
+        self.move_particles(ps, geo, &surface.kinds, displacement);
         Ok(self.stats)
     }
 
@@ -275,7 +271,13 @@ impl<const D: usize> PositionCorrection<D> {
 
     /// u_i = -sum_p V_p N_ip (grad q)_p / sum_p V_p N_ip, held at the walls (no normal
     /// displacement) and on rigid bodies, and bounded by [`MAX_SHIFT`] cells.
-    fn node_displacement(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>, b: &Boundary<D>) {
+    fn node_displacement(
+        &mut self,
+        ps: &Particles<D>,
+        geo: &GridGeometry<D>,
+        b: &Boundary<D>,
+        (bands, displacement): (&mut Vec<Band<Vector<D>>>, &mut Vec<Vector<D>>),
+    ) {
         let shape = self.shape;
         let q = &self.potential;
         let (x, half_width, v0, jac) = (&ps.x, &ps.half_width, &ps.volume0, &ps.jacobian);
@@ -287,7 +289,7 @@ impl<const D: usize> PositionCorrection<D> {
             s
         };
         scatter_to_nodes(
-            &mut self.displacement_bands,
+            bands,
             Points {
                 geo,
                 shape,
@@ -296,11 +298,11 @@ impl<const D: usize> PositionCorrection<D> {
             },
             Vector::<D>::zeros(),
             |p| grad(p) * (v0[p] * jac[p]),
-            &mut self.displacement,
+            displacement,
         );
         let weight = &self.weight;
         let limit = MAX_SHIFT * geo.h;
-        self.displacement
+        displacement
             .par_iter_mut()
             .zip(weight.par_iter())
             .for_each(|(u, &w)| {
@@ -314,8 +316,8 @@ impl<const D: usize> PositionCorrection<D> {
                     *u *= limit / norm;
                 }
             });
-        b.hold_still(&mut self.displacement);
-        b.hold_buffers(&mut self.displacement);
+        b.hold_still(displacement);
+        b.hold_buffers(displacement);
     }
 
     /// x_p += sum_i N_ip u_i, F_p <- (I + H_p) F_p, J_p <- J_p det(I + H_p) with
@@ -327,9 +329,14 @@ impl<const D: usize> PositionCorrection<D> {
     /// The shift and H_p are taken twice, for tr H before the averaging and for the move after
     /// it, rather than kept per particle in between (D + D^2 numbers a particle, the largest
     /// of the correction's buffers).
-    fn move_particles(&mut self, ps: &mut Particles<D>, geo: &GridGeometry<D>, kinds: &[NodeKind]) {
+    fn move_particles(
+        &mut self,
+        ps: &mut Particles<D>,
+        geo: &GridGeometry<D>,
+        kinds: &[NodeKind],
+        u: &[Vector<D>],
+    ) {
         let shape = self.shape;
-        let u = &self.displacement;
         let n = ps.len();
         self.dilatation.resize(n, 0.0);
         self.spray.resize(n, false);

@@ -126,16 +126,14 @@ struct Work<const D: usize> {
     held: Vec<Vector<D>>,
     extended: Vec<Vector<D>>,
     pressure_gradient: Vec<Vector<D>>,
-    /// The corrector's per-thread sums sum_p V_p N_ip (grad p)_p, and their total per node.
-    force_bands: Vec<Band<Vector<D>>>,
-    force: Vec<Vector<D>>,
-    /// p^{n+1} on the free-surface nodes when `traction_free` (0 elsewhere).
+    /// p^{n+1} on the free-surface nodes when `traction_free` (0 elsewhere; empty, all 0,
+    /// without it).
     surface_pressure: Vec<f64>,
 }
 
 /// The buffers of the stages the pressure solve and the density correction both run: the
 /// particles binned by cell, the free surface, the Gauss points, the linear system and its
-/// solution. The correction runs after the projection in the step and each rebuilds them from
+/// solution, a scatter's sums. The correction runs after the projection in the step and each rebuilds them from
 /// the particles, so the two keep one set: a second cost as much memory as the first (at 2D
 /// 512^2, some 70 MB of 460).
 pub struct Shared<const D: usize> {
@@ -150,6 +148,10 @@ pub struct Shared<const D: usize> {
     solution: Vec<f64>,
     /// Scratch for the ghost values (the second and the first layer).
     ghost: [Vec<f64>; 2],
+    /// A scatter's per-thread sums and their total per node: the corrector's
+    /// sum_p V_p N_ip (grad p)_p, the density correction's displacements.
+    vector_bands: Vec<Band<Vector<D>>>,
+    nodal: Vec<Vector<D>>,
 }
 
 impl<const D: usize> Shared<D> {
@@ -162,6 +164,8 @@ impl<const D: usize> Shared<D> {
             gauss: GaussPoints::default(),
             solution: Vec::new(),
             ghost: Default::default(),
+            vector_bands: Vec::new(),
+            nodal: Vec::new(),
         }
     }
 }
@@ -450,7 +454,6 @@ impl<const D: usize> Projection<D> {
             .unknowns
             .number(geo, &self.shared.surface.kinds);
         // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is
-        self.work.surface_pressure.resize(n_nodes, 0.0);
         if self.settings.traction_free {
             let points = Points {
                 geo,
@@ -480,7 +483,9 @@ impl<const D: usize> Projection<D> {
                 .enumerate()
                 .for_each(|(i, dp)| {
                     *dp = match kinds[i] {
-                        NodeKind::FreeSurface => surface[i] - beta * prev[i],
+                        NodeKind::FreeSurface => {
+                            surface.get(i).copied().unwrap_or(0.0) - beta * prev[i]
+                        }
                         _ => 0.0,
                     }
                 });
@@ -903,9 +908,9 @@ impl<const D: usize> Projection<D> {
     fn correct(&mut self, ps: &Particles<D>, grid: &mut Grid<D>, scale: f64) {
         let mass_epsilon = self.settings.mass_epsilon;
         let (vol, gp) = (&ps.volume0, &self.work.pressure_gradient);
-        let force = &mut self.work.force;
+        let force = &mut self.shared.nodal;
         scatter_to_nodes(
-            &mut self.work.force_bands,
+            &mut self.shared.vector_bands,
             Points {
                 geo: &grid.geo,
                 shape: self.settings.shape,
