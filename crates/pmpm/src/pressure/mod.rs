@@ -133,9 +133,9 @@ struct Work<const D: usize> {
 
 /// The buffers of the stages the pressure solve and the density correction both run: the
 /// particles binned by cell, the free surface, the Gauss points, the linear system and its
-/// solution, a scatter's sums. The correction runs after the projection in the step and each rebuilds them from
-/// the particles, so the two keep one set: a second cost as much memory as the first (at 2D
-/// 512^2, some 70 MB of 460).
+/// solution, a scatter's sums. The correction runs after the projection in the step and each
+/// rebuilds them from the particles, so the two keep one set (a second cost as much memory as
+/// the first).
 pub struct Shared<const D: usize> {
     /// The particles (or, in the quadrature, the Gauss points) binned by cell.
     bins: CellBins,
