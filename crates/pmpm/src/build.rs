@@ -53,8 +53,6 @@ impl<const D: usize> Simulation<D> {
         let min_mass = particles.mass.iter().copied().fold(f64::INFINITY, f64::min);
         let implicit_viscosity =
             deck.simulation.viscosity == Some(crate::viscosity::ViscosityTreatment::Implicit);
-        // no solve (and none of its buffers) where the materials it would take are inviscid
-        let viscous_solve = implicit_viscosity && crate::viscosity::any_viscous(&materials);
         let settings = TransferSettings {
             shape: deck.simulation.shape_function,
             transfer: deck.simulation.transfer.unwrap_or_default(),
@@ -124,7 +122,7 @@ impl<const D: usize> Simulation<D> {
             stepper,
             averaging,
             body_force: (!gravity.is_constant()).then_some(gravity),
-            viscosity: viscous_solve.then(|| {
+            viscosity: deck.viscous_solve().then(|| {
                 crate::viscosity::ImplicitViscosity::new(
                     deck.simulation.viscosity_tolerance,
                     deck.simulation.viscosity_max_iterations,

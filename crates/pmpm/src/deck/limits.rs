@@ -11,8 +11,8 @@ pub use crate::keys::short;
 pub const MAX_STEPS: f64 = 1e9;
 
 /// Peak resident memory per particle and per grid node (ghost layers included) of a run,
-/// fitted by `benches/memory_model.sh` (BENCHMARKS.md, "The memory model of check") and
-/// rounded up: the benchmarks' dam break in a tight tank and in a loose one, the same particles
+/// fitted by `benches/memory_model.sh` (BENCHMARKS.md, "Lean solver state, and the memory model
+/// of `check`") and rounded up: the benchmarks' dam break in a tight tank and in a loose one, the same particles
 /// in both, so the pair separates what follows the particles from what follows the grid.
 /// The scheme sets the solver's buffers; the shape functions' width sets the matrix rows and
 /// the transfers' bands; the implicit viscous solve, where a fluid is viscous, adds its own.
@@ -52,10 +52,7 @@ impl MemoryModel {
         let three = usize::from(s.dimension == 3);
         let (mut per_particle, mut per_node) = table[three][width];
         // the implicit viscous solve's quadrature points, mask, diagonal and work vectors
-        let materials: Vec<_> = deck.materials.iter().map(|m| m.params()).collect();
-        if s.viscosity == Some(crate::viscosity::ViscosityTreatment::Implicit)
-            && crate::viscosity::any_viscous(&materials)
-        {
+        if deck.viscous_solve() {
             per_particle += [100.0, 190.0][three];
             per_node += [130.0, 140.0][three];
         }
@@ -70,6 +67,7 @@ impl MemoryModel {
         BYTES_BASE + particles * self.per_particle + nodes * self.per_node
     }
 }
+
 /// The program itself with its threads.
 pub const BYTES_BASE: f64 = 8e6;
 /// Per triangle of a mesh shape: the file's bytes, the welded vertices, the edge check and

@@ -651,6 +651,15 @@ impl Deck {
                 .any(|f| f.as_ref().map(|f| f.kind()) == Some(BoundaryKind::Outflow))
     }
 
+    /// Whether a run of this validated deck takes the implicit viscous solve: asked for (the
+    /// projection's default) and some material it takes is viscous
+    /// (an inviscid fluid's solve would change nothing).
+    pub fn viscous_solve(&self) -> bool {
+        let materials: Vec<_> = self.materials.iter().map(MaterialDeck::params).collect();
+        self.simulation.viscosity == Some(ViscosityTreatment::Implicit)
+            && crate::viscosity::any_viscous(&materials)
+    }
+
     /// The region of `bodies[b]` of a validated deck (its mesh file is read again).
     pub fn body_solid(&self, b: usize) -> Result<crate::geometry::Solid, DeckError> {
         self.bodies[b]
