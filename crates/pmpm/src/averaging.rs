@@ -97,8 +97,8 @@ impl<const D: usize> NodalAveraging<D> {
     pub fn new(threads: usize, nodes: usize) -> Self {
         Self {
             bands: vec![Band::default(); threads.max(1)],
-            weight: vec![0.0; nodes],
-            average: vec![0.0; nodes],
+            weight: crate::pages::zeroed(nodes),
+            average: crate::pages::zeroed(nodes),
         }
     }
 
@@ -266,23 +266,24 @@ impl<const D: usize> NodalAveraging<D> {
         });
         // the threads' sums in a fixed order, then the average; with periodic axes the images
         // are folded onto their nodes first, so the division waits for that
-        self.weight.resize(geo.node_count(), 0.0);
-        self.average.resize(geo.node_count(), 0.0);
+        crate::pages::fit(&mut self.weight, geo.node_count());
+        crate::pages::fit(&mut self.average, geo.node_count());
         let bands = &self.bands;
         let periodic = geo.has_periodic();
         (self.weight.par_iter_mut(), self.average.par_iter_mut())
             .into_par_iter()
             .enumerate()
             .for_each(|(i, (w, a))| {
-                *w = 0.0;
-                *a = 0.0;
+                let (mut weight, mut sum) = (0.0, 0.0);
                 for b in bands.iter().filter_map(|b| b.at(i)) {
-                    *w += b[0];
-                    *a += b[1];
+                    weight += b[0];
+                    sum += b[1];
                 }
                 if !periodic {
-                    *a = divide(*a, *w);
+                    sum = divide(sum, weight);
                 }
+                crate::pages::store(w, weight);
+                crate::pages::store(a, sum);
             });
         if periodic {
             geo.fold(&mut self.weight);
@@ -290,7 +291,7 @@ impl<const D: usize> NodalAveraging<D> {
             self.average
                 .par_iter_mut()
                 .zip(self.weight.par_iter())
-                .for_each(|(a, &w)| *a = divide(*a, w));
+                .for_each(|(a, &w)| crate::pages::store(a, divide(*a, w)));
         }
     }
 }

@@ -8,6 +8,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::grid::{GridGeometry, Vector};
+use crate::pages::store;
 use crate::particles::Particles;
 use crate::shape::PAD;
 use rayon::prelude::*;
@@ -341,7 +342,7 @@ impl<const D: usize> Boundary<D> {
     pub fn hold_still(&self, u: &mut [Vector<D>]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
             if matches!(self.kind(k, f), BoundaryKind::Slip | BoundaryKind::NoSlip) {
-                u[i][f / 2] = 0.0;
+                store(&mut u[i][f / 2], 0.0);
             }
         }
         self.rigid.hold_still(u);
@@ -353,7 +354,7 @@ impl<const D: usize> Boundary<D> {
     /// material in).
     pub fn hold_buffers(&self, u: &mut [Vector<D>]) {
         for &i in &self.buffer_nodes {
-            u[i] = Vector::<D>::zeros();
+            store(&mut u[i], Vector::<D>::zeros());
         }
     }
 
@@ -379,8 +380,9 @@ impl<const D: usize> Boundary<D> {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
             let (kind, wall) = (self.kind(k, f), self.wall(k, f));
             match kind {
-                BoundaryKind::Slip => v[i][f / 2] = wall[f / 2],
-                BoundaryKind::NoSlip => v[i] = wall,
+                // (stores that leave an empty node's zeros unwritten, see crate::pages)
+                BoundaryKind::Slip => store(&mut v[i][f / 2], wall[f / 2]),
+                BoundaryKind::NoSlip => store(&mut v[i], wall),
                 BoundaryKind::Open | BoundaryKind::Outflow | BoundaryKind::Periodic => {}
             }
         }
@@ -407,7 +409,8 @@ impl<const D: usize> Boundary<D> {
                 continue;
             }
             let axis = f / 2;
-            v[i][axis] = 2.0 * self.wall(k, f)[axis] - v[m][axis];
+            let reflected = 2.0 * self.wall(k, f)[axis] - v[m][axis];
+            store(&mut v[i][axis], reflected);
         }
     }
 }

@@ -4,6 +4,7 @@
 //! layers beyond every face, so that every shape function's stencil of a particle inside the
 //! domain lies on the grid. Node fields are stored as separate arrays (struct of arrays).
 
+use crate::pages::zeroed;
 use crate::shape::PAD;
 use nalgebra::SVector;
 
@@ -310,24 +311,26 @@ impl<const D: usize> Grid<D> {
         let n = geo.node_count();
         Self {
             geo,
-            mass: vec![0.0; n],
-            momentum: vec![Vector::<D>::zeros(); n],
-            velocity: vec![Vector::<D>::zeros(); n],
-            velocity_new: vec![Vector::<D>::zeros(); n],
-            force: vec![Vector::<D>::zeros(); n],
-            body: vec![Vector::<D>::zeros(); n],
-            pressure: vec![0.0; n],
+            mass: zeroed(n),
+            momentum: zeroed(n),
+            velocity: zeroed(n),
+            velocity_new: zeroed(n),
+            force: zeroed(n),
+            body: zeroed(n),
+            pressure: zeroed(n),
             damping: Vec::new(),
         }
     }
 }
 
-/// The role of a node in the pressure solve.
+/// The role of a node in the pressure solve (one byte, `Empty` all zero bits, so that an
+/// array of kinds keeps the pages of empty nodes uncommitted: [`crate::pages`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[repr(u8)]
 pub enum NodeKind {
     /// No mass: not part of the fluid.
     #[default]
-    Empty,
+    Empty = 0,
     /// On the free surface: p = 0 (a Dirichlet node).
     FreeSurface,
     /// Inside the fluid: an unknown of the Poisson equation.
@@ -338,6 +341,12 @@ pub enum NodeKind {
     /// condition on the face (taken as 0, it pulled the face's pressure down by a tenth).
     Solid,
 }
+
+// SAFETY: NodeKind is a fieldless repr(u8) enum: one initialised byte and no padding, and
+// the all-zero byte is its variant `Empty`.
+unsafe impl bytemuck::NoUninit for NodeKind {}
+// SAFETY: as above; zero is `Empty`.
+unsafe impl bytemuck::Zeroable for NodeKind {}
 
 #[cfg(test)]
 mod tests {

@@ -84,6 +84,7 @@ mod keys;
 pub mod linalg;
 pub mod material;
 pub mod output;
+pub mod pages;
 pub mod particles;
 pub mod pressure;
 pub mod rigid;

@@ -968,13 +968,14 @@ impl<const D: usize> Grid<D> {
             .for_each(|(i, (vn, v, f, b, &m))| {
                 let rate = damping + zones.get(i).copied().unwrap_or(0.0);
                 let scale = 1.0 / (1.0 + dt * rate);
-                *vn = if m >= mass_floor && m > mass_epsilon {
+                let v_star = if m >= mass_floor && m > mass_epsilon {
                     v * scale + f * (dt / m)
                 } else if m > mass_epsilon {
                     v * scale + b * (dt / m) + (f - b) * (dt / mass_floor)
                 } else {
                     Vector::<D>::zeros()
                 };
+                crate::pages::store(vn, v_star);
             });
     }
 }

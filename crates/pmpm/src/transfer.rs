@@ -6,6 +6,7 @@
 //! thread count gives bitwise the same result on every run. The buffers are reused every step.
 
 use crate::grid::{Grid, GridGeometry, Vector};
+use crate::pages::store;
 use crate::particles::{Matrix, Particles};
 use crate::shape::{NodeWeight, ShapeFunction, Stencil};
 use rayon::prelude::*;
@@ -236,9 +237,9 @@ pub(crate) fn scatter_to_nodes<const D: usize, T>(
     value: impl Fn(usize) -> T + Sync,
     out: &mut Vec<T>,
 ) where
-    T: Copy + Send + Sync + std::ops::AddAssign + std::ops::Mul<f64, Output = T>,
+    T: bytemuck::Pod + Send + Sync + std::ops::AddAssign + std::ops::Mul<f64, Output = T>,
 {
-    out.resize(points.geo.node_count(), zero);
+    crate::pages::fit(out, points.geo.node_count());
     scatter_weighted(bands, points, zero, value, |v, nw| *v * nw.n, out)
 }
 
@@ -268,7 +269,7 @@ pub(crate) fn scatter_weighted<const D: usize, T, V>(
     contribution: impl Fn(&V, &NodeWeight<D>) -> T + Sync,
     out: &mut [T],
 ) where
-    T: Copy + Send + Sync + std::ops::AddAssign,
+    T: bytemuck::NoUninit + Send + Sync + std::ops::AddAssign,
 {
     let (geo, shape, x, half_width) = (points.geo, points.shape, points.x, points.half_width);
     bands.resize_with(rayon::current_num_threads().max(1), Band::default);
@@ -286,10 +287,11 @@ pub(crate) fn scatter_weighted<const D: usize, T, V>(
     debug_assert_eq!(out.len(), geo.node_count());
     let bands = &*bands;
     out.par_iter_mut().enumerate().for_each(|(i, o)| {
-        *o = zero;
+        let mut sum = zero;
         for b in bands.iter().filter_map(|b| b.at(i)) {
-            *o += *b;
+            sum += *b;
         }
+        store(o, sum);
     });
     if geo.has_periodic() {
         geo.fold(out);
@@ -410,18 +412,20 @@ fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bands: &[Band<NodeSums<D>>], e
         .into_par_iter()
         .enumerate()
         .for_each(|(i, (m, mom, f, body, pr))| {
-            *m = 0.0;
-            *mom = Vector::<D>::zeros();
-            *f = Vector::<D>::zeros();
-            *body = Vector::<D>::zeros();
-            *pr = 0.0;
+            let mut sum = NodeSums::<D>::ZERO;
             for b in bands.iter().filter_map(|b| b.at(i)) {
-                *m += b.mass;
-                *mom += b.momentum;
-                *f += b.force;
-                *body += b.body;
-                *pr += b.pressure;
+                sum.mass += b.mass;
+                sum.momentum += b.momentum;
+                sum.force += b.force;
+                sum.body += b.body;
+                sum.pressure += b.pressure;
             }
+            // (written only where it changes: an empty node stays on an uncommitted page)
+            store(m, sum.mass);
+            store(mom, sum.momentum);
+            store(f, sum.force);
+            store(body, sum.body);
+            store(pr, sum.pressure);
         });
     if geo.has_periodic() {
         geo.fold(&mut grid.mass);
@@ -439,11 +443,11 @@ fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bands: &[Band<NodeSums<D>>], e
         .into_par_iter()
         .for_each(|(m, mom, pr, v)| {
             if *m > eps {
-                *v = *mom / *m;
-                *pr /= *m;
+                store(v, *mom / *m);
+                store(pr, *pr / *m);
             } else {
-                *v = Vector::<D>::zeros();
-                *pr = 0.0;
+                store(v, Vector::<D>::zeros());
+                store(pr, 0.0);
             }
         });
 }
@@ -468,10 +472,11 @@ pub fn remap_velocity<const D: usize>(
         .par_iter_mut()
         .enumerate()
         .for_each(|(i, v)| {
-            *v = Vector::<D>::zeros();
+            let mut sum = Vector::<D>::zeros();
             for b in bands.iter().filter_map(|b| b.at(i)) {
-                *v += b.momentum;
+                sum += b.momentum;
             }
+            store(v, sum);
         });
     if geo.has_periodic() {
         geo.fold(&mut grid.velocity_new);
@@ -481,9 +486,9 @@ pub fn remap_velocity<const D: usize>(
         .zip(grid.mass.par_iter())
         .for_each(|(v, &m)| {
             if m > eps {
-                *v /= m;
+                store(v, *v / m);
             } else {
-                *v = Vector::<D>::zeros();
+                store(v, Vector::<D>::zeros());
             }
         });
 }

@@ -174,8 +174,8 @@ impl<const D: usize> PositionCorrection<D> {
         gauss.build(geo, (bins, v0, v0), &surface.fraction, shape, Some(domain));
         gauss.divergence.fill(0.0);
         gauss.velocity.fill(Vector::<D>::zeros());
-        self.potential.clear();
-        self.potential.resize(geo.node_count(), 0.0);
+        crate::pages::fit(&mut self.potential, geo.node_count());
+        crate::pages::reset(&mut self.potential);
         let system_rows = super::assemble::Rows {
             kinds: &surface.kinds,
             phi: surface.level_set(),
@@ -242,8 +242,8 @@ impl<const D: usize> PositionCorrection<D> {
             &mut self.sums,
         );
         let n = geo.node_count();
-        self.weight.resize(n, 0.0);
-        self.excess.resize(n, 0.0);
+        crate::pages::fit(&mut self.weight, n);
+        crate::pages::fit(&mut self.excess, n);
         let sums = &self.sums;
         (self.weight.par_iter_mut(), self.excess.par_iter_mut())
             .into_par_iter()
@@ -261,11 +261,13 @@ impl<const D: usize> PositionCorrection<D> {
                         !geo.periodic[d] && (node[d] < pad || node[d] > pad + geo.cells[d])
                     })
                 };
-                (*w, *e) = if behind_wall {
+                let (weight, excess) = if behind_wall {
                     (0.0, 0.0)
                 } else {
                     (sums[i][0], sums[i][1])
                 };
+                crate::pages::store(w, weight);
+                crate::pages::store(e, excess);
             });
     }
 
@@ -307,7 +309,7 @@ impl<const D: usize> PositionCorrection<D> {
             .zip(weight.par_iter())
             .for_each(|(u, &w)| {
                 if w <= 0.0 {
-                    *u = Vector::<D>::zeros();
+                    crate::pages::store(u, Vector::<D>::zeros());
                     return;
                 }
                 *u = -*u / w;

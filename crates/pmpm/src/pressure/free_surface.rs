@@ -6,6 +6,7 @@
 //! otherwise. Cells beyond a closed wall count as filled (the wall is not a free surface),
 //! cells beyond an open face as empty (the pressure there is the ambient one).
 use crate::grid::{CellBins, GridGeometry};
+use crate::pages;
 use crate::shape::PAD;
 use rayon::prelude::*;
 
@@ -203,14 +204,15 @@ pub fn volume_fractions<const D: usize>(
     out: &mut Vec<f64>,
 ) {
     let inv = 1.0 / geo.h.powi(D as i32);
-    out.resize(geo.node_count(), 0.0);
+    pages::fit(out, geo.node_count());
     out.par_iter_mut().enumerate().for_each(|(c, f)| {
-        *f = bins
+        let fraction = bins
             .particles(c)
             .iter()
             .map(|&p| volume[p as usize])
             .sum::<f64>()
             * inv;
+        pages::store(f, fraction);
     });
 }
 
@@ -269,10 +271,10 @@ pub fn classify<const D: usize>(
     open: &[bool],
     kinds: &mut Vec<NodeKind>,
 ) {
-    kinds.resize(geo.node_count(), NodeKind::Empty);
+    pages::fit(kinds, geo.node_count());
     kinds.par_iter_mut().enumerate().for_each(|(i, kind)| {
         if mass[i] <= mass_epsilon {
-            *kind = NodeKind::Empty;
+            pages::store(kind, NodeKind::Empty);
             return;
         }
         let node = geo.multi(i);
@@ -288,11 +290,12 @@ pub fn classify<const D: usize>(
                 break;
             }
         }
-        *kind = if filled {
+        let role = if filled {
             NodeKind::Interior
         } else {
             NodeKind::FreeSurface
         };
+        pages::store(kind, role);
     });
 }
 
@@ -448,15 +451,16 @@ pub fn classify_level_set<const D: usize>(
     open: &[bool],
     kinds: &mut Vec<NodeKind>,
 ) {
-    kinds.resize(geo.node_count(), NodeKind::Empty);
+    pages::fit(kinds, geo.node_count());
     kinds.par_iter_mut().enumerate().for_each(|(i, kind)| {
-        *kind = if mass[i] <= mass_epsilon {
+        let role = if mass[i] <= mass_epsilon {
             NodeKind::Empty
         } else if phi[i] < 0.0 {
             NodeKind::Interior
         } else {
             NodeKind::FreeSurface
         };
+        pages::store(kind, role);
         if *kind == NodeKind::Interior {
             if let Some(solid) = solid {
                 let node = geo.multi(i);
@@ -541,8 +545,7 @@ pub fn extend_velocity<const D: usize>(
     v: &mut [crate::grid::Vector<D>],
     scratch: &mut Vec<crate::grid::Vector<D>>,
 ) {
-    scratch.clear();
-    scratch.extend_from_slice(v);
+    pages::copy(scratch, v);
     let old = &scratch[..];
     v.par_iter_mut().enumerate().for_each(|(j, vj)| {
         if kinds[j] != NodeKind::FreeSurface {
@@ -660,8 +663,7 @@ pub fn ghost_values<const D: usize>(
     out: &mut Vec<f64>,
     first: &mut Vec<f64>,
 ) {
-    first.clear();
-    first.extend_from_slice(p);
+    pages::copy(first, p);
     first.par_iter_mut().enumerate().for_each(|(j, pj)| {
         if kinds[j] != NodeKind::FreeSurface || phi[j] <= 0.0 {
             return;
@@ -684,8 +686,7 @@ pub fn ghost_values<const D: usize>(
     // 2 p_j - p_m (left at the surface value, a node of a quadratic B-spline a cell and a
     // half above a flat surface kept the gradient of the particles below it a half short,
     // and a pool at rest sank into itself)
-    out.clear();
-    out.extend_from_slice(first);
+    pages::copy(out, first);
     let first = &first[..];
     out.par_iter_mut().enumerate().for_each(|(k, pk)| {
         if kinds[k] != NodeKind::FreeSurface || phi[k] <= 0.0 {
@@ -747,9 +748,9 @@ pub(crate) fn surface_normal_stress<const D: usize>(
     let (geo, shape, x, half_width) = (points.geo, points.shape, points.x, points.half_width);
     use crate::grid::Vector;
     use crate::particles::Matrix;
-    out.resize(geo.node_count(), 0.0);
+    pages::fit(out, geo.node_count());
     out.par_iter_mut().enumerate().for_each(|(i, pn)| {
-        *pn = 0.0;
+        pages::store(pn, 0.0);
         if kinds[i] != NodeKind::FreeSurface {
             return;
         }

@@ -24,6 +24,7 @@ use crate::linalg::{
     Direct, EllMatrix, GridLayout, IncompleteCholesky, Jacobi, LinearSolver, Multigrid, Pcg,
     SolveError, SolveParams, SolveStats, System,
 };
+use crate::pages;
 use crate::particles::Particles;
 use crate::shape::{ShapeFunction, Stencil};
 use crate::timing::{Phase, PhaseTimers};
@@ -120,8 +121,8 @@ struct Work<const D: usize> {
     velocity_star: Vec<Vector<D>>,
     /// v* before the wall conditions.
     unconstrained: Vec<Vector<D>>,
-    /// Per cell, the particles' volume ratio J averaged with the weights V_p^0.
-    cell_jacobian: Vec<f64>,
+    /// Per cell, 1 - J, with J the particles' volume ratio averaged with the weights V_p^0.
+    cell_deficit: Vec<f64>,
     /// Per node, 0 in the velocity components the walls and rigid bodies hold, 1 elsewhere.
     held: Vec<Vector<D>>,
     extended: Vec<Vector<D>>,
@@ -415,8 +416,8 @@ impl<const D: usize> Projection<D> {
         let (shape, mass_epsilon) = (self.settings.shape, self.settings.mass_epsilon);
         let beta = self.settings.beta;
         let n_nodes = grid.geo.node_count();
-        self.node_pressure.resize(n_nodes, 0.0);
-        self.previous.resize(n_nodes, 0.0);
+        pages::fit(&mut self.node_pressure, n_nodes);
+        pages::fit(&mut self.previous, n_nodes);
         self.shared.bins.sort(&grid.geo, &ps.x);
         if let Some(cells) = &mut self.cells {
             timers.lap(Phase::FreeSurface);
@@ -482,12 +483,13 @@ impl<const D: usize> Projection<D> {
                 .par_iter_mut()
                 .enumerate()
                 .for_each(|(i, dp)| {
-                    *dp = match kinds[i] {
+                    let value = match kinds[i] {
                         NodeKind::FreeSurface => {
                             surface.get(i).copied().unwrap_or(0.0) - beta * prev[i]
                         }
                         _ => 0.0,
-                    }
+                    };
+                    pages::store(dp, value);
                 });
         }
         // 4. and 5. in passes: the first projects v*; each further one projects the
@@ -591,7 +593,7 @@ impl<const D: usize> Projection<D> {
             // not flow through them
             boundary.apply(&mut grid.velocity_new);
         }
-        self.work.unconstrained.clone_from(&grid.velocity_new);
+        pages::copy(&mut self.work.unconstrained, &grid.velocity_new);
         if flux {
             // only the normal part enters the wall flux: a no-slip wall's tangential condition
             // is not flow through it (and the tangential condition is applied below)
@@ -644,7 +646,7 @@ impl<const D: usize> Projection<D> {
             // load creeps with it. Aim at div v = alpha (1 - J) / dt, which gives back the
             // fraction alpha of the drift per step.
             let rate = self.settings.volume_correction / dt;
-            let cj = &mut self.work.cell_jacobian;
+            let cj = &mut self.work.cell_deficit;
             aim_at_volume(geo, &self.shared.bins, ps, qcell, rate, cj, qdiv);
         }
         if flux {
@@ -748,7 +750,7 @@ impl<const D: usize> Projection<D> {
         }
         if !first {
             // the increment vanishes on the free surface and off the fluid
-            self.node_pressure.fill(0.0);
+            pages::reset(&mut self.node_pressure);
         }
         if first {
             let u = &mut self.shared.system.unknowns;
@@ -821,12 +823,13 @@ impl<const D: usize> Projection<D> {
                 .zip(self.node_pressure.par_iter())
                 .enumerate()
                 .for_each(|(i, (p, &d))| {
-                    *p = match kinds[i] {
+                    let value = match kinds[i] {
                         NodeKind::Interior | NodeKind::FreeSurface | NodeKind::Solid => {
                             keep * *p + d
                         }
                         NodeKind::Empty => 0.0,
-                    }
+                    };
+                    pages::store(p, value);
                 });
         }
     }
@@ -942,26 +945,31 @@ fn aim_at_volume<const D: usize>(
     ps: &Particles<D>,
     cells: Option<&[[u32; D]]>,
     rate: f64,
-    cell_jacobian: &mut Vec<f64>,
+    cell_deficit: &mut Vec<f64>,
     div: &mut [f64],
 ) {
     let (v0, jac) = (&ps.volume0, &ps.jacobian);
     if let Some(cells) = cells {
-        cell_jacobian.resize(geo.node_count(), 1.0);
-        cell_jacobian.par_iter_mut().enumerate().for_each(|(c, j)| {
-            let (mut sv, mut sj) = (0.0, 0.0);
-            for &p in bins.particles(c) {
-                sv += v0[p as usize];
-                sj += v0[p as usize] * jac[p as usize];
-            }
-            *j = if sv > 0.0 { sj / sv } else { 1.0 };
-        });
-        let cj = &*cell_jacobian;
+        // 1 - J per cell (zero in an empty cell, which keeps its page uncommitted)
+        pages::fit(cell_deficit, geo.node_count());
+        cell_deficit
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(c, deficit)| {
+                let (mut sv, mut sj) = (0.0, 0.0);
+                for &p in bins.particles(c) {
+                    sv += v0[p as usize];
+                    sj += v0[p as usize] * jac[p as usize];
+                }
+                let j = if sv > 0.0 { sj / sv } else { 1.0 };
+                pages::store(deficit, 1.0 - j);
+            });
+        let deficit = &*cell_deficit;
         div.par_iter_mut()
             .zip(cells.par_iter())
             .for_each(|(div, c)| {
                 let idx: [usize; D] = std::array::from_fn(|d| c[d] as usize + crate::shape::PAD);
-                *div -= rate * (1.0 - cj[geo.flat(&idx)]);
+                *div -= rate * deficit[geo.flat(&idx)];
             });
     } else {
         div.par_iter_mut()

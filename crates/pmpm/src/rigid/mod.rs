@@ -922,7 +922,7 @@ impl<const D: usize> RigidBodies<D> {
         for &(i, _, h) in &self.nodes {
             for d in 0..D {
                 if h & (1 << d) != 0 {
-                    u[i][d] = 0.0;
+                    crate::pages::store(&mut u[i][d], 0.0);
                 }
             }
         }
