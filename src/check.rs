@@ -849,15 +849,15 @@ fn output_and_memory<const D: usize>(
         String::new()
     };
     let model = pmpm::limits::MemoryModel::of(deck);
+    let committed = pmpm::limits::estimate(deck).committed_nodes;
     *out += &format!(
-        "  memory           about {} ({} MB, {} B per particle and {} B per grid node{meshes}, \
-         from the benchmarks)\n",
-        bytes(
-            model.memory(n, geo.node_count() as f64) + triangles * pmpm::limits::BYTES_PER_TRIANGLE
-        ),
+        "  memory           about {} ({} MB, {} B per particle and {} B per node for the {} \
+         nodes of the rows the bodies cross{meshes}, from the benchmarks)\n",
+        bytes(model.memory(n, committed) + triangles * pmpm::limits::BYTES_PER_TRIANGLE),
         pmpm::limits::BYTES_BASE / 1e6,
         model.per_particle,
         model.per_node,
+        pmpm::limits::short(committed),
     );
 }
 

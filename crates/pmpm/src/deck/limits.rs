@@ -10,7 +10,8 @@ pub use crate::keys::short;
 /// The most steps a deck may need without `--allow-large`.
 pub const MAX_STEPS: f64 = 1e9;
 
-/// Peak resident memory per particle and per grid node (ghost layers included) of a run,
+/// Peak resident memory per particle and per committed grid node (ghost layers included;
+/// [`Estimate::committed_nodes`]) of a run,
 /// fitted by `benches/memory_model.sh` (BENCHMARKS.md, "Lean solver state, and the memory model
 /// of `check`") and rounded up: the benchmarks' dam break in a tight tank and in a loose one, the same particles
 /// in both, so the pair separates what follows the particles from what follows the grid.
@@ -68,8 +69,10 @@ impl MemoryModel {
     }
 }
 
-/// The program itself with its threads.
-pub const BYTES_BASE: f64 = 8e6;
+/// The program itself with its threads, its output buffers and a small grid's fixed costs:
+/// the peak of the smallest decks (13.0 MB for the tutorial's 1,600 particles, of which its
+/// particles and rows take about 3).
+pub const BYTES_BASE: f64 = 10e6;
 /// Per triangle of a mesh shape: the file's bytes, the welded vertices, the edge check and
 /// parry's triangle mesh with its tree and pseudo-normals while a mesh is read, and the copies
 /// a rigid body's shape keeps. Measured: `check` of a deck with a ball of 100k and of 400k
@@ -83,6 +86,9 @@ pub struct Estimate {
     pub particles: f64,
     /// Grid nodes, with the ghost layers.
     pub nodes: f64,
+    /// The nodes whose memory the run holds: the rows of nodes along axis 0 that the bodies
+    /// cross (their node arrays commit pages only where the material writes, [`crate::pages`]).
+    pub committed_nodes: f64,
     /// Peak memory in bytes (with the meshes' triangles).
     pub memory: f64,
     /// Steps to the end time that the flow asks for: the fixed step's count, or with `cfl` the
@@ -167,6 +173,7 @@ pub fn estimate(deck: &Deck) -> Estimate {
     let cells: Vec<f64> = g.size.iter().map(|s| (s / h).round()).collect();
     let pad = 2.0 * crate::shape::PAD as f64 + 1.0;
     let nodes: f64 = cells.iter().map(|c| c + pad).product();
+    let mut rows_crossed = 0.0;
     let particles: f64 = deck
         .bodies
         .iter()
@@ -183,6 +190,13 @@ pub fn estimate(deck: &Deck) -> Estimate {
                 .map(|d| hi[d].min(g.origin[d] + g.size[d]))
                 .collect();
             let boxed: f64 = (0..dim).map(|d| (z[d] - a[d]).max(0.0)).product();
+            if boxed > 0.0 {
+                // the rows of nodes along axis 0 the body's box crosses, with the nodes its
+                // particles' stencils reach on either side
+                rows_crossed += (1..dim)
+                    .map(|d| ((z[d] - a[d]) / h).ceil() + pad)
+                    .product::<f64>();
+            }
             const N: usize = 16;
             let total = N.pow(dim as u32);
             let inside = (0..total)
@@ -201,13 +215,23 @@ pub fn estimate(deck: &Deck) -> Estimate {
             (boxed * fill / spacing.powi(dim as i32)).round()
         })
         .sum();
-    let memory = MemoryModel::of(deck).memory(particles, nodes)
+    let rows = nodes / (cells[0] + pad);
+    // the node arrays hold pages only where the material writes them (crate::pages), a page
+    // a run of nodes along axis 0: the rows the bodies cross, whole, count; an inflow's water
+    // may go anywhere, so with one the whole box counts
+    let committed = if deck.inflows.is_empty() {
+        nodes * (rows_crossed / rows).min(1.0)
+    } else {
+        nodes
+    };
+    let memory = MemoryModel::of(deck).memory(particles, committed)
         + deck.mesh_triangles as f64 * BYTES_PER_TRIANGLE;
     let (speeds, rigid) = prescribed_speeds(deck);
     let (flow_steps, steps) = steps(deck, &speeds);
     Estimate {
         particles,
         nodes,
+        committed_nodes: committed,
         memory,
         flow_steps,
         steps,
