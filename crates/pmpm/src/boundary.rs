@@ -348,6 +348,16 @@ impl<const D: usize> Boundary<D> {
         self.rigid.hold_still(u);
     }
 
+    /// Sets bit d of `bits[i]` where [`Self::hold_still`] zeroes component d of node i.
+    pub fn held_components(&self, bits: &mut [u8]) {
+        for (k, &(i, f)) in self.nodes.iter().enumerate() {
+            if matches!(self.kind(k, f), BoundaryKind::Slip | BoundaryKind::NoSlip) {
+                bits[i] |= 1 << (f / 2);
+            }
+        }
+        self.rigid.held_components(bits);
+    }
+
     /// Zeroes a node displacement on the inflows' buffers: the density correction must not
     /// move the particles there, which enter at the inflow's pace
     /// ([`crate::flow::Inflow::hold_buffer`]; moved back towards the face, they let 11 % less

@@ -532,7 +532,7 @@ pub fn extend_into_solids<const D: usize>(
 /// front on the floor) would keep its predicted velocity, gravity and all, while the wall node
 /// below it holds the normal velocity: the layer's particles, between the two, would be packed
 /// against the wall step after step. Each velocity component of such a node takes the mean of
-/// that component over its neighbours that hold it (`held[i][d] == 0`: the wall's normal, a
+/// that component over its neighbours that hold it (bit d of `held[i]` set: the wall's normal, a
 /// rigid body's components), where there are any; the fluid's velocity extended into its
 /// surface layer, as a projection on a staggered grid extends it into the air (Bridson, Fluid
 /// Simulation for Computer Graphics, 2nd ed., 2015, section 4.4). A wall pushes, it does not
@@ -541,7 +541,7 @@ pub fn extend_into_solids<const D: usize>(
 pub fn extend_velocity<const D: usize>(
     geo: &GridGeometry<D>,
     kinds: &[NodeKind],
-    held: &[crate::grid::Vector<D>],
+    held: &[u8],
     v: &mut [crate::grid::Vector<D>],
     scratch: &mut Vec<crate::grid::Vector<D>>,
 ) {
@@ -561,7 +561,7 @@ pub fn extend_velocity<const D: usize>(
             reached |= kinds[geo.canonical(i)] == NodeKind::Interior;
             let ni = geo.multi(i);
             for d in 0..D {
-                if held[i][d] == 0.0
+                if held[i] & (1 << d) != 0
                     && matches!(kinds[i], NodeKind::Interior | NodeKind::FreeSurface)
                 {
                     sum[d] += old[i][d];
@@ -574,7 +574,7 @@ pub fn extend_velocity<const D: usize>(
             return;
         }
         for d in 0..D {
-            if count[d] > 0 && held[j][d] != 0.0 {
+            if count[d] > 0 && held[j] & (1 << d) == 0 {
                 let extended = sum[d] / count[d] as f64;
                 // a layer moving away from the wall that holds it leaves it (water falls off a
                 // lid): only the motion into the wall is taken away
@@ -1234,11 +1234,11 @@ mod tests {
         let n = geo.node_count();
         let at = |i: usize, j: usize| geo.flat(&[i + PAD, j + PAD]);
         let mut kinds = vec![NodeKind::Empty; n];
-        let mut held = vec![Vector::<2>::repeat(1.0); n];
+        let mut held = vec![0u8; n];
         let mut v = vec![Vector::<2>::zeros(); n];
         for i in 0..=6 {
             for (wall, film) in [(0, 1), (6, 5)] {
-                held[at(i, wall)][1] = 0.0;
+                held[at(i, wall)] |= 1 << 1;
                 kinds[at(i, wall)] = NodeKind::FreeSurface;
                 kinds[at(i, film)] = NodeKind::FreeSurface;
                 v[at(i, film)] = Vector::<2>::new(0.3, -0.5);

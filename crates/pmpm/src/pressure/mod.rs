@@ -123,8 +123,9 @@ struct Work<const D: usize> {
     unconstrained: Vec<Vector<D>>,
     /// Per cell, 1 - J, with J the particles' volume ratio averaged with the weights V_p^0.
     cell_deficit: Vec<f64>,
-    /// Per node, 0 in the velocity components the walls and rigid bodies hold, 1 elsewhere.
-    held: Vec<Vector<D>>,
+    /// Per node, bit d set where the walls or rigid bodies hold velocity component d (a byte,
+    /// and zero off the walls, so that it commits little memory: [`crate::pages`]).
+    held: Vec<u8>,
     extended: Vec<Vector<D>>,
     pressure_gradient: Vec<Vector<D>>,
     /// p^{n+1} on the free-surface nodes when `traction_free` (0 elsewhere; empty, all 0,
@@ -851,11 +852,9 @@ impl<const D: usize> Projection<D> {
         if level_set {
             // the nodes no pressure reached take the held velocity of the walls around them
             boundary.apply(&mut grid.velocity_new);
-            self.work.held.clear();
-            self.work
-                .held
-                .resize(grid.geo.node_count(), Vector::<D>::repeat(1.0));
-            boundary.hold_still(&mut self.work.held);
+            pages::fit(&mut self.work.held, grid.geo.node_count());
+            pages::reset(&mut self.work.held);
+            boundary.held_components(&mut self.work.held);
             free_surface::extend_velocity(
                 &grid.geo,
                 &self.shared.surface.kinds,

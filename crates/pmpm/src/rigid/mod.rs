@@ -917,6 +917,13 @@ impl<const D: usize> RigidBodies<D> {
         }
     }
 
+    /// Sets bit d of `bits[i]` where [`Self::hold_still`] zeroes component d of node i.
+    pub fn held_components(&self, bits: &mut [u8]) {
+        for &(i, _, h) in &self.nodes {
+            bits[i] |= h;
+        }
+    }
+
     /// Zeroes the components the bodies hold on their nodes.
     pub fn hold_still(&self, u: &mut [Vector<D>]) {
         for &(i, _, h) in &self.nodes {
