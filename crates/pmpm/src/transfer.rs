@@ -124,6 +124,7 @@ pub(crate) fn affine<const D: usize>(b: Matrix<D>, isochoric: bool) -> Matrix<D>
 /// line in 2D) rather than in four arrays: a particle's scatter then touches K^D lines, not
 /// 4 K^D, and does one bounds check per node.
 #[derive(Debug, Clone, Copy)]
+#[repr(C)]
 struct NodeSums<const D: usize> {
     mass: f64,
     pressure: f64,
@@ -131,6 +132,12 @@ struct NodeSums<const D: usize> {
     force: Vector<D>,
     body: Vector<D>,
 }
+
+// SAFETY: NodeSums is repr(C) of f64s only (a Vector<D> is [f64; D]): no padding, every
+// byte initialised, and all zero bytes are zero sums.
+unsafe impl<const D: usize> bytemuck::Zeroable for NodeSums<D> {}
+// SAFETY: as above.
+unsafe impl<const D: usize> bytemuck::NoUninit for NodeSums<D> {}
 
 impl<const D: usize> NodeSums<D> {
     const ZERO: Self = Self {
@@ -151,6 +158,8 @@ impl<const D: usize> NodeSums<D> {
 #[derive(Debug, Clone)]
 pub(crate) struct Band<T> {
     pub(crate) start: usize,
+    /// The nodes the band holds this time (`sums` may be longer: it keeps its allocation).
+    len: usize,
     pub(crate) sums: Vec<T>,
 }
 
@@ -158,6 +167,7 @@ impl<T> Default for Band<T> {
     fn default() -> Self {
         Self {
             start: 0,
+            len: 0,
             sums: Vec::new(),
         }
     }
@@ -167,7 +177,8 @@ impl<T> Band<T> {
     /// The sums at node i, if the band holds it.
     #[inline]
     pub(crate) fn at(&self, i: usize) -> Option<&T> {
-        self.sums.get(i.wrapping_sub(self.start))
+        let k = i.wrapping_sub(self.start);
+        (k < self.len).then(|| &self.sums[k])
     }
 }
 
@@ -188,9 +199,11 @@ pub(crate) fn interpolate<const D: usize>(
 }
 
 /// Runs `scatter` on every band of `bands` (one per rayon thread) with that band's contiguous
-/// range of particles, after sizing the band to the nodes those particles reach and filling it
-/// with `zero`. A band keeps its allocation from call to call and grows only when its
-/// particles spread over more nodes.
+/// range of particles, after sizing the band to the nodes those particles reach and setting it
+/// to `zero` (all zero bytes). A band keeps its allocation from call to call and grows only
+/// when its particles spread over more nodes; it is allocated and cleared as the grid's node
+/// arrays are ([`crate::pages`]), so that the band's nodes no particle reaches (the air
+/// beside the water in the rows the band spans) hold no memory.
 pub(crate) fn scatter_bands<const D: usize, T, F>(
     bands: &mut [Band<T>],
     zero: T,
@@ -198,9 +211,10 @@ pub(crate) fn scatter_bands<const D: usize, T, F>(
     x: &[Vector<D>],
     scatter: F,
 ) where
-    T: Copy + Send + Sync,
+    T: bytemuck::NoUninit + bytemuck::Zeroable + Send + Sync,
     F: Fn(&mut Band<T>, std::ops::Range<usize>) + Sync,
 {
+    debug_assert!(bytemuck::bytes_of(&zero).iter().all(|&b| b == 0));
     let particles = x.len();
     let per = particles.div_ceil(bands.len()).max(1);
     // a stencil reaches at most PAD nodes either side of its particle's cell on each axis
@@ -212,11 +226,17 @@ pub(crate) fn scatter_bands<const D: usize, T, F>(
             .iter()
             .map(|x| geo.cell_of(x))
             .fold((usize::MAX, 0), |(lo, hi), c| (lo.min(c), hi.max(c)));
-        band.sums.clear();
+        band.len = 0;
         if lo <= hi {
             band.start = lo.saturating_sub(reach);
-            band.sums
-                .resize((hi + reach + 1).min(nodes) - band.start, zero);
+            band.len = (hi + reach + 1).min(nodes) - band.start;
+        }
+        if band.sums.len() < band.len {
+            band.sums = crate::pages::zeroed(band.len);
+        } else {
+            band.sums[..band.len]
+                .iter_mut()
+                .for_each(|s| store(s, zero));
         }
         scatter(band, range)
     });
@@ -269,7 +289,7 @@ pub(crate) fn scatter_weighted<const D: usize, T, V>(
     contribution: impl Fn(&V, &NodeWeight<D>) -> T + Sync,
     out: &mut [T],
 ) where
-    T: bytemuck::NoUninit + Send + Sync + std::ops::AddAssign,
+    T: bytemuck::NoUninit + bytemuck::Zeroable + Send + Sync + std::ops::AddAssign,
 {
     let (geo, shape, x, half_width) = (points.geo, points.shape, points.x, points.half_width);
     bands.resize_with(rayon::current_num_threads().max(1), Band::default);
