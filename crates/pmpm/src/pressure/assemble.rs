@@ -311,7 +311,7 @@ pub fn assemble<const D: usize>(
     rhs: &mut Vec<f64>,
 ) {
     let (bins, kinds, phi, dirichlet) = (q.bins, rows.kinds, rows.phi, rows.dirichlet);
-    let (row_of, node_of_row) = (&rows.unknowns.row_of, &rows.unknowns.node_of_row);
+    let (unknowns, node_of_row) = (rows.unknowns, &rows.unknowns.node_of_row);
     let w = shape.width();
     let span = 2 * w - 1;
     let slots = row_width::<D>(shape);
@@ -323,7 +323,7 @@ pub fn assemble<const D: usize>(
         .zip(rhs.par_iter_mut())
         .zip(node_of_row.par_iter())
         .for_each(|(((cols, vals), b), &i)| {
-            let row = row_of[i as usize];
+            let row = unknowns.row(i as usize);
             let node = geo.multi(i as usize);
             let mut acc = [0.0f64; MAX_SLOTS];
             let mut source = 0.0;
@@ -358,7 +358,7 @@ pub fn assemble<const D: usize>(
                     0
                 };
                 if valid && kinds[jf] == NodeKind::Interior && acc[s] != 0.0 {
-                    *col = row_of[jf];
+                    *col = unknowns.row(jf);
                     *val = acc[s];
                 } else {
                     let t = match phi {

@@ -1019,7 +1019,9 @@ fn describe_layout<const D: usize>(
 /// The numbering of a solve's unknowns: the interior nodes, a row each.
 #[derive(Debug, Default)]
 pub struct Unknowns {
-    /// Each node's row, or `u32::MAX` where it is not an unknown.
+    /// Each node's row + 1, 0 where it is not an unknown (zero off the fluid, so that the
+    /// array holds memory only where the fluid is: [`crate::pages`]); [`Unknowns::row`]
+    /// reads it.
     pub row_of: Vec<u32>,
     /// Each row's node.
     pub node_of_row: Vec<u32>,
@@ -1028,6 +1030,12 @@ pub struct Unknowns {
 }
 
 impl Unknowns {
+    /// Node i's row, or `u32::MAX` where it is not an unknown.
+    #[inline]
+    pub fn row(&self, i: usize) -> u32 {
+        self.row_of[i].wrapping_sub(1)
+    }
+
     /// Numbers the interior nodes (a periodic image shares its node's row) and returns the
     /// number of free-surface nodes.
     pub fn number<const D: usize>(
@@ -1035,8 +1043,8 @@ impl Unknowns {
         geo: &crate::grid::GridGeometry<D>,
         kinds: &[NodeKind],
     ) -> usize {
-        self.row_of.clear();
-        self.row_of.resize(geo.node_count(), u32::MAX);
+        pages::fit(&mut self.row_of, geo.node_count());
+        pages::reset(&mut self.row_of);
         self.node_of_row.clear();
         let mut free = 0usize;
         for (i, k) in kinds.iter().enumerate() {
@@ -1045,7 +1053,7 @@ impl Unknowns {
             }
             match k {
                 NodeKind::Interior => {
-                    self.row_of[i] = self.node_of_row.len() as u32;
+                    self.row_of[i] = self.node_of_row.len() as u32 + 1;
                     self.node_of_row.push(i as u32);
                 }
                 NodeKind::FreeSurface => free += 1,

@@ -872,7 +872,7 @@ impl<const D: usize> RigidBodies<D> {
     /// weak form). The assembly integrates the first term; this adds the second,
     /// -(1/dt) sum_g w_g N_i(x_g) (V_b - v(x_g)) . n_g, over the face points the level set
     /// `phi` reads as wet, to the right-hand sides `rhs` of the rows `row_of` numbers (each
-    /// node's row, `u32::MAX` where it has none).
+    /// node's row + 1, 0 where it has none).
     pub fn add_face_flux(
         &self,
         geo: &GridGeometry<D>,
@@ -892,7 +892,8 @@ impl<const D: usize> RigidBodies<D> {
             st.for_each(|nw| vn += nw.n * v[geo.flat(&nw.node)][f.axis]);
             let jump = f.sign * (self.velocity[f.body][f.axis] - vn) * f.weight / dt;
             st.for_each(|nw| {
-                let r = row_of[geo.canonical(geo.flat(&nw.node))];
+                // (row + 1 stored, 0 off the unknowns: pressure::Unknowns::row_of)
+                let r = row_of[geo.canonical(geo.flat(&nw.node))].wrapping_sub(1);
                 if r != u32::MAX {
                     rhs[r as usize] -= nw.n * jump;
                 }
