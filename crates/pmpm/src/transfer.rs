@@ -232,7 +232,9 @@ pub(crate) fn scatter_bands<const D: usize, T, F>(
             band.len = (hi + reach + 1).min(nodes) - band.start;
         }
         if band.sums.len() < band.len {
-            band.sums = crate::pages::zeroed(band.len);
+            // a quarter more than asked: the particles spread a little every step, and each
+            // new allocation faults its pages in again
+            band.sums = crate::pages::zeroed(band.len + band.len / 4);
         } else {
             band.sums[..band.len]
                 .iter_mut()
