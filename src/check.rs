@@ -852,7 +852,7 @@ fn output_and_memory<const D: usize>(
     let committed = pmpm::limits::estimate(deck).committed_nodes;
     *out += &format!(
         "  memory           about {} ({} MB, {} B per particle and {} B per node for the {} \
-         nodes of the rows the bodies cross{meshes}, from the benchmarks)\n",
+         nodes the bodies reach{meshes}, from the benchmarks)\n",
         bytes(model.memory(n, committed) + triangles * pmpm::limits::BYTES_PER_TRIANGLE),
         pmpm::limits::BYTES_BASE / 1e6,
         model.per_particle,

@@ -69,6 +69,9 @@ impl MemoryModel {
     }
 }
 
+/// Nodes along axis 0 of a page of a node array: 4 KiB holds 512 `f64` or 256 2D vectors.
+const PAGE_NODES: f64 = 256.0;
+
 /// The program itself with its threads, its output buffers and a small grid's fixed costs:
 /// the peak of the smallest decks (13.0 MB for the tutorial's 1,600 particles, of which its
 /// particles and rows take about 3).
@@ -86,8 +89,9 @@ pub struct Estimate {
     pub particles: f64,
     /// Grid nodes, with the ghost layers.
     pub nodes: f64,
-    /// The nodes whose memory the run holds: the rows of nodes along axis 0 that the bodies
-    /// cross (their node arrays commit pages only where the material writes, [`crate::pages`]).
+    /// The nodes whose memory the run holds: in the rows of nodes along axis 0 that the
+    /// bodies cross, the run each covers and about a page more (the node arrays commit pages
+    /// only where the material writes, [`crate::pages`]).
     pub committed_nodes: f64,
     /// Peak memory in bytes (with the meshes' triangles).
     pub memory: f64,
@@ -173,7 +177,8 @@ pub fn estimate(deck: &Deck) -> Estimate {
     let cells: Vec<f64> = g.size.iter().map(|s| (s / h).round()).collect();
     let pad = 2.0 * crate::shape::PAD as f64 + 1.0;
     let nodes: f64 = cells.iter().map(|c| c + pad).product();
-    let mut rows_crossed = 0.0;
+    let row = cells[0] + pad;
+    let mut crossed = 0.0;
     let particles: f64 = deck
         .bodies
         .iter()
@@ -191,11 +196,13 @@ pub fn estimate(deck: &Deck) -> Estimate {
                 .collect();
             let boxed: f64 = (0..dim).map(|d| (z[d] - a[d]).max(0.0)).product();
             if boxed > 0.0 {
-                // the rows of nodes along axis 0 the body's box crosses, with the nodes its
-                // particles' stencils reach on either side
-                rows_crossed += (1..dim)
-                    .map(|d| ((z[d] - a[d]) / h).ceil() + pad)
-                    .product::<f64>();
+                // the node arrays hold pages only where the material writes them
+                // (crate::pages), a page a run of nodes along axis 0: the rows of nodes the
+                // body's box crosses, with the nodes its particles' stencils reach on either
+                // side, each for the run the box covers and about a page more
+                let rows: f64 = (1..dim).map(|d| ((z[d] - a[d]) / h).ceil() + pad).product();
+                let run = ((z[0] - a[0]) / h).ceil() + pad + PAGE_NODES;
+                crossed += rows * run.min(row);
             }
             const N: usize = 16;
             let total = N.pow(dim as u32);
@@ -215,12 +222,9 @@ pub fn estimate(deck: &Deck) -> Estimate {
             (boxed * fill / spacing.powi(dim as i32)).round()
         })
         .sum();
-    let rows = nodes / (cells[0] + pad);
-    // the node arrays hold pages only where the material writes them (crate::pages), a page
-    // a run of nodes along axis 0: the rows the bodies cross, whole, count; an inflow's water
-    // may go anywhere, so with one the whole box counts
+    // an inflow's water may go anywhere: with one the whole box counts
     let committed = if deck.inflows.is_empty() {
-        nodes * (rows_crossed / rows).min(1.0)
+        crossed.min(nodes)
     } else {
         nodes
     };
