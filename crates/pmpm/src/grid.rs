@@ -231,13 +231,18 @@ pub fn gauss_point<const D: usize>(k: usize) -> Vector<D> {
 /// buffers), so that a node can gather from the particles of the cells around it: the
 /// projection's assembly and corrector are gathers, deterministic for any thread count.
 ///
-/// Cells are numbered like their lower-corner node, so the arrays have one slot per node.
+/// Cells are numbered like their lower-corner node, so the arrays have one slot per node. A
+/// cell's count and start are written only where it holds particles (a running sum of the
+/// counts would be non-zero over the whole box), so the arrays hold memory only where the
+/// particles are ([`crate::pages`]).
 #[derive(Debug, Clone, Default)]
 pub struct CellBins {
     /// Cell (flat, padded) of each particle.
     pub cell_of: Vec<u32>,
-    /// Particles of cell c are `order[start[c]..start[c + 1]]`.
-    pub start: Vec<u32>,
+    /// Particles in each cell.
+    count: Vec<u32>,
+    /// Where a cell's particles start in `order` (meaningful where `count` is not zero).
+    start: Vec<u32>,
     /// Particle ids sorted by cell, in increasing id within a cell.
     pub order: Vec<u32>,
 }
@@ -245,6 +250,7 @@ pub struct CellBins {
 impl CellBins {
     /// Sorts the particles at `x` into the cells of `geo`.
     pub fn sort<const D: usize>(&mut self, geo: &GridGeometry<D>, x: &[Vector<D>]) {
+        use crate::pages;
         use rayon::prelude::*;
         let n_cells = geo.node_count();
         self.cell_of.resize(x.len(), 0);
@@ -252,31 +258,36 @@ impl CellBins {
             .par_iter_mut()
             .zip(x.par_iter())
             .for_each(|(c, x)| *c = geo.cell_of(x) as u32);
-        self.start.clear();
-        self.start.resize(n_cells + 1, 0);
+        pages::fit(&mut self.count, n_cells);
+        pages::fit(&mut self.start, n_cells);
+        pages::reset(&mut self.count);
         for &c in &self.cell_of {
-            self.start[c as usize + 1] += 1;
+            self.count[c as usize] += 1;
         }
-        for c in 0..n_cells {
-            self.start[c + 1] += self.start[c];
+        let mut running = 0u32;
+        for (start, &count) in self.start.iter_mut().zip(&self.count) {
+            if count > 0 {
+                pages::store(start, running);
+                running += count;
+            }
         }
         self.order.resize(x.len(), 0);
-        // fill with a running cursor per cell, kept in `start` shifted by one and restored
+        // fill with a running cursor per cell, kept in `count` counted up again from zero
+        pages::reset(&mut self.count);
         for (p, &c) in self.cell_of.iter().enumerate() {
-            let slot = &mut self.start[c as usize];
-            self.order[*slot as usize] = p as u32;
-            *slot += 1;
+            let c = c as usize;
+            self.order[(self.start[c] + self.count[c]) as usize] = p as u32;
+            self.count[c] += 1;
         }
-        for c in (1..=n_cells).rev() {
-            self.start[c] = self.start[c - 1];
-        }
-        self.start[0] = 0;
     }
 
     /// The particles of flat cell `c`.
     #[inline]
     pub fn particles(&self, c: usize) -> &[u32] {
-        &self.order[self.start[c] as usize..self.start[c + 1] as usize]
+        match self.count[c] {
+            0 => &[],
+            n => &self.order[self.start[c] as usize..(self.start[c] + n) as usize],
+        }
     }
 }
 
