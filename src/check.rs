@@ -850,10 +850,19 @@ fn output_and_memory<const D: usize>(
     };
     let model = pmpm::limits::MemoryModel::of(deck);
     let committed = pmpm::limits::estimate(deck).committed_nodes;
+    let box_nodes = geo.node_count() as f64;
+    let viscous = if model.per_box_node > 0.0 {
+        format!(
+            ", {} B per node of the grid (the viscous solve)",
+            model.per_box_node
+        )
+    } else {
+        String::new()
+    };
     *out += &format!(
         "  memory           about {} ({} MB, {} B per particle and {} B per node for the {} \
-         nodes the bodies reach{meshes}, from the benchmarks)\n",
-        bytes(model.memory(n, committed) + triangles * pmpm::limits::BYTES_PER_TRIANGLE),
+         nodes the bodies reach{viscous}{meshes}, from the benchmarks)\n",
+        bytes(model.memory(n, committed, box_nodes) + triangles * pmpm::limits::BYTES_PER_TRIANGLE),
         pmpm::limits::BYTES_BASE / 1e6,
         model.per_particle,
         model.per_node,

@@ -21,8 +21,11 @@ pub const MAX_STEPS: f64 = 1e9;
 pub struct MemoryModel {
     /// Bytes per particle.
     pub per_particle: f64,
-    /// Bytes per grid node.
+    /// Bytes per grid node the bodies reach ([`Estimate::committed_nodes`]).
     pub per_node: f64,
+    /// Bytes per node of the whole grid: the implicit viscous solve's arrays, which are
+    /// written over the box.
+    pub per_box_node: f64,
 }
 
 impl MemoryModel {
@@ -51,21 +54,27 @@ impl MemoryModel {
             ShapeFunction::Bspline3 => 2,
         };
         let three = usize::from(s.dimension == 3);
-        let (mut per_particle, mut per_node) = table[three][width];
+        let (mut per_particle, per_node) = table[three][width];
         // the implicit viscous solve's quadrature points, mask, diagonal and work vectors
+        let mut per_box_node = 0.0;
         if deck.viscous_solve() {
             per_particle += [100.0, 190.0][three];
-            per_node += [130.0, 140.0][three];
+            per_box_node = [130.0, 140.0][three];
         }
         Self {
             per_particle,
             per_node,
+            per_box_node,
         }
     }
 
-    /// Peak memory in bytes of a run of `particles` particles on `nodes` grid nodes.
-    pub fn memory(&self, particles: f64, nodes: f64) -> f64 {
-        BYTES_BASE + particles * self.per_particle + nodes * self.per_node
+    /// Peak memory in bytes of a run of `particles` particles, `nodes` grid nodes the bodies
+    /// reach and `box_nodes` in the whole grid.
+    pub fn memory(&self, particles: f64, nodes: f64, box_nodes: f64) -> f64 {
+        BYTES_BASE
+            + particles * self.per_particle
+            + nodes * self.per_node
+            + box_nodes * self.per_box_node
     }
 }
 
@@ -228,7 +237,7 @@ pub fn estimate(deck: &Deck) -> Estimate {
     } else {
         nodes
     };
-    let memory = MemoryModel::of(deck).memory(particles, committed)
+    let memory = MemoryModel::of(deck).memory(particles, committed, nodes)
         + deck.mesh_triangles as f64 * BYTES_PER_TRIANGLE;
     let (speeds, rigid) = prescribed_speeds(deck);
     let (flow_steps, steps) = steps(deck, &speeds);
