@@ -251,7 +251,7 @@ impl<const D: usize> NodalAveraging<D> {
         let shape = ShapeFunction::from_code(S);
         // particles -> nodes: volume-weighted sums, per thread
         scatter_bands(&mut self.bands, [0.0; 2], geo, &ps.x, |band, range| {
-            let (start, acc) = (band.start, &mut band.sums);
+            let (start, acc) = band.sums_mut();
             for p in range {
                 let vol = weight(p);
                 let v = value(p);

@@ -157,10 +157,10 @@ impl<const D: usize> NodeSums<D> {
 /// averaging.
 #[derive(Debug, Clone)]
 pub(crate) struct Band<T> {
-    pub(crate) start: usize,
+    start: usize,
     /// The nodes the band holds this time (`sums` may be longer: it keeps its allocation).
     len: usize,
-    pub(crate) sums: Vec<T>,
+    sums: Vec<T>,
 }
 
 impl<T> Default for Band<T> {
@@ -179,6 +179,12 @@ impl<T> Band<T> {
     pub(crate) fn at(&self, i: usize) -> Option<&T> {
         let k = i.wrapping_sub(self.start);
         (k < self.len).then(|| &self.sums[k])
+    }
+
+    /// The first node and the sums of the nodes the band holds (node i at `i - start`).
+    #[inline]
+    pub(crate) fn sums_mut(&mut self) -> (usize, &mut [T]) {
+        (self.start, &mut self.sums[..self.len])
     }
 }
 
@@ -298,7 +304,7 @@ pub(crate) fn scatter_weighted<const D: usize, T, V>(
     crate::with_shape!(shape, S => {
         let shape = ShapeFunction::from_code(S);
         scatter_bands(bands, zero, geo, x, |band, range| {
-            let (start, acc) = (band.start, &mut band.sums);
+            let (start, acc) = band.sums_mut();
             for p in range {
                 let v = value(p);
                 let st = Stencil::<D>::new(shape, &geo.to_cells(&x[p]), geo.h, half_width[p]);
@@ -385,7 +391,7 @@ fn scatter_p2g<const D: usize, const S: u8>(
     let geo = &grid.geo;
     let apic = s.transfer == Transfer::Apic;
     scratch.scatter(geo, &ps.x, |band, range| {
-        let (start, acc) = (band.start, &mut band.sums);
+        let (start, acc) = band.sums_mut();
         for p in range {
             let m = ps.mass[p];
             let vol = ps.volume(p);
@@ -526,7 +532,7 @@ fn scatter_remap<const D: usize, const S: u8>(
     let geo = &grid.geo;
     let apic = s.transfer == Transfer::Apic;
     scratch.scatter(geo, &ps.x, |band, range| {
-        let (start, acc) = (band.start, &mut band.sums);
+        let (start, acc) = band.sums_mut();
         for p in range {
             let m = ps.mass[p];
             let xp = ps.x[p];
