@@ -501,7 +501,7 @@ fn particle_field<'py, const D: usize>(
         "pressure" => scalar(&|p| ps.pressure[p]),
         "shear_rate" => scalar(&|p| grid_fields::particle_shear_rate(ps, p)),
         "yielded" => scalar(&|p| grid_fields::particle_yielded(sim, p)),
-        "stress" => tensors::<D>(&at, |p| grid_fields::particle_stress(ps, p))
+        "stress" => tensors::<D>(&at, |p| grid_fields::particle_stress(sim, p))
             .into_pyarray(py)
             .into_any(),
         "strain_rate" => tensors::<D>(&at, |p| grid_fields::particle_strain_rate(ps, p))

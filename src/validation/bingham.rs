@@ -155,7 +155,7 @@ fn rows(sim: &Simulation<2>, h: f64, width: f64) -> Vec<RowState> {
         let k = ((ps.x[p][1] / (h / 2.0)).floor().max(0.0) as usize).min(n - 1);
         sum[k].0 += ps.x[p][1];
         sum[k].1 += ps.v[p][0];
-        sum[k].2 += sqrt_j2(&ps.tau[p]);
+        sum[k].2 += sqrt_j2(&pmpm::material::deviatoric_stress(ps, &sim.materials, p));
         sum[k].3 += 1;
     }
     sum.iter()

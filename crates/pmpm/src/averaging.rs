@@ -188,12 +188,13 @@ impl<const D: usize> NodalAveraging<D> {
                     |p| ps.jacobian[p],
                 );
                 let average = &self.average;
+                let n = ps.len();
                 (
                     ps.x.par_iter(),
                     ps.half_width.par_iter(),
                     ps.material.par_iter(),
                     ps.jacobian.par_iter_mut(),
-                    ps.deformation.par_iter_mut(),
+                    crate::material::optional_mut(&mut ps.deformation, n),
                 )
                     .into_par_iter()
                     .for_each(|(x, &lp, &mp, j, f)| {
@@ -202,7 +203,9 @@ impl<const D: usize> NodalAveraging<D> {
                         }
                         let new = *j + share * (interpolate::<D, S>(geo, average, x, lp) - *j);
                         if new > 0.0 && *j > 0.0 {
-                            *f *= (new / *j).powf(1.0 / D as f64);
+                            if let Some(f) = f {
+                                *f *= (new / *j).powf(1.0 / D as f64);
+                            }
                             *j = new;
                         }
                     });

@@ -11,7 +11,7 @@ use crate::deck::Deck;
 use crate::error::Error;
 use crate::flow::Ledger;
 use crate::grid::Vector;
-use crate::particles::{FieldValue, FlatParticles, FlatSlice, Particles};
+use crate::particles::{FieldValue, FlatParticles, FlatSlice, Particles, Stored};
 use crate::scheme::Simulation;
 use serde::{Deserialize, Serialize};
 use std::io::{Seek, SeekFrom, Write};
@@ -562,7 +562,7 @@ fn check_particles<const D: usize>(
         s,
         n,
         id_limit,
-        sim.materials.len(),
+        (sim.materials.len(), sim.particles.stored),
         &sim.grid.geo,
         node_pressure_len,
         variable_body_force,
@@ -578,7 +578,10 @@ fn restore<const D: usize>(
     flow: Option<Ledger>,
     free: Option<Vec<crate::rigid::FreeState>>,
 ) -> DriverState {
+    let stored = sim.particles.stored;
     sim.particles = Particles::unflatten(&s.particles);
+    // a checkpoint of a build that stored every field resumes in one that stores fewer
+    sim.particles.set_stored(stored);
     sim.time = s.time;
     sim.steps = s.steps;
     if let Some(f) = sim.body_force_values_mut() {
@@ -607,7 +610,7 @@ fn consistent<const D: usize>(
     s: &State<D>,
     n: usize,
     id_limit: usize,
-    materials: usize,
+    materials: (usize, Stored),
     geo: &crate::grid::GridGeometry<D>,
     node_pressure_len: Option<usize>,
     variable_body_force: bool,
@@ -662,16 +665,17 @@ fn consistent_driver<const D: usize>(s: &State<D>) -> Result<(), String> {
 }
 
 /// The particle fields of a decoded state: their lengths, ids, material indices, finite and
-/// positive values, and positions inside the grid ([`consistent`]).
+/// positive values, and positions inside the grid ([`consistent`]), for a run of `materials`
+/// materials that stores the optional fields `stored`.
 fn consistent_particles<const D: usize>(
     s: &State<D>,
     n: usize,
     id_limit: usize,
-    materials: usize,
+    (materials, stored): (usize, Stored),
     geo: &crate::grid::GridGeometry<D>,
 ) -> Result<(), String> {
     let ps = &s.particles;
-    let lengths = ps.lengths(n);
+    let lengths = ps.lengths(n, stored);
     if let Some((name, got, want)) = lengths.iter().find(|(_, got, want)| got != want) {
         return Err(format!(
             "its particle field {name} holds {got} values, {want} expected"
@@ -808,8 +812,8 @@ particles_per_cell = 2
                 s.particles.v[0] = f64::INFINITY
             }),
             ("has jacobian = -1", |s| s.particles.jacobian[2] = -1.0),
-            ("particle field tau holds", |s| {
-                s.particles.tau.pop();
+            ("particle field velocity_gradient holds", |s| {
+                s.particles.velocity_gradient.pop();
             }),
             ("its frame list names", |s| {
                 s.driver.pvd.push((0.0, "\"/><x".into()));
@@ -831,6 +835,44 @@ particles_per_cell = 2
             assert_eq!(fresh.particles.material, vec![0; fresh.particles.len()]);
         }
         assert_eq!(good.particles.material.len(), sim.particles.len());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A water run stores neither F nor tau; the checkpoint of a build that stored them (full
+    /// arrays) still resumes, and they are dropped; a tau of the wrong length is refused.
+    #[test]
+    fn a_checkpoint_with_every_field_resumes_in_a_lean_run() {
+        let (sim, deck, driver) = small();
+        assert_eq!(
+            sim.particles.stored,
+            Stored {
+                deformation: false,
+                stress: false
+            }
+        );
+        assert!(sim.particles.deformation.is_empty() && sim.particles.tau.is_empty());
+        let dir = std::env::temp_dir().join(format!("pmpm-ck-full-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("checkpoint.bin");
+        write(&path, &deck, &sim, &driver).unwrap();
+        let mut full = decode::<2>(&std::fs::read(&path).unwrap()).unwrap().0;
+        let n = sim.particles.len();
+        full.particles.deformation = [1.0, 0.0, 0.0, 1.0].repeat(n);
+        full.particles.tau = vec![0.0; 4 * n];
+        std::fs::write(&path, encode(&full)).unwrap();
+        let (mut resumed, _, _) = small();
+        if let Err(e) = read(&path, &deck, &mut resumed) {
+            panic!("the full checkpoint: {e}");
+        }
+        assert!(resumed.particles.deformation.is_empty() && resumed.particles.tau.is_empty());
+        assert_eq!(resumed.particles.x, sim.particles.x);
+        full.particles.tau.pop();
+        std::fs::write(&path, encode(&full)).unwrap();
+        let (mut fresh, _, _) = small();
+        match read(&path, &deck, &mut fresh) {
+            Err(Error::Usage(m)) => assert!(m.contains("particle field tau holds"), "{m}"),
+            other => panic!("a short tau: {:?}", other.map(|_| ())),
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 
@@ -862,8 +904,8 @@ particles_per_cell = 2
         assert_eq!(encode(&state), bytes);
         assert_eq!(state.particles.x, FieldValue::flatten(&sim.particles.x));
         assert_eq!(
-            state.particles.deformation,
-            FieldValue::flatten(&sim.particles.deformation)
+            state.particles.velocity_gradient,
+            FieldValue::flatten(&sim.particles.velocity_gradient)
         );
         assert_eq!(
             state.node_pressure,

@@ -192,9 +192,13 @@ impl<const D: usize> Inflow<D> {
                 out.mass.push(mass);
                 out.volume0.push(volume);
                 out.jacobian.push(1.0);
-                out.deformation.push(Matrix::<D>::identity());
+                if out.stored.deformation {
+                    out.deformation.push(Matrix::<D>::identity());
+                }
                 out.pressure.push(0.0);
-                out.tau.push(Matrix::<D>::zeros());
+                if out.stored.stress {
+                    out.tau.push(Matrix::<D>::zeros());
+                }
                 out.velocity_gradient.push(Matrix::<D>::zeros());
                 out.affine.push(Matrix::<D>::zeros());
                 out.material.push(self.material);

@@ -234,7 +234,8 @@ fn wall_force<const D: usize>(sim: &Simulation<D>, face: usize) -> Vector<D> {
             continue;
         }
         // sigma e_a = -p e_a + tau e_a
-        let mut sigma_a = ps.tau[p].column(a).into_owned();
+        let tau = crate::material::deviatoric_stress(ps, &sim.materials, p);
+        let mut sigma_a = tau.column(a).into_owned();
         sigma_a[a] -= ps.pressure[p];
         f += sigma_a * (sign * ps.volume(p) / h) + g * (ps.mass[p] * (1.0 - gap / h));
     }

@@ -31,8 +31,9 @@ fn pad9<const D: usize>(m: &crate::particles::Matrix<D>) -> [f64; 9] {
 
 /// Per particle: its Cauchy stress -p I + tau (Pa), its strain rate sym L (1/s), both as
 /// 3 x 3 tensors row by row, and its shear rate sqrt(2 dev D : dev D) (1/s).
-pub fn particle_stress<const D: usize>(ps: &Particles<D>, p: usize) -> [f64; 9] {
-    let mut s = pad9(&ps.tau[p]);
+pub fn particle_stress<const D: usize>(sim: &Simulation<D>, p: usize) -> [f64; 9] {
+    let ps = &sim.particles;
+    let mut s = pad9(&crate::material::deviatoric_stress(ps, &sim.materials, p));
     for d in 0..D {
         s[4 * d] -= ps.pressure[p];
     }
@@ -58,7 +59,8 @@ pub fn particle_shear_rate<const D: usize>(ps: &Particles<D>, p: usize) -> f64 {
 pub fn particle_yielded<const D: usize>(sim: &Simulation<D>, p: usize) -> f64 {
     let ps = &sim.particles;
     let law = &sim.materials[ps.material[p] as usize].law;
-    match law.yielded(&ps.tau[p], &ps.velocity_gradient[p]) {
+    let tau = crate::material::deviatoric_stress(ps, &sim.materials, p);
+    match law.yielded(&tau, &ps.velocity_gradient[p]) {
         Some(true) => 1.0,
         _ => 0.0,
     }
@@ -132,7 +134,7 @@ impl NodeFields {
             let base: [isize; D] = std::array::from_fn(|d| xc[d].floor() as isize);
             let m = ps.mass[p];
             let (v, pr, vol) = (pad3(&ps.v[p]), ps.pressure[p], ps.volume(p));
-            let (rate, sigma) = (particle_strain_rate(ps, p), particle_stress(ps, p));
+            let (rate, sigma) = (particle_strain_rate(ps, p), particle_stress(sim, p));
             let shear = particle_shear_rate(ps, p);
             let yielded = yields.then(|| particle_yielded(sim, p));
             for corner in 0..(1usize << D) {

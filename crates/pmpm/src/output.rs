@@ -931,7 +931,7 @@ fn vtu_point_data<const D: usize>(sim: &Simulation<D>, at: &[usize]) -> Vec<Arra
             name: "stress",
             vtk_type: "Float64",
             components: 9,
-            bytes: f64s(at.iter().flat_map(|&p| particle_stress(ps, p))),
+            bytes: f64s(at.iter().flat_map(|&p| particle_stress(sim, p))),
         },
         Array {
             name: "strain_rate",

@@ -121,6 +121,9 @@ macro_rules! particle_fields {
         #[derive(Debug, Clone, Default)]
         pub struct Particles<const D: usize> {
             $($(#[doc = $doc])+ pub $name: Vec<$ty>,)+
+            /// Which of the optional fields (`deformation`, `tau`) the arrays hold: those the
+            /// run's materials need ([`Particles::set_stored`]); the others are empty.
+            pub stored: Stored,
         }
 
         /// The particle arrays as plain numbers, in the order of [`Particles`]: what a
@@ -171,6 +174,19 @@ macro_rules! particle_fields {
                 $(self.$name.append(&mut other.$name);)+
             }
 
+            /// Whether every array that should hold a value per particle does: the required
+            /// fields always, the optional ones where [`Particles::stored`] says so.
+            pub fn is_consistent(&self) -> bool {
+                let n = self.len();
+                $(
+                    let want = if self.stored.holds(stringify!($name)) { n } else { 0 };
+                    if self.$name.len() != want {
+                        return false;
+                    }
+                )+
+                true
+            }
+
             /// Gives back the arrays' unused capacity.
             pub fn shrink_to_fit(&mut self) {
                 $(self.$name.shrink_to_fit();)+
@@ -194,6 +210,7 @@ macro_rules! particle_fields {
             pub fn unflatten(flat: &FlatParticles<D>) -> Self {
                 Self {
                     $($name: <$ty as FieldValue>::unflatten(&flat.$name),)+
+                    stored: Stored::default(),
                 }
             }
         }
@@ -212,9 +229,17 @@ macro_rules! particle_fields {
         }
 
         impl<const D: usize> FlatParticles<D> {
-            /// Each field's name, the numbers it holds and the numbers `n` particles need.
-            pub fn lengths(&self, n: usize) -> Vec<(&'static str, usize, usize)> {
-                vec![$((stringify!($name), self.$name.len(), n * <$ty as FieldValue>::WIDTH),)+]
+            /// Each field's name, the numbers it holds and the numbers `n` particles need,
+            /// for a run that stores the optional fields `stored` says. An optional field the
+            /// run does not store may be empty, or full (a checkpoint of a build that stored
+            /// every field): [`Particles::set_stored`] drops it.
+            pub fn lengths(&self, n: usize, stored: Stored) -> Vec<(&'static str, usize, usize)> {
+                vec![$({
+                    let (name, got) = (stringify!($name), self.$name.len());
+                    let full = n * <$ty as FieldValue>::WIDTH;
+                    let want = if !stored.holds(name) && got == 0 { 0 } else { full };
+                    (name, got, want)
+                },)+]
             }
 
             /// The first field holding a number that is not finite.
@@ -257,7 +282,59 @@ particle_fields! {
     half_width: f64,
 }
 
+/// The optional per-particle fields a run stores: each only where a material of the run reads
+/// it. A Newtonian or viscoplastic fluid's deviatoric stress is a function of its velocity
+/// gradient alone (the material module computes it from L where it is needed), and
+/// its deformation gradient is read by nothing: F and tau are 2 D^2
+/// numbers per particle (64 B in 2D, 144 B in 3D) that a water run need not keep.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Stored {
+    /// F_p: a material whose stress reads it (the neo-Hookean solid).
+    pub deformation: bool,
+    /// tau_p: a material whose stress has a history (a solid, elastic or plastic).
+    pub stress: bool,
+}
+
+impl Default for Stored {
+    /// Every field: what a particle set built field by field (a test, a checkpoint just read)
+    /// holds until [`Particles::set_stored`] says otherwise.
+    fn default() -> Self {
+        Self {
+            deformation: true,
+            stress: true,
+        }
+    }
+}
+
+impl Stored {
+    /// Whether the field `name` is held (every field that is not optional is).
+    pub fn holds(&self, name: &str) -> bool {
+        match name {
+            "deformation" => self.deformation,
+            "tau" => self.stress,
+            _ => true,
+        }
+    }
+}
+
 impl<const D: usize> Particles<D> {
+    /// Keeps the optional fields `stored` names, F = I and tau = 0 where they were not held,
+    /// and drops the others' arrays.
+    pub fn set_stored(&mut self, stored: Stored) {
+        let n = self.len();
+        self.stored = stored;
+        if stored.deformation {
+            self.deformation.resize(n, Matrix::<D>::identity());
+        } else {
+            self.deformation = Vec::new();
+        }
+        if stored.stress {
+            self.tau.resize(n, Matrix::<D>::zeros());
+        } else {
+            self.tau = Vec::new();
+        }
+    }
+
     /// Number of particles.
     pub fn len(&self) -> usize {
         self.x.len()
@@ -303,8 +380,12 @@ pub struct PermuteScratch<const D: usize> {
 }
 
 /// Keeps `field[kept[k]]` at place k and drops the rest (`kept` increasing, so each value
-/// moves down or stays: in place, without a second array).
+/// moves down or stays: in place, without a second array). An optional field the run does not
+/// store is empty and stays so.
 pub fn keep<T: Copy>(field: &mut Vec<T>, kept: &[u32]) {
+    if field.is_empty() {
+        return;
+    }
     for (k, &i) in kept.iter().enumerate() {
         field[k] = field[i as usize];
     }

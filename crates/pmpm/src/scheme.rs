@@ -206,7 +206,7 @@ pub struct Simulation<const D: usize> {
 impl<const D: usize> Simulation<D> {
     /// A simulation at t = 0 from its parts (the `build` module makes them from a deck).
     pub fn from_parts(parts: Parts<D>) -> Self {
-        let n = parts.particles.len();
+        let (n, stored) = (parts.particles.len(), parts.particles.stored);
         let mass0 = parts.particles.mass.iter().sum();
         let body_force = parts.body_force.map(|f| {
             let at = parts.particles.x.iter().map(|x| f.eval(x, 0.0)).collect();
@@ -239,7 +239,10 @@ impl<const D: usize> Simulation<D> {
                 sort_bins: CellBins::default(),
                 sort_scratch: PermuteScratch::default(),
                 kept: Vec::new(),
-                entering: Particles::default(),
+                entering: Particles {
+                    stored,
+                    ..Particles::default()
+                },
             },
             ledger: Ledger {
                 mass0,
@@ -708,7 +711,10 @@ impl<const D: usize> Simulation<D> {
             &mut self.grid,
             &mut self.work.p2g,
             &self.settings,
-            self.body_force.as_ref().map(|(_, f)| &f[..]),
+            (
+                &self.materials,
+                self.body_force.as_ref().map(|(_, f)| &f[..]),
+            ),
         );
         self.sample_probes();
     }

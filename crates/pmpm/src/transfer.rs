@@ -6,6 +6,7 @@
 //! thread count gives bitwise the same result on every run. The buffers are reused every step.
 
 use crate::grid::{Grid, GridGeometry, Vector};
+use crate::material::MaterialParams;
 use crate::pages::store;
 use crate::particles::{Matrix, Particles};
 use crate::shape::{NodeWeight, ShapeFunction, Stencil};
@@ -366,16 +367,17 @@ fn node_velocity<const D: usize>(
 }
 
 /// P2G: node mass, momentum (with APIC's affine term), internal + body force (`body_force`
-/// per particle where it varies, else the settings' constant gravity) and
-/// mass-weighted pressure; then node velocity v_i^n = (m v)_i / m_i and pressure p_i.
+/// per particle where it varies, else the settings' constant gravity; the stress of the
+/// `materials`) and mass-weighted pressure; then node velocity v_i^n = (m v)_i / m_i and
+/// pressure p_i.
 pub fn particles_to_grid<const D: usize>(
     ps: &Particles<D>,
     grid: &mut Grid<D>,
     scratch: &mut P2gScratch<D>,
     s: &TransferSettings<D>,
-    body_force: Option<&[Vector<D>]>,
+    forces: (&[MaterialParams], Option<&[Vector<D>]>),
 ) {
-    crate::with_shape!(s.shape, S => scatter_p2g::<D, S>(ps, grid, scratch, s, body_force));
+    crate::with_shape!(s.shape, S => scatter_p2g::<D, S>(ps, grid, scratch, s, forces));
     gather_p2g(grid, &scratch.bands, s.mass_epsilon);
 }
 
@@ -385,7 +387,7 @@ fn scatter_p2g<const D: usize, const S: u8>(
     grid: &Grid<D>,
     scratch: &mut P2gScratch<D>,
     s: &TransferSettings<D>,
-    body_force: Option<&[Vector<D>]>,
+    (materials, body_force): (&[MaterialParams], Option<&[Vector<D>]>),
 ) {
     let shape = ShapeFunction::from_code(S);
     let geo = &grid.geo;
@@ -399,7 +401,7 @@ fn scatter_p2g<const D: usize, const S: u8>(
             let mut stress = if implicit {
                 Matrix::<D>::zeros()
             } else {
-                ps.tau[p]
+                crate::material::deviatoric_stress(ps, materials, p)
             };
             if s.pressure_weight != 0.0 {
                 for d in 0..D {
@@ -804,7 +806,7 @@ mod tests {
                 let mut scratch = P2gScratch::new(3);
                 let m_p: f64 = ps.mass.iter().sum();
                 let mom_p: Vector<D> = ps.v.iter().zip(&ps.mass).map(|(v, m)| v * *m).sum();
-                particles_to_grid(&ps, &mut grid, &mut scratch, &s, None);
+                particles_to_grid(&ps, &mut grid, &mut scratch, &s, (&[], None));
                 let m_g: f64 = grid.mass.iter().sum();
                 let mom_g: Vector<D> = grid.momentum.iter().sum();
                 assert!((m_g - m_p).abs() < 1e-12 * m_p, "{shape:?} mass");
@@ -888,7 +890,7 @@ mod tests {
             );
         }
         let mut scratch = P2gScratch::new(2);
-        particles_to_grid(&ps, &mut grid, &mut scratch, &s, None);
+        particles_to_grid(&ps, &mut grid, &mut scratch, &s, (&[], None));
         for f in 0..geo.node_count() {
             if grid.mass[f] > 0.0 {
                 let xi = geo.node_position(&geo.multi(f));
@@ -994,7 +996,7 @@ mod tests {
                 let mut ps = lattice();
                 let v0 = ps.v.clone();
                 let mut grid = Grid::new(geo.clone());
-                particles_to_grid(&ps, &mut grid, &mut P2gScratch::new(2), &s, None);
+                particles_to_grid(&ps, &mut grid, &mut P2gScratch::new(2), &s, (&[], None));
                 grid.velocity_new.clone_from(&grid.velocity);
                 let mut adv = vec![Vector::<2>::zeros(); ps.len()];
                 grid_to_particles(&mut ps, &grid, &s, &mut adv);
@@ -1028,8 +1030,8 @@ mod tests {
         let mut g1 = Grid::new(geo.clone());
         let mut g2 = Grid::new(geo.clone());
         let mut scratch = P2gScratch::new(4);
-        particles_to_grid(&ps, &mut g1, &mut scratch, &s, None);
-        particles_to_grid(&ps, &mut g2, &mut scratch, &s, None);
+        particles_to_grid(&ps, &mut g1, &mut scratch, &s, (&[], None));
+        particles_to_grid(&ps, &mut g2, &mut scratch, &s, (&[], None));
         assert_eq!(g1.momentum, g2.momentum);
         assert_eq!(g1.force, g2.force);
     }

@@ -14,7 +14,7 @@ pub use settings::{MaterialDeck, MAX_MATERIAL_PARAMETER};
 pub use viscoplastic::Viscoplastic;
 pub use von_mises::VonMises;
 
-use crate::particles::{Matrix, Particles};
+use crate::particles::{Matrix, Particles, Stored};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -246,6 +246,52 @@ impl Law {
     pub fn has_yield(&self) -> bool {
         matches!(self, Law::Viscoplastic(_) | Law::VonMises(_))
     }
+
+    /// Whether the deviatoric stress is a function of the velocity gradient alone (a fluid:
+    /// Newtonian or viscoplastic), so that a particle need not keep it, nor its F.
+    pub fn of_rate_alone(&self) -> bool {
+        matches!(self, Law::Newtonian(_) | Law::Viscoplastic(_))
+    }
+
+    /// The deviatoric stress of a fluid ([`Law::of_rate_alone`]) at velocity gradient `l`,
+    /// the same numbers as [`Constitutive::stress`] gives it; zero for a solid, whose stress
+    /// the particles keep.
+    #[inline]
+    pub fn stress_of_rate<const D: usize>(&self, l: &Matrix<D>) -> Matrix<D> {
+        match self {
+            Law::Newtonian(m) => m.stress(l, 0.0, &mut Matrix::identity(), 1.0, l),
+            Law::Viscoplastic(m) => m.stress(l, 0.0, &mut Matrix::identity(), 1.0, l),
+            Law::NeoHookean(_) | Law::VonMises(_) => Matrix::zeros(),
+        }
+    }
+}
+
+/// The optional particle fields a run of these materials stores: F where a neo-Hookean solid
+/// reads it, tau where any stress is not a function of the rate alone.
+pub fn stored(materials: &[MaterialParams]) -> Stored {
+    Stored {
+        deformation: materials
+            .iter()
+            .any(|m| matches!(m.law, Law::NeoHookean(_))),
+        stress: materials.iter().any(|m| !m.law.of_rate_alone()),
+    }
+}
+
+/// The deviatoric stress tau_p of particle `p`: as stored, or, where the run keeps none (only
+/// fluids), from its velocity gradient, the L the constitutive update last read.
+#[inline]
+pub fn deviatoric_stress<const D: usize>(
+    ps: &Particles<D>,
+    materials: &[MaterialParams],
+    p: usize,
+) -> Matrix<D> {
+    if ps.stored.stress {
+        ps.tau[p]
+    } else {
+        materials[ps.material[p] as usize]
+            .law
+            .stress_of_rate(&ps.velocity_gradient[p])
+    }
 }
 
 /// Parameters of one material, as the step needs them.
@@ -314,19 +360,22 @@ pub fn det<const D: usize>(m: &Matrix<D>) -> f64 {
 }
 
 /// Updates F, J and the deviatoric stress of every particle from its velocity gradient; with
-/// `equation_of_state`, also p = K (1 - J) (the explicit, weakly compressible scheme).
+/// `equation_of_state`, also p = K (1 - J) (the explicit, weakly compressible scheme). F and
+/// tau only where the run stores them ([`Particles::stored`]): a fluid's stress is read from
+/// its L where it is needed.
 pub fn update<const D: usize>(
     ps: &mut Particles<D>,
     materials: &[MaterialParams],
     dt: f64,
     equation_of_state: bool,
 ) {
+    let n = ps.len();
     let material = &ps.material;
     let grad_v = &ps.velocity_gradient;
     (
-        ps.deformation.par_iter_mut(),
+        optional_mut(&mut ps.deformation, n),
         ps.jacobian.par_iter_mut(),
-        ps.tau.par_iter_mut(),
+        optional_mut(&mut ps.tau, n),
         ps.pressure.par_iter_mut(),
     )
         .into_par_iter()
@@ -335,19 +384,41 @@ pub fn update<const D: usize>(
             let mat = &materials[material[p] as usize];
             let l = &grad_v[p];
             let inc = Matrix::<D>::identity() + l * dt;
-            *f = inc * *f;
+            let mut unit = Matrix::<D>::identity();
+            let f = match f {
+                Some(f) => {
+                    *f = inc * *f;
+                    f
+                }
+                None => &mut unit,
+            };
             // J tracked on its own: for a fluid F grows without bound in shear, and det(F)
             // would lose the volume change in round-off. Its rate is tr L alone, dJ/dt = J tr L,
             // integrated exactly over the step: det(I + dt L) = 1 + dt tr L + O(dt^2 |L|^2)
             // would let a spinning particle grow by (dt omega)^2 per step with no divergence at
             // all (a spinning droplet would swell without bound)
             *j *= (l.trace() * dt).exp();
-            let stress = mat.law.stress(l, dt, f, *j, tau);
-            *tau = stress;
+            if let Some(tau) = tau {
+                *tau = mat.law.stress(l, dt, f, *j, tau);
+            }
             if equation_of_state {
                 *pressure = mat.bulk_modulus * (1.0 - *j);
             }
         });
+}
+
+/// An optional particle field, `n` long: its values, or None for each particle where the run
+/// does not store it (the array is empty). Zipped with the other fields, an empty array would
+/// otherwise cut the whole loop to nothing.
+pub fn optional_mut<T: Send>(
+    field: &mut [T],
+    n: usize,
+) -> impl IndexedParallelIterator<Item = Option<&mut T>> {
+    if field.is_empty() {
+        rayon::iter::Either::Right((0..n).into_par_iter().map(|_| None))
+    } else {
+        rayon::iter::Either::Left(field.par_iter_mut().map(Some))
+    }
 }
 
 /// Whether bit `material` of a set of materials held as a bit mask (bit m for material m, as

@@ -359,7 +359,7 @@ impl<const D: usize> PositionCorrection<D> {
         (
             ps.x.par_iter_mut(),
             ps.half_width.par_iter(),
-            ps.deformation.par_iter_mut(),
+            crate::material::optional_mut(&mut ps.deformation, n),
             ps.jacobian.par_iter_mut(),
         )
             .into_par_iter()
@@ -386,7 +386,9 @@ impl<const D: usize> PositionCorrection<D> {
                 if s <= 1e-3 {
                     return;
                 }
-                *f = inc * *f;
+                if let Some(f) = f {
+                    *f = inc * *f;
+                }
                 *j *= crate::material::det(&inc);
                 *x += shift * s;
             });

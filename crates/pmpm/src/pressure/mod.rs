@@ -455,8 +455,10 @@ impl<const D: usize> Projection<D> {
             .system
             .unknowns
             .number(geo, &self.shared.surface.kinds);
-        // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is
+        // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is (a run
+        // with a solid stores every particle's tau: `material::stored`)
         if self.settings.traction_free {
+            debug_assert!(ps.stored.stress);
             let points = Points {
                 geo,
                 shape,
