@@ -808,7 +808,15 @@ fn output_and_memory<const D: usize>(
     // strain rate, shear rate, stress, yielded)
     let nodes: f64 = geo.cells.iter().map(|&c| (c + 1) as f64).product();
     let vti = 8.0 * 27.0 * nodes;
-    let checkpoint = 8.0 * (2 * D + 5 + 4 * D * D) as f64 + 6.0;
+    // four D x D matrices (F, tau, L, C), less F and tau where no material reads them
+    let materials: Vec<_> = deck
+        .materials
+        .iter()
+        .map(pmpm::material::MaterialDeck::params)
+        .collect();
+    let stored = pmpm::material::stored(&materials);
+    let matrices = 2 + usize::from(stored.deformation) + usize::from(stored.stress);
+    let checkpoint = 8.0 * (2 * D + 5 + matrices * D * D) as f64 + 6.0;
     let formats = &deck.output.formats;
     let has = |f: pmpm::deck::Format| formats.contains(&f);
     let per_frame =
