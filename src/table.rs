@@ -45,6 +45,12 @@ impl Table {
         Ok(Self { header, rows })
     }
 
+    /// The values of the column `name`, one per row (None without such a column).
+    pub fn column(&self, name: &str) -> Option<Vec<f64>> {
+        let k = self.header.iter().position(|h| h == name)?;
+        Some(self.rows.iter().map(|r| r[k]).collect())
+    }
+
     /// Reads and parses the file at `path`; errors name the file.
     pub fn read(path: &std::path::Path) -> Result<Self, String> {
         let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;

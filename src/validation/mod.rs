@@ -118,6 +118,21 @@ impl Row {
         }
     }
 
+    /// A row held to `value >= limit` when `applies`, report only otherwise (`quick` says why).
+    pub fn at_least(
+        metric: impl Into<String>,
+        value: f64,
+        limit: f64,
+        fmt: impl Fn(f64) -> String,
+        applies: bool,
+        quick: bool,
+    ) -> Row {
+        // -value <= -limit, with the signs put back in the words
+        let mut row = Row::bounded(metric, -value, -limit, |v| fmt(-v), applies, quick);
+        row.bound = format!(">= {}", fmt(limit));
+        row
+    }
+
     /// A row with no bound.
     pub fn report(metric: impl Into<String>, measured: impl Into<String>) -> Row {
         Row {

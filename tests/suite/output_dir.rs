@@ -137,3 +137,54 @@ fn a_resume_writes_only_into_its_own_run_or_a_new_directory() {
     assert_eq!(run(&["run", &deck, "-o", sa, "-q", "--resume", ck]).0, 0);
     assert_eq!(frames(&a), frames(&b));
 }
+
+/// series.csv closes every row with the particles' interior fill: 1 to round-off for the
+/// block as seeded (frame 0), with every interior node within 5 %; a row an earlier build wrote
+/// without those columns gets NaN in them when the run is resumed, so every row keeps the
+/// header's columns.
+#[test]
+fn series_reports_the_interior_fill_and_a_resume_pads_older_rows() {
+    let dir = scratch_dir("outdir-fill");
+    // the block off the walls, so that its edge nodes' fill is far from 1/2
+    let text = SMALL_2D.replace(
+        "min = [0.0, 0.0], max = [0.1, 0.1]",
+        "min = [0.03, 0.03], max = [0.23, 0.15]",
+    );
+    let first = write_deck(
+        &dir,
+        "first.toml",
+        &text.replace("end_time = 0.05", "end_time = 0.03"),
+    );
+    let deck = write_deck(&dir, "deck.toml", &text);
+    let out = dir.join("out");
+    let so = out.to_str().unwrap();
+    assert_eq!(run(&["run", &first, "-o", so, "-q"]).0, 0);
+    let t = pmpm_cli::table::Table::read(&out.join("series.csv")).unwrap();
+    let col = |name: &str| t.column(name).unwrap_or_else(|| panic!("no column {name}"));
+    let (p1, p99, within, nodes) = (
+        col("fill_p1"),
+        col("fill_p99"),
+        col("fill_within_5pct"),
+        col("fill_nodes"),
+    );
+    // 20 x 12 particles of spacing h / 2: fill nodes of c = h, 8 x 4 interior ones (the
+    // second row in from each edge has fill 7/8, the first 1/8)
+    assert_eq!(nodes[0], 32.0);
+    assert!((p1[0] - 1.0).abs() < 1e-12 && (p99[0] - 1.0).abs() < 1e-12);
+    assert_eq!(within[0], 1.0);
+    assert!(p99.iter().all(|v| v.is_finite()), "{p99:?}");
+    // an earlier build's rows: the fill columns cut off every row; the resume pads them
+    let ck = out.join("checkpoint.bin");
+    let series = std::fs::read_to_string(out.join("series.csv")).unwrap();
+    let cut: Vec<String> = series
+        .lines()
+        .map(|l| l.split(',').take(8).collect::<Vec<_>>().join(","))
+        .collect();
+    std::fs::write(out.join("series.csv"), cut.join("\n") + "\n").unwrap();
+    let ck = ck.to_str().unwrap();
+    assert_eq!(run(&["run", &deck, "-o", so, "-q", "--resume", ck]).0, 0);
+    let t = pmpm_cli::table::Table::read(&out.join("series.csv")).unwrap();
+    let p99 = t.column("fill_p99").unwrap();
+    assert!(p99[0].is_nan() && p99[3].is_nan(), "{p99:?}");
+    assert!(p99[4..].iter().all(|v| v.is_finite()), "{p99:?}");
+}

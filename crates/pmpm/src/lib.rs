@@ -75,6 +75,7 @@ pub mod deck;
 pub mod driver;
 pub mod error;
 pub mod field;
+pub mod fill;
 pub mod flow;
 pub mod gauges;
 pub mod geometry;

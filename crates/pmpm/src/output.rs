@@ -36,6 +36,8 @@ pub struct OutputWriter {
     gauge_row: Vec<f64>,
     /// Whether series.csv has the open boundaries' columns.
     flow: bool,
+    /// Node spacing c of the interior fill series.csv reports ([`crate::fill`]).
+    fill_spacing: f64,
     /// Frames written so far.
     pub frames: usize,
 }
@@ -334,13 +336,18 @@ const SERIES_HEADER: &str =
 /// (m(0) + m_in - m_out - m(t)) / (m(0) + m_in).
 const FLOW_COLUMNS: &str = ",particles,mass,mass_in,mass_out,volume_in,volume_out,mass_balance";
 
+/// The columns that close every row of series.csv: the interior fill of the particles'
+/// rest volumes ([`crate::fill`]), its 1st and 99th percentiles, the share of interior nodes
+/// within 5 % of 1 and their count.
+const FILL_COLUMNS: &str = ",fill_p1,fill_p99,fill_within_5pct,fill_nodes";
+
 /// The header of series.csv for `deck`.
 fn series_header(deck: &Deck) -> String {
     let mut head = SERIES_HEADER.to_string();
     if deck.has_open_flow() {
         head += FLOW_COLUMNS;
     }
-    head
+    head + FILL_COLUMNS
 }
 
 /// The header of probes.csv: time, then per probe its pressure and velocity components.
@@ -423,11 +430,15 @@ fn reopen(
         Err(e) => return Err(Error::io(path, e)),
     };
     let mut w = create(path)?;
+    let columns = header.split(',').count();
     let r = (|| {
         writeln!(w, "{header}")?;
         for line in old.lines().skip(1) {
             if keep(line.split(',').next().unwrap_or("")) {
-                writeln!(w, "{line}")?;
+                // a row an earlier build wrote without the later columns (at the end) gets
+                // NaN in them, so that every row has the header's columns
+                let missing = columns.saturating_sub(line.split(',').count());
+                writeln!(w, "{line}{}", ",NaN".repeat(missing))?;
             }
         }
         w.flush()
@@ -497,6 +508,7 @@ impl OutputWriter {
             dir: dir.to_path_buf(),
             csv: formats.contains(&Format::Csv),
             flow: deck.has_open_flow(),
+            fill_spacing: crate::fill::spacing(deck),
             vtk: formats.contains(&Format::Vtk),
             grid: formats.contains(&Format::Grid),
             pvd,
@@ -717,13 +729,12 @@ impl OutputWriter {
         let series_path = self.dir.join("series.csv");
         write!(
             self.series,
-            "{n},{:.9e},{},{dt:.6e},{:.9e},{:.9e},{},{wall_seconds:.3}{}",
+            "{n},{:.9e},{},{dt:.6e},{:.9e},{:.9e},{},{wall_seconds:.3}",
             sim.time,
             sim.steps,
             sim.kinetic_energy(),
             sim.max_speed(),
             sim.pressure_iterations(),
-            if self.flow { "" } else { "\n" }
         )
         .and_then(|_| {
             if !self.flow {
@@ -731,7 +742,7 @@ impl OutputWriter {
             }
             let l = &sim.ledger;
             let mass: f64 = sim.particles.mass.iter().sum();
-            writeln!(
+            write!(
                 self.series,
                 ",{},{mass:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.3e}",
                 sim.particles.len(),
@@ -740,6 +751,18 @@ impl OutputWriter {
                 l.volume_in,
                 l.volume_out,
                 l.balance(&sim.particles)
+            )
+        })
+        .and_then(|_| {
+            let lattice = crate::fill::FillLattice {
+                origin: sim.grid.geo.origin,
+                spacing: self.fill_spacing,
+            };
+            let f = lattice.measure(&sim.particles.x, &sim.particles.volume0);
+            writeln!(
+                self.series,
+                ",{:.6},{:.6},{:.6},{}",
+                f.p1, f.p99, f.within, f.nodes
             )
         })
         .and_then(|_| self.series.flush())
