@@ -88,12 +88,24 @@ fn pvd_frames(dir: &Path) -> Vec<String> {
         .collect()
 }
 
-/// series.csv without its wall-clock column (the last), which no two runs share.
+/// series.csv without its wall-clock column (`wall_seconds`), which no two runs share.
 fn series(dir: &Path) -> String {
-    std::fs::read_to_string(dir.join("series.csv"))
-        .unwrap()
+    let text = std::fs::read_to_string(dir.join("series.csv")).unwrap();
+    let wall = text
         .lines()
-        .map(|l| l.rsplit_once(',').map_or(l, |(a, _)| a).to_string() + "\n")
+        .next()
+        .and_then(|h| h.split(',').position(|c| c == "wall_seconds"))
+        .expect("series.csv has a wall_seconds column");
+    text.lines()
+        .map(|l| {
+            let kept: Vec<&str> = l
+                .split(',')
+                .enumerate()
+                .filter(|(k, _)| *k != wall)
+                .map(|(_, v)| v)
+                .collect();
+            kept.join(",") + "\n"
+        })
         .collect()
 }
 

@@ -42,7 +42,7 @@ fn a_deck_larger_than_the_machine_is_refused_before_allocating() {
         let (status, err, _) = run(&args);
         assert_eq!(status, 2, "{cmd}: {err}");
         assert!(
-            err.contains("the run needs about 121.4 GB of memory") && err.contains("--allow-large"),
+            err.contains("the run needs about 95.8 GB of memory") && err.contains("--allow-large"),
             "{cmd}: {err}"
         );
         assert!(

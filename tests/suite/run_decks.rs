@@ -39,7 +39,8 @@ fn check_outputs(out: &Path, dim: usize, end_time: f64, probes: bool) {
     let mut lines = series.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "frame,time,step,dt,kinetic_energy,max_speed,pressure_iterations,wall_seconds"
+        "frame,time,step,dt,kinetic_energy,max_speed,pressure_iterations,wall_seconds,\
+         fill_p1,fill_p99,fill_within_5pct,fill_nodes"
     );
     let rows: Vec<Vec<String>> = lines
         .map(|l| l.split(',').map(str::to_string).collect())
