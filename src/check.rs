@@ -774,6 +774,9 @@ fn pressure(deck: &Deck, out: &mut String) {
                 pmpm::deck::DensityCorrection::Positions => {
                     "particle volumes restored by a position correction"
                 }
+                pmpm::deck::DensityCorrection::Particles => {
+                    "particles spread to rest density by a position correction"
+                }
                 pmpm::deck::DensityCorrection::None => "no density correction",
             };
             *out += &format!(

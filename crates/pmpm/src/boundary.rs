@@ -368,6 +368,14 @@ impl<const D: usize> Boundary<D> {
         }
     }
 
+    /// Sets every bit of `bits[i]` on the inflows' buffer nodes, where
+    /// [`Self::hold_buffers`] zeroes the displacement.
+    pub fn hold_buffers_components(&self, bits: &mut [u8]) {
+        for &i in &self.buffer_nodes {
+            bits[i] = u8::MAX;
+        }
+    }
+
     /// Zeroes the velocity components the faces and rigid bodies prescribe (the normal on a
     /// slip face, every component on a no-slip one, ghost nodes behind them included): a mask
     /// of the free components when applied to ones.

@@ -28,8 +28,8 @@
 //! the correction could ever give back.
 
 use super::free_surface::{self, NodeKind};
-use super::PressureSettings;
 use super::{describe_layout, FluidDomain, Shared};
+use super::{DensityCorrection, PressureSettings};
 use crate::boundary::Boundary;
 use crate::grid::{GridGeometry, Vector};
 use crate::linalg::{LinearSolver, SolveError, SolveParams, SolveStats, System};
@@ -53,6 +53,9 @@ pub const PACE: f64 = 3.0;
 /// State and buffers of the density correction, reused from step to step.
 pub struct PositionCorrection<const D: usize> {
     shape: ShapeFunction,
+    /// The density from the particles' positions ([`DensityCorrection::Particles`]), not
+    /// from J.
+    from_positions: bool,
     tolerance: f64,
     max_iterations: usize,
     /// sum_p V_p N_ip per node (the particles' volume at the node).
@@ -68,6 +71,9 @@ pub struct PositionCorrection<const D: usize> {
     dilatation: Vec<f64>,
     /// Per particle, whether none of its nodes holds an equation of the correction (spray).
     spray: Vec<bool>,
+    /// Per node, bit d set where the walls, a body or an inflow's buffer hold component d of
+    /// the displacement (with the density from positions).
+    held: Vec<u8>,
     averaging: crate::averaging::NodalAveraging<D>,
     /// Statistics of the last solve.
     pub stats: SolveStats,
@@ -94,6 +100,7 @@ impl<const D: usize> PositionCorrection<D> {
     pub fn new(pd: &PressureSettings, shape: ShapeFunction) -> Self {
         Self {
             shape,
+            from_positions: pd.density_correction == Some(DensityCorrection::Particles),
             tolerance: pd.tolerance,
             max_iterations: pd.max_iterations,
             weight: Vec::new(),
@@ -103,6 +110,7 @@ impl<const D: usize> PositionCorrection<D> {
             potential: Vec::new(),
             dilatation: Vec::new(),
             spray: Vec::new(),
+            held: Vec::new(),
             averaging: crate::averaging::NodalAveraging::new(rayon::current_num_threads(), 0),
             stats: SolveStats {
                 iterations: 0,
@@ -113,10 +121,12 @@ impl<const D: usize> PositionCorrection<D> {
 
     /// Moves the particles (positions, F and J) so that their volumes return the share `rate`
     /// (0 to 1) of the way to V0, in the stages of the projection: free surface, unknowns,
-    /// assembly, solve, correction. The solver and the stages' buffers are the projection's:
-    /// the two solves run one after the other, so they share its work vectors, multigrid
-    /// levels, free surface, Gauss points and matrix instead of keeping two sets (each is set
-    /// up again for this system).
+    /// assembly, solve, correction; with the density from the particles' positions
+    /// ([`DensityCorrection::Particles`]), then spreads them to rest density with a second
+    /// solve of the same matrix ([`Self::pack`]). The solver and the stages' buffers are the
+    /// projection's: the solves run one after the other, so they share its work vectors,
+    /// multigrid levels, free surface, Gauss points and matrix instead of keeping two sets
+    /// (each is set up again for this system).
     pub fn correct(
         &mut self,
         ps: &mut Particles<D>,
@@ -189,35 +199,123 @@ impl<const D: usize> PositionCorrection<D> {
             *b += self.excess[i as usize];
         }
         matrix.pin_empty_rows(rhs);
-        // solve
-        solution.clear();
-        solution.resize(rows, 0.0);
         let u = &mut system.unknowns;
         describe_layout(&mut u.layout, geo, shape, &u.node_of_row);
+        let stage = Stage {
+            geo,
+            kinds: &surface.kinds,
+            phi: surface.level_set(),
+            free,
+        };
+        self.stats = self.solve(&stage, (solver, system, solution), [scratch, first_layer])?;
+        // correction: u on the nodes, then the particles moved and deformed by it
+        self.node_displacement(ps, geo, boundary, (vector_bands, displacement));
+        self.move_particles(ps, geo, &surface.kinds, displacement);
+        if self.from_positions {
+            let q = gauss.quadrature(false);
+            let points = (q.x, q.half_width, q.volume_over_density);
+            let ghost = [scratch, first_layer];
+            let linear = (solver, system, solution);
+            let packed = self.pack(ps, &stage, boundary, points, rate, linear, ghost)?;
+            self.stats.iterations += packed.iterations;
+        }
+        Ok(self.stats)
+    }
+
+    /// q from the system's right-hand side, with the free surface's ghost values where the
+    /// level set sets them.
+    fn solve(
+        &mut self,
+        stage: &Stage<'_, D>,
+        (solver, system, solution): (&mut LinearSolver, &super::Assembled, &mut Vec<f64>),
+        [scratch, first_layer]: [&mut Vec<f64>; 2],
+    ) -> Result<SolveStats, SolveError> {
+        let geo = stage.geo;
+        solution.clear();
+        solution.resize(system.unknowns.node_of_row.len(), 0.0);
         let linear = System {
             matrix: &system.matrix,
             layout: &system.unknowns.layout,
-            singular: free == 0,
+            singular: stage.free == 0,
         };
         let params = SolveParams {
             tolerance: self.tolerance,
             max_iterations: self.max_iterations,
         };
-        self.stats = solver.solve(&linear, &system.rhs, solution, params)?;
+        let stats = solver.solve(&linear, &system.rhs, solution, params)?;
         for (r, &i) in system.unknowns.node_of_row.iter().enumerate() {
             self.potential[i as usize] = solution[r];
         }
         geo.copy_to_images(&mut self.potential);
-        if let Some(phi) = surface.level_set() {
-            let kinds = &surface.kinds;
+        if let Some(phi) = stage.phi {
+            let kinds = stage.kinds;
             free_surface::ghost_values(geo, kinds, phi, &self.potential, scratch, first_layer);
             std::mem::swap(&mut self.potential, scratch);
             geo.copy_to_images(&mut self.potential);
         }
-        // correction: u on the nodes, then the particles moved and deformed by it
-        self.node_displacement(ps, geo, boundary, (vector_bands, displacement));
-        self.move_particles(ps, geo, &surface.kinds, displacement);
-        Ok(self.stats)
+        Ok(stats)
+    }
+
+    /// Spreads the particles to rest density: K q = b with b_i the excess of the rest volume
+    /// the particles spread onto node i over the volume its shape function covers
+    /// ([`Self::fill_excess`]), the same matrix as the volume correction's, and each particle
+    /// shifted by its own -(grad q)(x_p) ([`own_shift`]). Positions only: J and F are not
+    /// touched. The volume correction before it has given J back its share; what is left is
+    /// the particles' arrangement, which J does not see (they bunch at J = 1 where they move
+    /// with the velocity interpolated within a cell while J integrates its nodal average), so
+    /// a move that only rearranges them must not change J either.
+    #[allow(clippy::too_many_arguments)]
+    fn pack(
+        &mut self,
+        ps: &mut Particles<D>,
+        stage: &Stage<'_, D>,
+        boundary: &Boundary<D>,
+        points: (&[Vector<D>], &[f64], &[f64]),
+        rate: f64,
+        (solver, system, solution): (&mut LinearSolver, &mut super::Assembled, &mut Vec<f64>),
+        ghost: [&mut Vec<f64>; 2],
+    ) -> Result<SolveStats, SolveError> {
+        let geo = stage.geo;
+        self.gather_rest_volumes(ps, geo);
+        self.fill_excess(geo, points, stage.kinds, rate);
+        for (b, &i) in system.rhs.iter_mut().zip(&system.unknowns.node_of_row) {
+            *b = self.excess[i as usize];
+        }
+        system.matrix.pin_empty_rows(&mut system.rhs);
+        let stats = self.solve(stage, (solver, system, solution), ghost)?;
+        crate::pages::fit(&mut self.held, geo.node_count());
+        crate::pages::reset(&mut self.held);
+        boundary.held_components(&mut self.held);
+        boundary.hold_buffers_components(&mut self.held);
+        let (shape, q, held) = (self.shape, &self.potential, &self.held);
+        ps.x.par_iter_mut()
+            .zip(ps.half_width.par_iter())
+            .for_each(|(x, &lp)| *x += own_shift(shape, geo, (q, held), x, lp));
+        Ok(stats)
+    }
+
+    /// sum_p V0_p N_ip per node, into the excess ([`Self::fill_excess`] takes the covered
+    /// volume off).
+    fn gather_rest_volumes(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>) {
+        let v0 = &ps.volume0;
+        scatter_to_nodes(
+            &mut self.bands,
+            Points {
+                geo,
+                shape: ShapeFunction::Linear,
+                x: &ps.x,
+                half_width: &ps.half_width,
+            },
+            nalgebra::Vector2::zeros(),
+            |p| nalgebra::Vector2::new(v0[p], 0.0),
+            &mut self.sums,
+        );
+        crate::pages::fit(&mut self.excess, geo.node_count());
+        let sums = &self.sums;
+        self.excess
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(i, e)| crate::pages::store(e, sums[i][0]));
     }
 
     /// sum_p V_p N_ip and rate sum_p V0_p (1 - J_p) N_ip per node, scattered from the
@@ -269,6 +367,55 @@ impl<const D: usize> PositionCorrection<D> {
                 crate::pages::store(w, weight);
                 crate::pages::store(e, excess);
             });
+    }
+
+    /// With the density from the particles' positions: the excess at node i is
+    /// rate (sum_p V0_p N_ip - int_open N_i), the rest volume the particles spread onto it
+    /// less the volume its shape function covers in the open domain (the quadrature's points
+    /// `points`: x, half-width and the open volume each weighs, so walls and the open part of
+    /// a cut cell count as the matrix counts them), at most [`MAX_RATE`] of the latter.
+    /// N_i is the linear hat whatever the transfers' shape functions: a regular lattice of
+    /// particles spread with it gives the open volume exactly up to a wall (the hat's kinks
+    /// lie on the lattice's cell faces), where the quadratic B-spline's samples miss their
+    /// integral by a few per cent and would move a pool at rest.
+    ///
+    /// Near the free surface the domain's cells are whole, but the fluid fills them only in
+    /// part, so a node's deficit there is not a void: where a node next to it (the corners of
+    /// the cells its hat covers) is not an unknown (nor inside a body), only an excess is
+    /// corrected.
+    fn fill_excess(
+        &mut self,
+        geo: &GridGeometry<D>,
+        (x, half_width, open): (&[Vector<D>], &[f64], &[f64]),
+        kinds: &[NodeKind],
+        rate: f64,
+    ) {
+        scatter_to_nodes(
+            &mut self.bands,
+            Points {
+                geo,
+                shape: ShapeFunction::Linear,
+                x,
+                half_width,
+            },
+            nalgebra::Vector2::zeros(),
+            |g| nalgebra::Vector2::new(open[g], 0.0),
+            &mut self.sums,
+        );
+        let sums = &self.sums;
+        self.excess.par_iter_mut().enumerate().for_each(|(i, e)| {
+            let space = sums[i][0];
+            if *e == 0.0 && space == 0.0 {
+                return;
+            }
+            let error = (*e - space).clamp(-MAX_RATE * space, MAX_RATE * space);
+            let error = if error < 0.0 && near_surface(geo, kinds, i) {
+                0.0
+            } else {
+                error
+            };
+            crate::pages::store(e, rate * error);
+        });
     }
 
     /// u_i = -sum_p V_p N_ip (grad q)_p / sum_p V_p N_ip, held at the walls (no normal
@@ -393,6 +540,87 @@ impl<const D: usize> PositionCorrection<D> {
                 *x += shift * s;
             });
     }
+}
+
+/// What the solves of one correction share: the grid, the nodes' kinds, the level set (with
+/// the ghost-fluid surface) and the count of free-surface nodes (0: the system is singular).
+struct Stage<'a, const D: usize> {
+    geo: &'a GridGeometry<D>,
+    kinds: &'a [NodeKind],
+    phi: Option<&'a [f64]>,
+    free: usize,
+}
+
+/// Whether a node within one node of node `i` along every axis (the corners of the cells its
+/// hat covers) is neither an unknown nor inside a rigid body: the free surface, or no fluid.
+/// Nodes beyond the grid's walls do not count (a wall is no free surface).
+fn near_surface<const D: usize>(geo: &GridGeometry<D>, kinds: &[NodeKind], i: usize) -> bool {
+    let node = geo.multi(i);
+    let span: usize = 3;
+    (0..span.pow(D as u32)).any(|k| {
+        let mut rem = k;
+        let mut at = node;
+        for d in 0..D {
+            let o = rem % span;
+            rem /= span;
+            let c = (node[d] + o).checked_sub(1);
+            match c {
+                Some(c) if c < geo.nodes[d] => at[d] = c,
+                _ => return false,
+            }
+        }
+        let pad = crate::shape::PAD;
+        let beyond_wall =
+            (0..D).any(|d| !geo.periodic[d] && (at[d] < pad || at[d] > pad + geo.cells[d]));
+        !beyond_wall
+            && !matches!(
+                kinds[geo.canonical(geo.flat(&at))],
+                NodeKind::Interior | NodeKind::Solid
+            )
+    })
+}
+
+/// A particle's own shift -(grad q)(x_p), at most [`MAX_SHIFT`] cells long. The nodes'
+/// displacement u_i averages grad q over the particles around a node, and is blind to a
+/// pattern that alternates from cell to cell (particles packed in one cell, spread in the
+/// next: the nodal average of the two gradients is nothing); the particle's own gradient
+/// moves it. Towards a node where a wall or a body holds component d (`held`, bit d), the
+/// shift along d is at most half the particle's distance from that node: a particle closes
+/// a gap against a wall but is never moved through it.
+#[inline]
+fn own_shift<const D: usize>(
+    shape: ShapeFunction,
+    geo: &GridGeometry<D>,
+    (q, held): (&[f64], &[u8]),
+    x: &Vector<D>,
+    lp: f64,
+) -> Vector<D> {
+    let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
+    let mut grad = Vector::<D>::zeros();
+    // per axis, the distance to the nearest held node below and above the particle
+    let mut below = Vector::<D>::repeat(f64::INFINITY);
+    let mut above = Vector::<D>::repeat(f64::INFINITY);
+    st.for_each(|nw| {
+        let i = geo.flat(&nw.node);
+        grad += nw.grad * q[i];
+        if held[i] != 0 {
+            let at = geo.node_position(&nw.node);
+            for d in (0..D).filter(|d| held[i] >> d & 1 == 1) {
+                let gap = at[d] - x[d];
+                if gap >= 0.0 {
+                    above[d] = above[d].min(gap);
+                } else {
+                    below[d] = below[d].min(-gap);
+                }
+            }
+        }
+    });
+    let limit = MAX_SHIFT * geo.h;
+    let norm = grad.norm();
+    if norm > limit {
+        grad *= limit / norm;
+    }
+    Vector::<D>::from_fn(|d, _| (-grad[d]).clamp(-0.5 * below[d], 0.5 * above[d]))
 }
 
 /// A particle's shift sum_i N_ip u_i and H_p = sum_i u_i (x) G_ip from the nodes'
@@ -520,15 +748,77 @@ particles_per_cell = 2
         (deck, sim)
     }
 
+    /// The interior fill ([`crate::fill`]) of the pool's particles, on nodes of c = h.
+    fn fill_of(ps: &Particles<2>, h: f64) -> crate::fill::FillFigures {
+        let lattice = crate::fill::FillLattice {
+            origin: Vector::<2>::zeros(),
+            spacing: h,
+        };
+        lattice.measure(&ps.x, &ps.volume0)
+    }
+
+    /// Particles bunched with J = 1 (a band of columns pushed together, J not told): with the
+    /// density from the particles' positions the correction spreads them back to rest
+    /// density, where J alone would not see them; in the middle of the pool and against its
+    /// wall (where they must close the gap the squeeze left at the wall, not cross it).
+    #[test]
+    fn a_bunched_band_is_spread_to_rest_density() {
+        // (from, to, centre): columns between `from` and `to` pushed a fifth of the way to
+        // `centre`
+        for (from, to, centre) in [(0.3, 0.7, 0.5), (0.0, 0.2, 0.1)] {
+            let (mut deck, sim) = pool("linear");
+            deck.pressure.density_correction = Some(DensityCorrection::Particles);
+            let mut ps = sim.particles.clone();
+            for x in ps.x.iter_mut() {
+                if (from..to).contains(&x[0]) {
+                    x[0] = centre + 0.8 * (x[0] - centre);
+                }
+            }
+            let before = fill_of(&ps, 0.05);
+            let mut correct = corrector(&deck, &sim, ShapeFunction::Linear);
+            for _ in 0..10 {
+                correct(&mut ps);
+            }
+            let after = fill_of(&ps, 0.05);
+            assert!(before.p99 > 1.19, "{before:?}");
+            assert!(
+                after.p99 < 1.001 && after.p1 > 0.999,
+                "{before:?} -> {after:?}"
+            );
+            assert!(ps.x.iter().all(|x| x[0] > 0.0 && x[0] < 1.0));
+            // J is not told: the move only rearranges the particles
+            assert!(ps.jacobian.iter().all(|j| (j - 1.0).abs() < 1e-12));
+        }
+    }
+
     /// Particles as seeded, J = 1, tile the pool: the correction leaves them where they are,
     /// with both the linear and the quadratic B-spline shape functions.
     #[test]
     fn a_pool_as_seeded_is_left_alone() {
-        for (name, shape) in [
-            ("linear", ShapeFunction::Linear),
-            ("bspline2", ShapeFunction::Bspline2),
+        for (name, shape, measure) in [
+            (
+                "linear",
+                ShapeFunction::Linear,
+                DensityCorrection::Positions,
+            ),
+            (
+                "bspline2",
+                ShapeFunction::Bspline2,
+                DensityCorrection::Positions,
+            ),
+            (
+                "linear",
+                ShapeFunction::Linear,
+                DensityCorrection::Particles,
+            ),
+            (
+                "bspline2",
+                ShapeFunction::Bspline2,
+                DensityCorrection::Particles,
+            ),
         ] {
-            let (deck, sim) = pool(name);
+            let (mut deck, sim) = pool(name);
+            deck.pressure.density_correction = Some(measure);
             let mut ps = sim.particles.clone();
             let mut correct = corrector(&deck, &sim, shape);
             for _ in 0..3 {

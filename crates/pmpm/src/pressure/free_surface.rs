@@ -41,6 +41,9 @@ pub struct Surface {
     method: FreeSurface,
     tolerance: f64,
     bubble_cells: usize,
+    /// Whether an under-filled cell between two fuller ones is filled ([`close_cracks`]):
+    /// with the density measured from the particles' positions.
+    cracks: bool,
     /// Whether each face (x_min, x_max, y_min, ...) is open.
     pub open: Vec<bool>,
     /// Particle volume fraction of each cell (numbered like its lower-corner node), with
@@ -65,12 +68,14 @@ impl Surface {
         pd: &super::PressureSettings,
         boundary: &crate::boundary::Boundary<D>,
     ) -> Self {
-        Self::with_settings(
+        let mut s = Self::with_settings(
             pd.free_surface.unwrap_or_default(),
             pd.volume_fraction_tolerance,
             pd.bubble_cells,
             (0..2 * D).map(|f| boundary.is_open(f)).collect(),
-        )
+        );
+        s.cracks = pd.density_correction == Some(super::DensityCorrection::Particles);
+        s
     }
 
     /// The method, the volume-fraction tolerance, the bubble bound and which faces are open.
@@ -84,6 +89,7 @@ impl Surface {
             method,
             tolerance,
             bubble_cells,
+            cracks: false,
             open,
             fraction: Vec::new(),
             raw: Vec::new(),
@@ -141,6 +147,14 @@ impl Surface {
                 &mut self.flood,
                 &mut self.fraction,
             );
+            if self.cracks {
+                let low = match self.method {
+                    FreeSurface::LevelSet => self.tolerance.max(0.5),
+                    _ => self.tolerance,
+                };
+                let cracks = &mut self.flood.component;
+                close_cracks(geo, low, &self.open, &mut self.fraction, cracks);
+            }
         }
         // the share of each cell the rigid bodies cover
         self.solid.clear();
@@ -864,6 +878,50 @@ pub fn close_bubbles<const D: usize>(
     }
 }
 
+/// Fills (fraction 1) every cell inside the grid at or below `tolerance` whose two face
+/// neighbours along some axis are both above it: a crack one cell wide between particles
+/// that have bunched on either side, not air. Left open, its nodes hold p = 0 inside the
+/// water, and the correction that would spread the particles back into it cannot (a column
+/// of such cells opened beside the back wall of a collapsing column). A cell past a closed
+/// face counts as full, past an open face as empty. The cells are found first and filled
+/// after, so a gap two cells across in every direction stays open. `cracks` is scratch.
+pub fn close_cracks<const D: usize>(
+    geo: &GridGeometry<D>,
+    tolerance: f64,
+    open: &[bool],
+    fraction: &mut [f64],
+    cracks: &mut Vec<usize>,
+) {
+    let inside = |idx: &[usize; D]| (0..D).all(|d| idx[d] >= PAD && idx[d] < PAD + geo.cells[d]);
+    let full = |idx: &[usize; D], d: usize, side: usize, fraction: &[f64]| {
+        let n = idx[d] as isize + if side == 0 { -1 } else { 1 };
+        let n = if geo.periodic[d] {
+            PAD as isize + (n - PAD as isize).rem_euclid(geo.cells[d] as isize)
+        } else {
+            n
+        };
+        if n < PAD as isize || n >= (PAD + geo.cells[d]) as isize {
+            return !open[2 * d + side];
+        }
+        let mut m = *idx;
+        m[d] = n as usize;
+        fraction[geo.flat(&m)] > tolerance
+    };
+    cracks.clear();
+    for (c, &f) in fraction.iter().enumerate() {
+        let idx = geo.multi(c);
+        if f > tolerance || !inside(&idx) {
+            continue;
+        }
+        if (0..D).any(|d| full(&idx, d, 0, fraction) && full(&idx, d, 1, fraction)) {
+            cracks.push(c);
+        }
+    }
+    for &c in cracks.iter() {
+        fraction[c] = 1.0;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1113,8 +1171,8 @@ mod tests {
     /// Fractions of a 6 x 6 box: `f(cx, cy)` per cell.
     fn fractions(geo: &GridGeometry<2>, f: impl Fn(usize, usize) -> f64) -> Vec<f64> {
         let mut vf = vec![0.0; geo.node_count()];
-        for cy in 0..6 {
-            for cx in 0..6 {
+        for cy in 0..geo.cells[1] {
+            for cx in 0..geo.cells[0] {
                 vf[geo.flat(&[cx + PAD, cy + PAD])] = f(cx, cy);
             }
         }
@@ -1157,6 +1215,63 @@ mod tests {
         assert_eq!(at(&out, 5, 3), 0.0);
         close_bubbles(&geo, &vf, 0.3, &[false; 4], 4, &mut ff, &mut out);
         assert_eq!(at(&out, 5, 3), 1.0);
+    }
+
+    #[test]
+    fn a_crack_one_cell_wide_closes_and_the_surface_and_wider_gaps_stay() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [8, 8]);
+        // water in the lower 6 rows: a crack one cell wide (column 2, rows 0 to 4), a gap two
+        // cells across both ways (columns 5 and 6, rows 2 and 3), air above
+        let vf = fractions(&geo, |cx, cy| match (cx, cy) {
+            (2, y) if y < 5 => 0.1,
+            (5, 2) | (6, 2) | (5, 3) | (6, 3) => 0.0,
+            (_, y) if y < 6 => 1.0,
+            _ => 0.0,
+        });
+        let mut out = vf.clone();
+        let mut scratch = Vec::new();
+        close_cracks(&geo, 0.5, &[false; 4], &mut out, &mut scratch);
+        let at = |v: &[f64], cx: usize, cy: usize| v[geo.flat(&[cx + PAD, cy + PAD])];
+        assert!((0..5).all(|cy| at(&out, 2, cy) == 1.0));
+        assert_eq!((at(&out, 5, 2), at(&out, 6, 2)), (0.0, 0.0));
+        assert!((0..8).all(|cx| at(&out, cx, 6) == 0.0 && at(&out, cx, 7) == 0.0));
+        // a cell against a closed wall between water and the wall is a crack; against an
+        // open face it is not
+        let vf = fractions(&geo, |cx, cy| match (cx, cy) {
+            (7, 3) => 0.0,
+            (_, y) if y < 6 => 1.0,
+            _ => 0.0,
+        });
+        let mut out = vf.clone();
+        close_cracks(
+            &geo,
+            0.5,
+            &[false, true, false, false],
+            &mut out,
+            &mut scratch,
+        );
+        assert_eq!(
+            at(&out, 7, 3),
+            1.0,
+            "closed vertically by its neighbours above and below"
+        );
+        let vf = fractions(&geo, |cx, cy| match (cx, cy) {
+            (7, 3) | (7, 2) | (7, 4) => 0.0,
+            (_, y) if y < 6 => 1.0,
+            _ => 0.0,
+        });
+        let mut out = vf.clone();
+        close_cracks(
+            &geo,
+            0.5,
+            &[false, true, false, false],
+            &mut out,
+            &mut scratch,
+        );
+        assert_eq!(at(&out, 7, 3), 0.0);
+        let mut out = vf.clone();
+        close_cracks(&geo, 0.5, &[false; 4], &mut out, &mut scratch);
+        assert_eq!(at(&out, 7, 3), 1.0);
     }
 
     #[test]

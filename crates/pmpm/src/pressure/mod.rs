@@ -279,7 +279,10 @@ impl<const D: usize> Projection<D> {
                 cell::CellProjection::new(shape, pd.tolerance, pd.max_iterations, mass_epsilon)
             }),
             density: (pd.unknowns == PressureUnknowns::Nodes
-                && pd.density_correction == Some(DensityCorrection::Positions))
+                && matches!(
+                    pd.density_correction,
+                    Some(DensityCorrection::Positions | DensityCorrection::Particles)
+                ))
             .then(|| density::PositionCorrection::new(pd, shape)),
         }
     }

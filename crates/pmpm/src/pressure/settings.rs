@@ -41,6 +41,12 @@ pub enum DensityCorrection {
     /// (`crates/pmpm/src/pressure/density.rs`). The default for fluids with a free surface.
     #[default]
     Positions,
+    /// The same solve and move, with the density measured from where the particles are, not
+    /// from J: each node's error is the rest volume its particles spread onto it,
+    /// sum_p V0_p N_ip, less the volume its shape function covers in the open domain
+    /// (Kugelstadt et al., 2021). It removes the particles' bunching as well as compression;
+    /// J follows the move.
+    Particles,
     /// None: the paper's scheme; the default without a free surface and for solids.
     None,
 }
