@@ -20,7 +20,6 @@
 use crate::deck::{Deck, DeckError, Transfer};
 use crate::geometry::Solid;
 use crate::grid::{GridGeometry, Vector};
-use crate::material::MaterialDeck;
 use crate::particles::{InitialStress, Matrix, Particles};
 use crate::rigid::RigidBodies;
 use crate::scheme::Scheme;
@@ -104,8 +103,7 @@ pub fn fill<const D: usize>(
     ps.id = (0..n as u32).collect();
     // the lattice loop grew the arrays by doubling: give back the unused half
     ps.shrink_to_fit();
-    let materials: Vec<_> = deck.materials.iter().map(MaterialDeck::params).collect();
-    ps.set_stored(crate::material::stored(&materials));
+    ps.set_stored(deck.stored_fields());
     ps.velocity_gradient = vec![Matrix::<D>::zeros(); n];
     if deck.simulation.transfer != Some(Transfer::Apic) {
         ps.affine = vec![Matrix::<D>::zeros(); n];

@@ -57,12 +57,7 @@ impl MemoryModel {
         let (mut per_particle, per_node) = table[three][width];
         // the tables were fitted with F and tau on every particle: take off what the
         // materials leave unstored (a D x D matrix of f64 each, `particles::Stored`)
-        let materials: Vec<_> = deck
-            .materials
-            .iter()
-            .map(crate::material::MaterialDeck::params)
-            .collect();
-        let stored = crate::material::stored(&materials);
+        let stored = deck.stored_fields();
         let matrix = (8 * s.dimension * s.dimension) as f64;
         per_particle -=
             matrix * f64::from(u8::from(!stored.deformation) + u8::from(!stored.stress));

@@ -640,6 +640,19 @@ impl Deck {
             .any(|b| b.motion == RigidMotion::Free)
     }
 
+    /// The optional particle fields the deck's materials need
+    /// ([`crate::material::stored`]): F only for a neo-Hookean solid, tau only where some
+    /// stress is not a function of the rate alone.
+    pub fn stored_fields(&self) -> crate::particles::Stored {
+        let materials: Vec<_> = self
+            .materials
+            .iter()
+            .map(crate::material::MaterialDeck::params)
+            .collect();
+        crate::material::stored(&materials)
+    }
+
+    /// Whether material leaves or enters through the grid's faces (an outflow face or an
     /// inflow): series.csv then has the mass balance's columns.
     pub fn has_open_flow(&self) -> bool {
         !self.inflows.is_empty()

@@ -1235,43 +1235,21 @@ mod tests {
         assert!((0..5).all(|cy| at(&out, 2, cy) == 1.0));
         assert_eq!((at(&out, 5, 2), at(&out, 6, 2)), (0.0, 0.0));
         assert!((0..8).all(|cx| at(&out, cx, 6) == 0.0 && at(&out, cx, 7) == 0.0));
-        // a cell against a closed wall between water and the wall is a crack; against an
-        // open face it is not
-        let vf = fractions(&geo, |cx, cy| match (cx, cy) {
-            (7, 3) => 0.0,
-            (_, y) if y < 6 => 1.0,
-            _ => 0.0,
-        });
-        let mut out = vf.clone();
-        close_cracks(
-            &geo,
-            0.5,
-            &[false, true, false, false],
-            &mut out,
-            &mut scratch,
-        );
-        assert_eq!(
-            at(&out, 7, 3),
-            1.0,
-            "closed vertically by its neighbours above and below"
-        );
-        let vf = fractions(&geo, |cx, cy| match (cx, cy) {
-            (7, 3) | (7, 2) | (7, 4) => 0.0,
-            (_, y) if y < 6 => 1.0,
-            _ => 0.0,
-        });
-        let mut out = vf.clone();
-        close_cracks(
-            &geo,
-            0.5,
-            &[false, true, false, false],
-            &mut out,
-            &mut scratch,
-        );
-        assert_eq!(at(&out, 7, 3), 0.0);
-        let mut out = vf.clone();
-        close_cracks(&geo, 0.5, &[false; 4], &mut out, &mut scratch);
-        assert_eq!(at(&out, 7, 3), 1.0);
+        // a cell against the x_max face: closed vertically by the water above and below it;
+        // three such cells in a column close against a closed face, not an open one
+        let after = |gap: &[(usize, usize)], open: [bool; 4]| {
+            let mut out = fractions(&geo, |cx, cy| match (cx, cy) {
+                c if gap.contains(&c) => 0.0,
+                (_, y) if y < 6 => 1.0,
+                _ => 0.0,
+            });
+            close_cracks(&geo, 0.5, &open, &mut out, &mut Vec::new());
+            at(&out, 7, 3)
+        };
+        let east_open = [false, true, false, false];
+        assert_eq!(after(&[(7, 3)], east_open), 1.0);
+        assert_eq!(after(&[(7, 2), (7, 3), (7, 4)], east_open), 0.0);
+        assert_eq!(after(&[(7, 2), (7, 3), (7, 4)], [false; 4]), 1.0);
     }
 
     #[test]
