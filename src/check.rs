@@ -812,8 +812,7 @@ fn output_and_memory<const D: usize>(
     let nodes: f64 = geo.cells.iter().map(|&c| (c + 1) as f64).product();
     let vti = 8.0 * 27.0 * nodes;
     // four D x D matrices (F, tau, L, C), less F and tau where no material reads them
-    let stored = deck.stored_fields();
-    let matrices = 2 + usize::from(stored.deformation) + usize::from(stored.stress);
+    let matrices = 4 - deck.stored_fields().unstored();
     let checkpoint = 8.0 * (2 * D + 5 + matrices * D * D) as f64 + 6.0;
     let formats = &deck.output.formats;
     let has = |f: pmpm::deck::Format| formats.contains(&f);

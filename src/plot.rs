@@ -12,6 +12,7 @@
 //! The domain drawn is the background grid of `run.toml` (the particles' extent when it cannot be
 //! read), so that every frame of a run is drawn at the same place and scale.
 
+use crate::table::Table;
 use crate::validation::plot::{self as vplot, colors, Panel, Series};
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
@@ -1014,7 +1015,7 @@ impl Hat {
 
 /// (frame, time) of each row of series.csv; empty when it cannot be read.
 fn read_times(dir: &Path) -> Vec<(usize, f64)> {
-    let Ok(t) = Table::read(&dir.join("series.csv")) else {
+    let Ok(t) = read_table(&dir.join("series.csv")) else {
         return Vec::new();
     };
     let (Some(f), Some(time)) = (t.column("frame"), t.column("time")) else {
@@ -1023,31 +1024,11 @@ fn read_times(dir: &Path) -> Vec<(usize, f64)> {
     f.iter().zip(time).map(|(&f, t)| (f as usize, t)).collect()
 }
 
-/// A CSV file of numbers with a header line, read as [`crate::table::Table`] reads it.
-struct Table {
-    header: Vec<String>,
-    rows: Vec<Vec<f64>>,
-}
-
-impl Table {
-    fn read(path: &Path) -> Result<Self, Error> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let t = crate::table::Table::parse(&text)
-            .map_err(|e| Error::Usage(format!("{}: {e}", path.display())))?;
-        Ok(Self {
-            header: t.header,
-            rows: t.rows,
-        })
-    }
-
-    fn index(&self, name: &str) -> Option<usize> {
-        self.header.iter().position(|h| h == name)
-    }
-
-    fn column(&self, name: &str) -> Option<Vec<f64>> {
-        let i = self.index(name)?;
-        Some(self.rows.iter().map(|r| r[i]).collect())
-    }
+/// A CSV file of numbers with a header line ([`Table`]), an unreadable file or a bad row as
+/// an error naming the file.
+fn read_table(path: &Path) -> Result<Table, Error> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    Table::parse(&text).map_err(|e| Error::Usage(format!("{}: {e}", path.display())))
 }
 
 /// The particles of one frame.
@@ -1122,7 +1103,7 @@ impl Frame {
     }
 
     fn read_all(path: &Path) -> Result<Self, Error> {
-        let t = Table::read(path)?;
+        let t = read_table(path)?;
         let dim = if t.index("z").is_some() { 3 } else { 2 };
         let need = |name: &str| {
             t.index(name).ok_or_else(|| {
@@ -1589,7 +1570,7 @@ impl Bodies {
     /// shape with a transform, or of another type, is not drawn).
     fn read(dir: &Path, info: &RunInfo) -> Self {
         let mut out = Bodies::default();
-        let Ok(t) = Table::read(&dir.join("rigid_bodies.csv")) else {
+        let Ok(t) = read_table(&dir.join("rigid_bodies.csv")) else {
             return out;
         };
         let Some(time) = t.index("time") else {
@@ -2048,7 +2029,7 @@ fn plot_series(dir: &Path, out: &Path) -> Result<(), Error> {
             dir.display()
         )));
     }
-    let t = Table::read(&path)?;
+    let t = read_table(&path)?;
     let col = |name: &str| {
         t.column(name).ok_or_else(|| {
             Error::Usage(format!(
@@ -2195,7 +2176,7 @@ fn probe_panels(dir: &Path) -> Result<Vec<Panel>, Error> {
     if !path.is_file() {
         return Ok(Vec::new());
     }
-    let t = Table::read(&path)?;
+    let t = read_table(&path)?;
     let Some(ti) = t.index("time") else {
         return Ok(Vec::new());
     };
@@ -2274,7 +2255,7 @@ fn column_panels(dir: &Path, file: &str, what: &str) -> Result<Vec<Panel>, Error
     if !path.is_file() {
         return Ok(Vec::new());
     }
-    let t = Table::read(&path)?;
+    let t = read_table(&path)?;
     let Some(ti) = t.index("time") else {
         return Ok(Vec::new());
     };

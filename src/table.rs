@@ -45,9 +45,14 @@ impl Table {
         Ok(Self { header, rows })
     }
 
+    /// The place of the column `name` in each row (None without such a column).
+    pub fn index(&self, name: &str) -> Option<usize> {
+        self.header.iter().position(|h| h == name)
+    }
+
     /// The values of the column `name`, one per row (None without such a column).
     pub fn column(&self, name: &str) -> Option<Vec<f64>> {
-        let k = self.header.iter().position(|h| h == name)?;
+        let k = self.index(name)?;
         Some(self.rows.iter().map(|r| r[k]).collect())
     }
 

@@ -174,19 +174,6 @@ macro_rules! particle_fields {
                 $(self.$name.append(&mut other.$name);)+
             }
 
-            /// Whether every array that should hold a value per particle does: the required
-            /// fields always, the optional ones where [`Particles::stored`] says so.
-            pub fn is_consistent(&self) -> bool {
-                let n = self.len();
-                $(
-                    let want = if self.stored.holds(stringify!($name)) { n } else { 0 };
-                    if self.$name.len() != want {
-                        return false;
-                    }
-                )+
-                true
-            }
-
             /// Gives back the arrays' unused capacity.
             pub fn shrink_to_fit(&mut self) {
                 $(self.$name.shrink_to_fit();)+
@@ -307,6 +294,11 @@ impl Default for Stored {
 }
 
 impl Stored {
+    /// How many of the optional fields (each a D x D matrix per particle) are left out.
+    pub fn unstored(&self) -> usize {
+        usize::from(!self.deformation) + usize::from(!self.stress)
+    }
+
     /// Whether the field `name` is held (every field that is not optional is).
     pub fn holds(&self, name: &str) -> bool {
         match name {

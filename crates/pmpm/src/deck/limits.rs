@@ -57,10 +57,8 @@ impl MemoryModel {
         let (mut per_particle, per_node) = table[three][width];
         // the tables were fitted with F and tau on every particle: take off what the
         // materials leave unstored (a D x D matrix of f64 each, `particles::Stored`)
-        let stored = deck.stored_fields();
-        let matrix = (8 * s.dimension * s.dimension) as f64;
-        per_particle -=
-            matrix * f64::from(u8::from(!stored.deformation) + u8::from(!stored.stress));
+        let unstored = deck.stored_fields().unstored();
+        per_particle -= (unstored * 8 * s.dimension * s.dimension) as f64;
         // the implicit viscous solve's quadrature points, mask, diagonal and work vectors
         let mut per_box_node = 0.0;
         if deck.viscous_solve() {
