@@ -384,6 +384,23 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "bad.toml: grid.boundary.x_min: a periodic axis is not built for pressure.unknowns = \"cells\" yet: use \"nodes\"",
         ),
         (
+            "separating walls under the cell pressure",
+            edit(&[
+                ("density = 1000.0", "model = \"neo_hookean_incompressible\"\ndensity = 1000.0\nshear_modulus = 1.0e5"),
+                ("viscosity = 1.0e-3\n", ""),
+                ("scheme = \"explicit\"", "scheme = \"projection\""),
+                ("x_min = \"slip\"\n", "x_min = \"slip\"\ncontact = \"separating\"\n"),
+                ("transfer = \"apic\"", "transfer = \"apic\"\nstress_update = \"usl\""),
+                ("[[bodies]]", "[pressure]\nunknowns = \"cells\"\n\n[[bodies]]"),
+            ]),
+            "bad.toml: grid.boundary.contact: \"separating\" is not built for pressure.unknowns = \"cells\" yet: use \"bonded\", or unknowns = \"nodes\"",
+        ),
+        (
+            "an unknown kind of wall contact",
+            edit(&[("x_min = \"slip\"\n", "x_min = \"slip\"\ncontact = \"sticky\"\n")]),
+            "bad.toml:17:11: grid.boundary.contact: unknown value \"sticky\" (allowed: \"separating\", \"bonded\")",
+        ),
+        (
             "an unknown place for the pressure",
             format!("{SMALL_2D}\n[pressure]\nunknowns = \"faces\"\n"),
             "bad.toml:41:12: pressure.unknowns: unknown value \"faces\"; did you mean \"nodes\"? (allowed: \"nodes\", \"cells\")",

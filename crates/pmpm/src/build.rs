@@ -221,23 +221,26 @@ pub fn boundary<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Boundary<
     // under the nodal projection a ghost node behind a face mirrors the node as far inside it
     let mirrors = deck.simulation.scheme == Scheme::Projection
         && deck.pressure.unknowns == PressureUnknowns::Nodes;
-    Boundary::new(faces, fields, mirrors, rigid_bodies(deck), geo).with_inflows(
-        crate::flow::InflowDeck::build(
-            &deck.inflows,
-            &deck
-                .materials
-                .iter()
-                .map(|m| (m.name.as_str(), m.density))
-                .collect::<Vec<_>>(),
+    let separating = deck.grid.boundary.contact != Some(crate::deck::WallContact::Bonded);
+    Boundary::new(faces, fields, mirrors, rigid_bodies(deck), geo)
+        .with_separation(separating)
+        .with_inflows(
+            crate::flow::InflowDeck::build(
+                &deck.inflows,
+                &deck
+                    .materials
+                    .iter()
+                    .map(|m| (m.name.as_str(), m.density))
+                    .collect::<Vec<_>>(),
+                geo,
+            ),
+            // the rows of nodes a particle less than a cell from the face reads from
+            match deck.simulation.shape_function {
+                crate::shape::ShapeFunction::Linear => 1,
+                _ => 2,
+            },
             geo,
-        ),
-        // the rows of nodes a particle less than a cell from the face reads from
-        match deck.simulation.shape_function {
-            crate::shape::ShapeFunction::Linear => 1,
-            _ => 2,
-        },
-        geo,
-    )
+        )
 }
 
 /// The rigid bodies of a validated deck.

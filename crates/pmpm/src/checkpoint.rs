@@ -164,6 +164,14 @@ fn as_run_then(deck: &mut toml::Table) {
             p.entry("sample").or_insert_with(|| "nodes".into());
         }
     }
+    // before separating walls (pmpm 0.1 up to 2026-12-03) every wall held v . n both ways
+    if let Some(toml::Value::Table(b)) = deck
+        .get_mut("grid")
+        .and_then(|g| g.as_table_mut())
+        .and_then(|g| g.get_mut("boundary"))
+    {
+        b.entry("contact").or_insert_with(|| "bonded".into());
+    }
     let Some(toml::Value::Table(s)) = deck.get_mut("simulation") else {
         return;
     };

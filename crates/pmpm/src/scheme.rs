@@ -267,7 +267,13 @@ impl<const D: usize> Simulation<D> {
         self.particles_to_grid();
         self.boundary.rigid.begin_step(&self.grid, dt);
         self.timers.lap(Phase::P2g);
-        // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure)
+        // 3a. the projection's free surface, from where the particles are
+        if let Stepper::Projection(projection) = &mut self.stepper {
+            projection.find_free_surface(&self.particles, &self.grid, &self.boundary);
+            self.timers.lap(Phase::FreeSurface);
+        }
+        // 2. predictor: v* = v^n + dt f / m (with the explicit scheme f holds the EOS pressure),
+        //    and the walls that hold this step
         self.predict(dt);
         // 3. boundary conditions on v*; the projection's pressure
         self.pressure(dt)?;
@@ -310,6 +316,8 @@ impl<const D: usize> Simulation<D> {
     /// of the Poisson equation would read that as flow through the wall.
     fn predict(&mut self, dt: f64) {
         if self.stepper.scheme() == Scheme::Projection {
+            // v^n's motion into the walls removed (the contacts by v^n itself)
+            self.settle_contacts(false, dt);
             self.boundary.apply(&mut self.grid.velocity);
         }
         self.grid.predict(
@@ -318,6 +326,35 @@ impl<const D: usize> Simulation<D> {
             self.settings.mass_epsilon,
             self.settings.mass_floor,
         );
+        // the walls this step holds: those v* presses on
+        self.settle_contacts(true, dt);
+    }
+
+    /// The largest body force per unit mass on a particle, |g| or the field's.
+    fn body_acceleration(&self) -> f64 {
+        match &self.body_force {
+            Some((_, f)) => f.iter().map(|f| f.norm()).fold(0.0, f64::max),
+            None => self.settings.gravity.norm(),
+        }
+    }
+
+    /// The walls' contacts for the step ([`Boundary::settle_contacts`]) on v^n (which also
+    /// marks the material already leaving faster than a step of the body force), or on v* with
+    /// `predicted`: under the projection by the last solve's pressure as well, or held where it
+    /// sets no level ([`Projection::wall_pressure`]).
+    fn settle_contacts(&mut self, predicted: bool, dt: f64) {
+        let (v, leaving) = if predicted {
+            (&self.grid.velocity_new, None)
+        } else {
+            (&self.grid.velocity, Some(self.body_acceleration() * dt))
+        };
+        match &self.stepper {
+            Stepper::Explicit => self.boundary.settle_contacts(v, None, None),
+            Stepper::Projection(p) => match p.wall_pressure(self.grid.geo.node_count()) {
+                Some(pressure) => self.boundary.settle_contacts(v, Some(pressure), leaving),
+                None => self.boundary.hold_all(),
+            },
+        }
     }
 
     /// Step 3b: the projected velocity v <- u, the solution of (M + dt K) u = M v, K the
@@ -783,10 +820,7 @@ impl<const D: usize> Simulation<D> {
         };
         // body-force limit: a particle starting from rest moves at most cfl h in a step
         // (|g| dt^2 <= cfl^2 h); it sets the first steps of a flow starting at rest
-        let g = match &self.body_force {
-            Some((_, f)) => f.iter().map(|f| f.norm()).fold(0.0, f64::max),
-            None => self.settings.gravity.norm(),
-        };
+        let g = self.body_acceleration();
         if g > 0.0 {
             dt = dt.min(cfl * (h / g).sqrt());
         }

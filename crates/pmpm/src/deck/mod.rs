@@ -289,6 +289,21 @@ pub struct BoundaryDeck {
     pub z_min: Option<BoundarySpec>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub z_max: Option<BoundarySpec>,
+    /// How the slip and no-slip faces hold the material: `"bonded"` (v . n held both ways,
+    /// the default) or `"separating"` (it may leave them); filled in by the checks.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub contact: Option<WallContact>,
+}
+
+/// `grid.boundary.contact`: whether the walls let the material go
+/// ([`crate::boundary::Boundary::settle_contacts`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WallContact {
+    /// The normal velocity one-sided: the wall pushes, never pulls.
+    Separating,
+    /// v . n = v_wall . n both ways: the material sticks to the wall's normal motion.
+    Bonded,
 }
 
 /// Names of the axes, in messages.
@@ -945,6 +960,25 @@ impl Deck {
         Ok(())
     }
 
+    /// `grid.boundary.contact`, filled in: the cell projection's constraint is built for walls
+    /// held both ways.
+    fn check_contact(&mut self, c: &Check) -> Result<(), DeckError> {
+        let cells = self.simulation.scheme == Scheme::Projection
+            && self.pressure.unknowns == PressureUnknowns::Cells;
+        let contact = &mut self.grid.boundary.contact;
+        match contact {
+            Some(WallContact::Separating) if cells => Err(c.err(
+                "grid.boundary.contact",
+                "\"separating\" is not built for pressure.unknowns = \"cells\" yet: use \"bonded\", or unknowns = \"nodes\"",
+            )),
+            Some(_) => Ok(()),
+            None => {
+                *contact = Some(WallContact::Bonded);
+                Ok(())
+            }
+        }
+    }
+
     /// The `[grid]` table: origin, size, cell size and the boundary faces.
     fn check_grid(&mut self, c: &Check) -> Result<(), DeckError> {
         let dim = self.simulation.dimension;
@@ -1017,6 +1051,8 @@ impl Deck {
             }
         }
 
+        self.check_contact(c)?;
+        let g = &self.grid;
         let faces = g.boundary.faces();
         for d in 0..dim {
             let lo = faces[2 * d].as_ref().map(|f| f.kind());

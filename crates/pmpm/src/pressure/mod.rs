@@ -398,11 +398,48 @@ impl<const D: usize> Projection<D> {
         crate::particles::permute(&mut self.work.volume_over_density, order, scratch);
     }
 
-    /// Steps 3 to 6 of docs/method.md on v* (in `grid.velocity_new`, wall conditions applied):
-    /// with beta > 0 applies -beta grad p^n, then finds the free surface, assembles and solves
-    /// the Poisson equation for the pressure (its increment when beta > 0), corrects the node
-    /// velocities and interpolates the new pressure to the particles. The caller re-applies the
-    /// wall conditions.
+    /// Step 3's first stage, before the predictor: the particles binned by cell and, under the
+    /// nodal projection, the free surface (each node's role, and the level set where the
+    /// surface lies) and the unknowns numbered. It reads only where the particles are, so the
+    /// walls can settle their contacts on it before v* is formed ([`Projection::wall_pressure`]);
+    /// the cell projection finds its own surface in [`Projection::project`].
+    pub fn find_free_surface(&mut self, ps: &Particles<D>, grid: &Grid<D>, boundary: &Boundary<D>) {
+        self.shared.bins.sort(&grid.geo, &ps.x);
+        if self.cells.is_some() {
+            return;
+        }
+        let geo = &grid.geo;
+        self.shared.surface.detect(
+            geo,
+            &self.shared.bins,
+            &ps.volume0,
+            &grid.mass,
+            self.settings.mass_epsilon,
+            &boundary.rigid,
+        );
+        let free = self
+            .shared
+            .system
+            .unknowns
+            .number(geo, &self.shared.surface.kinds);
+        self.last.singular = free == 0 && !self.shared.system.unknowns.node_of_row.is_empty();
+    }
+
+    /// The node pressure that decides which walls hold this step
+    /// ([`Boundary::settle_contacts`]): the last solve's, where it has a level. None where the
+    /// walls hold both ways: before the first solve, under the cell projection, and where no
+    /// free surface sets the pressure's level (a filled, closed box, whose water cannot leave
+    /// a wall without leaving a void).
+    pub fn wall_pressure(&self, nodes: usize) -> Option<&[f64]> {
+        let level = self.cells.is_none() && !self.last.singular && self.previous.len() == nodes;
+        level.then_some(&self.previous[..])
+    }
+
+    /// Steps 3 to 6 of docs/method.md on v* (in `grid.velocity_new`, wall conditions applied),
+    /// after [`Projection::find_free_surface`]: with beta > 0 applies -beta grad p^n, then
+    /// assembles and solves the Poisson equation for the pressure (its increment when
+    /// beta > 0), corrects the node velocities and interpolates the new pressure to the
+    /// particles. The caller re-applies the wall conditions.
     ///
     /// p^n is the last solve's node pressure (zero on nodes that were not in the fluid), and the
     /// predictor's -beta grad p^n uses the corrector's own operator, so that an exact pressure
@@ -417,12 +454,11 @@ impl<const D: usize> Projection<D> {
         dt: f64,
         timers: &mut PhaseTimers,
     ) -> Result<SolveStats, SolveError> {
-        let (shape, mass_epsilon) = (self.settings.shape, self.settings.mass_epsilon);
+        let shape = self.settings.shape;
         let beta = self.settings.beta;
         let n_nodes = grid.geo.node_count();
         pages::fit(&mut self.node_pressure, n_nodes);
         pages::fit(&mut self.previous, n_nodes);
-        self.shared.bins.sort(&grid.geo, &ps.x);
         if let Some(cells) = &mut self.cells {
             timers.lap(Phase::FreeSurface);
             self.last.stats = cells.project(
@@ -444,20 +480,6 @@ impl<const D: usize> Projection<D> {
             timers.lap(Phase::Corrector);
         }
         let geo = &grid.geo;
-        // 3. free surface: each node's role, and the level set where the surface lies
-        self.shared.surface.detect(
-            geo,
-            &self.shared.bins,
-            &ps.volume0,
-            &grid.mass,
-            mass_epsilon,
-            &boundary.rigid,
-        );
-        let free = self
-            .shared
-            .system
-            .unknowns
-            .number(geo, &self.shared.surface.kinds);
         // on the free surface p^{n+1} = 0, or n . tau . n where a solid's surface is (a run
         // with a solid stores every particle's tau: `material::stored`)
         if self.settings.traction_free {
@@ -501,7 +523,6 @@ impl<const D: usize> Projection<D> {
         // 4. and 5. in passes: the first projects v*; each further one projects the
         //    divergence the corrector and the wall conditions left, until it is below the
         //    solver's tolerance relative to the first, stops shrinking, or `passes` are done
-        self.last.singular = free == 0 && !self.shared.system.unknowns.node_of_row.is_empty();
         let (mut first_norm, mut last_norm) = (0.0, f64::INFINITY);
         self.last.pass_norms.clear();
         let mut iterations = 0;
