@@ -1136,19 +1136,23 @@ fn hydrostatic_column_2d_is_exact_with_separating_walls() {
 /// from it as free water when the walls separate: its centre drops g t^2 / 2 within the one
 /// step the first solve holds it (the walls hold everything before any pressure is known), and
 /// no particle's pressure goes below the weight of one cell, rho g h, once it has left. With
-/// bonded walls the lid holds it in tension (the same deck's block hangs).
+/// bonded walls the lid holds it in tension (the same deck's block hangs). The explicit
+/// scheme's block (K = 2e5 Pa, FLIP) falls the same with separating walls.
 #[test]
 fn water_leaves_a_lid_as_free_water_with_separating_walls() {
-    let text = |contact: &str| {
+    // the explicit scheme with FLIP: APIC with linear shapes grows a mode at its free
+    // surfaces (`check` warns)
+    let text = |contact: &str, scheme: &str| {
+        let transfer = if scheme == "explicit" { "flip" } else { "apic" };
         format!(
             r#"
 [simulation]
 dimension = 2
-scheme = "projection"
+scheme = "{scheme}"
 end_time = 0.15
 cfl = 0.5
 gravity = [0.0, -9.81]
-transfer = "apic"
+transfer = "{transfer}"
 shape_function = "linear"
 [grid]
 size = [0.2, 0.6]
@@ -1159,6 +1163,7 @@ contact = "{contact}"
 name = "water"
 density = 1000.0
 viscosity = 1.0e-3
+bulk_modulus = 2.0e5
 [[bodies]]
 material = "water"
 shape = {{ type = "box", min = [0.0, 0.5], max = [0.2, 0.6] }}
@@ -1166,8 +1171,8 @@ particles_per_cell = 2
 "#
         )
     };
-    let fall = |contact: &str| {
-        let d = deck(&text(contact));
+    let fall = |contact: &str, scheme: &str| {
+        let d = deck(&text(contact, scheme));
         in_pool(2, || {
             let mut sim = Simulation::<2>::new(&d).unwrap();
             let mean_y = |s: &Simulation<2>| {
@@ -1185,15 +1190,21 @@ particles_per_cell = 2
             (y0 - mean_y(&sim), sim.time, dt_max, p_min)
         })
     };
-    let (drop, t, dt_max, p_min) = fall("separating");
+    for scheme in ["projection", "explicit"] {
+        let (drop, t, dt_max, p_min) = fall("separating", scheme);
+        let free = 0.5 * G * t * t;
+        println!("{scheme}, separating: drop {drop:.5} m against {free:.5} m free, dt <= {dt_max:.2e} s, min p {p_min:.2} Pa");
+        assert!(
+            (drop - free).abs() <= G * t * dt_max,
+            "{scheme}: dropped {drop} m in {t} s, free fall {free} m"
+        );
+        assert!(
+            p_min >= -RHO * G * 0.01,
+            "{scheme}: min pressure {p_min} Pa"
+        );
+    }
+    let (held, t, ..) = fall("bonded", "projection");
     let free = 0.5 * G * t * t;
-    println!("separating: drop {drop:.5} m against {free:.5} m free, dt <= {dt_max:.2e} s, min p {p_min:.2} Pa");
-    assert!(
-        (drop - free).abs() <= G * t * dt_max,
-        "dropped {drop} m in {t} s, free fall {free} m"
-    );
-    assert!(p_min >= -RHO * G * 0.01, "min pressure {p_min} Pa");
-    let (held, ..) = fall("bonded");
     println!("bonded: drop {held:.5} m");
     assert!(held < 0.5 * free, "bonded lid: dropped {held} m");
 }
