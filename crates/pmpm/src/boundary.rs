@@ -81,6 +81,8 @@ pub struct Boundary<const D: usize> {
     /// Per pair, whether its face node's material already moved away from the wall at the
     /// step's start faster than a step of the body force gives ([`Boundary::settle_contacts`]).
     leaving: Vec<bool>,
+    /// Per pair, the axes released at its node by any of the node's pairs (bit d: axis d).
+    released_axes: Vec<u8>,
     /// Wall velocities given by expressions in x, y, z, t, per face (None: constant).
     fields: Vec<Option<crate::field::CompiledField>>,
     /// Per (node, face) pair, the wall velocity at the node now (only with `fields`).
@@ -177,6 +179,7 @@ impl<const D: usize> Boundary<D> {
             separating: false,
             released: Vec::new(),
             leaving: Vec::new(),
+            released_axes: Vec::new(),
             fields,
             node_x,
             time: f64::NAN,
@@ -295,7 +298,8 @@ impl<const D: usize> Boundary<D> {
                 w - v[j][axis]
             };
             if let Some(fast) = leaving_speed {
-                self.leaving[k] = off > floor.max(LEAVING * fast);
+                // without a body force there is no step to measure by: the pressure decides
+                self.leaving[k] = fast > 0.0 && off > floor.max(LEAVING * fast);
             }
             // a wall the pressure pressed on last step holds, unless its material already
             // moves away faster than a step of the body force gives: the water leaves a side
@@ -303,6 +307,19 @@ impl<const D: usize> Boundary<D> {
             // whatever the pressure's noise about zero says
             let pushed = pressure.is_some_and(|p| p[j] > 0.0) && !self.leaving[k];
             self.released[k] = face && off > floor && !pushed;
+        }
+        // the axes released at each node, over its pairs (a node's pairs are consecutive): a
+        // no-slip wall's grip must not hold a component another wall at the node released
+        self.released_axes.resize(self.nodes.len(), 0);
+        let mut start = 0;
+        while start < self.nodes.len() {
+            let i = self.nodes[start].0;
+            let end = start + self.nodes[start..].iter().take_while(|p| p.0 == i).count();
+            let axes = (start..end)
+                .filter(|&k| self.released[k])
+                .fold(0u8, |m, k| m | 1 << (self.nodes[k].1 / 2));
+            self.released_axes[start..end].fill(axes);
+            start = end;
         }
     }
 
@@ -509,9 +526,10 @@ impl<const D: usize> Boundary<D> {
             let kind = self.kind(k, f);
             if self.released(k) {
                 if kind == BoundaryKind::NoSlip {
-                    let free = mask[i][f / 2];
-                    mask[i] = Vector::<D>::zeros();
-                    mask[i][f / 2] = free;
+                    // the grip along the wall, on the axes no wall at the node released
+                    for c in (0..D).filter(|&c| self.released_axes[k] & (1 << c) == 0) {
+                        mask[i][c] = 0.0;
+                    }
                 }
                 continue;
             }
@@ -536,9 +554,9 @@ impl<const D: usize> Boundary<D> {
                 // the normal one-sided; a no-slip wall's grip stays while the node has mass
                 // by it
                 if kind == BoundaryKind::NoSlip {
-                    let vn = v[i][f / 2];
-                    store(&mut v[i], wall);
-                    store(&mut v[i][f / 2], vn);
+                    for c in (0..D).filter(|&c| self.released_axes[k] & (1 << c) == 0) {
+                        store(&mut v[i][c], wall[c]);
+                    }
                 }
                 Self::one_sided(&mut v[i][f / 2], f, wall[f / 2]);
                 continue;

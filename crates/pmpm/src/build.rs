@@ -221,7 +221,7 @@ pub fn boundary<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Boundary<
     // under the nodal projection a ghost node behind a face mirrors the node as far inside it
     let mirrors = deck.simulation.scheme == Scheme::Projection
         && deck.pressure.unknowns == PressureUnknowns::Nodes;
-    let separating = deck.grid.boundary.contact != Some(crate::deck::WallContact::Bonded);
+    let separating = deck.grid.boundary.contact == Some(crate::deck::WallContact::Separating);
     Boundary::new(faces, fields, mirrors, rigid_bodies(deck), geo)
         .with_separation(separating)
         .with_inflows(

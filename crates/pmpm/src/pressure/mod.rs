@@ -194,6 +194,9 @@ pub struct Outcome {
     pub pass_norms: Vec<f64>,
     /// Whether the system had no free-surface node (pressure fixed up to a constant).
     pub singular: bool,
+    /// Whether the last solve's pressure had a level set by a free surface (not singular);
+    /// taken as true on resuming, which does not record it.
+    pub level: bool,
 }
 
 /// State and work buffers of the projection, reused from step to step.
@@ -274,6 +277,7 @@ impl<const D: usize> Projection<D> {
                 },
                 pass_norms: Vec::with_capacity(pd.passes),
                 singular: false,
+                level: true,
             },
             cells: (pd.unknowns == PressureUnknowns::Cells).then(|| {
                 cell::CellProjection::new(shape, pd.tolerance, pd.max_iterations, mass_epsilon)
@@ -428,10 +432,14 @@ impl<const D: usize> Projection<D> {
     /// The node pressure that decides which walls hold this step
     /// ([`Boundary::settle_contacts`]): the last solve's, where it has a level. None where the
     /// walls hold both ways: before the first solve, under the cell projection, and where no
-    /// free surface sets the pressure's level (a filled, closed box, whose water cannot leave
-    /// a wall without leaving a void).
+    /// free surface sets the pressure's level, this step or at the last solve (a filled, closed
+    /// box, whose water cannot leave a wall without leaving a void; a singular solve's
+    /// pressure has its mean taken out, so half its nodes read below zero).
     pub fn wall_pressure(&self, nodes: usize) -> Option<&[f64]> {
-        let level = self.cells.is_none() && !self.last.singular && self.previous.len() == nodes;
+        let level = self.cells.is_none()
+            && !self.last.singular
+            && self.last.level
+            && self.previous.len() == nodes;
         level.then_some(&self.previous[..])
     }
 
@@ -542,6 +550,7 @@ impl<const D: usize> Projection<D> {
             }
         }
         self.last.stats.iterations = iterations;
+        self.last.level = !self.last.singular;
         Ok(self.last.stats)
     }
 
