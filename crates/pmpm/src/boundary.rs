@@ -323,6 +323,11 @@ impl<const D: usize> Boundary<D> {
         }
     }
 
+    /// Whether the walls may let the material go (`grid.boundary.contact = "separating"`).
+    pub fn separates(&self) -> bool {
+        self.separating
+    }
+
     /// Every wall holds both ways this step.
     pub fn hold_all(&mut self) {
         self.released.clear();

@@ -351,6 +351,9 @@ impl<const D: usize> Simulation<D> {
     /// `predicted`: under the projection by the last solve's pressure as well, or held where it
     /// sets no level ([`Projection::wall_pressure`]).
     fn settle_contacts(&mut self, predicted: bool, dt: f64) {
+        if !self.boundary.separates() {
+            return;
+        }
         let (v, leaving) = if predicted {
             (&self.grid.velocity_new, None)
         } else {
