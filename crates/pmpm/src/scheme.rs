@@ -71,14 +71,6 @@ impl<const D: usize> Stepper<D> {
 /// has lost touch with the grid's resolution (a volume that grew without bound).
 pub const MAX_PARTICLE_CELLS: f64 = 4.0;
 
-/// The smallest volume ratio J = V / V0 a particle may reach before the run stops, where the
-/// deck sets no `simulation.volume_limits`: a thousandfold compression is no state of any
-/// material pmpm models (water, soils and rubber stay within tens of per cent), and a run that
-/// blew up can crush its particles towards 0 without ever reaching it (an explicit block
-/// hanging under a lid, APIC with linear shapes, ran on to its end with every particle at
-/// J = 1e-33).
-pub const MIN_VOLUME_RATIO: f64 = 1e-3;
-
 /// Particles that [`Simulation::check_particles`] caught leaving the grid or going non-finite.
 #[derive(Debug, Clone)]
 pub struct Escape<const D: usize> {
@@ -588,13 +580,13 @@ impl<const D: usize> Simulation<D> {
         Ok(())
     }
 
-    /// Stops the run if a particle's volume ratio J fell below [`MIN_VOLUME_RATIO`], left
+    /// Stops the run if a particle's volume ratio J is not positive, left
     /// `simulation.volume_limits` where the deck gives them, or its volume grew past
     /// [`MAX_PARTICLE_CELLS`] cells: its state no longer says anything about the
     /// material, and its volume would go on into the output and the transfers.
     pub fn check_volumes(&self) -> Result<(), Error> {
         let limits = self.policy.volume_limits;
-        let [lo, hi] = limits.unwrap_or([MIN_VOLUME_RATIO, f64::INFINITY]);
+        let [lo, hi] = limits.unwrap_or([0.0, f64::INFINITY]);
         let cell = self.grid.geo.h.powi(D as i32);
         let largest = MAX_PARTICLE_CELLS * cell;
         let ps = &self.particles;
@@ -616,7 +608,7 @@ impl<const D: usize> Simulation<D> {
         } else if let Some([lo, hi]) = limits {
             format!("J is outside simulation.volume_limits = [{lo}, {hi}]")
         } else {
-            format!("a particle may not be compressed below J = {MIN_VOLUME_RATIO}")
+            "a volume ratio must be positive".to_string()
         };
         let verb = if j < 1.0 { "compressed" } else { "expanded" };
         let cause = match self.stepper.scheme() {

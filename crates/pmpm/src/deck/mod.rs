@@ -179,7 +179,7 @@ pub struct SimulationDeck {
     #[serde(default)]
     pub land_on_frames: Option<bool>,
     /// Bounds [min, max] on each particle's volume ratio J = V / V0: a particle outside them
-    /// stops the run. Without them a run stops where J < 1e-3 or a particle's volume passes
+    /// stops the run. Without them a run stops where J <= 0 or a particle's volume passes
     /// [`MAX_PARTICLE_CELLS`] cells.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub volume_limits: Option<[f64; 2]>,
