@@ -485,7 +485,9 @@ impl<const D: usize> Boundary<D> {
 
     /// Zeroes a node displacement's normal component on the slip and no-slip faces, and the
     /// components a rigid body holds on its nodes: a correction that moves the particles must
-    /// not move them through a wall or into a body.
+    /// not move them through a wall or into a body. A face node that separating walls released
+    /// this step ([`Boundary::settle_contacts`]) is held here too: the correction moves no
+    /// particle off a wall either, which is the step's to do.
     pub fn hold_still(&self, u: &mut [Vector<D>]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
             if matches!(self.kind(k, f), BoundaryKind::Slip | BoundaryKind::NoSlip) {
