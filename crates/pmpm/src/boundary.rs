@@ -75,14 +75,13 @@ pub struct Boundary<const D: usize> {
     face_node: Vec<usize>,
     /// Whether the slip and no-slip faces let the material go ([`Boundary::settle_contacts`]).
     separating: bool,
-    /// Per pair, whether its face node's material leaves the wall this step: the pair then
-    /// holds only the normal motion into the wall (empty: every pair holds).
-    released: Vec<bool>,
+    /// Per pair, the axes whose walls its node's material leaves this step, over all the
+    /// node's pairs (bit d: axis d; empty: every pair holds). A pair whose own axis is among
+    /// them holds only the normal motion into its wall.
+    released: Vec<u8>,
     /// Per pair, whether its face node's material already moved away from the wall at the
     /// step's start faster than a step of the body force gives ([`Boundary::settle_contacts`]).
     leaving: Vec<bool>,
-    /// Per pair, the axes released at its node by any of the node's pairs (bit d: axis d).
-    released_axes: Vec<u8>,
     /// Wall velocities given by expressions in x, y, z, t, per face (None: constant).
     fields: Vec<Option<crate::field::CompiledField>>,
     /// Per (node, face) pair, the wall velocity at the node now (only with `fields`).
@@ -179,7 +178,6 @@ impl<const D: usize> Boundary<D> {
             separating: false,
             released: Vec::new(),
             leaving: Vec::new(),
-            released_axes: Vec::new(),
             fields,
             node_x,
             time: f64::NAN,
@@ -275,7 +273,7 @@ impl<const D: usize> Boundary<D> {
         if !self.separating {
             return;
         }
-        self.released.resize(self.nodes.len(), false);
+        self.released.resize(self.nodes.len(), 0);
         self.leaving.resize(self.nodes.len(), false);
         // a node leaves its wall only by more than round-off: the transfers leave 1e-12 of the
         // flow's speed on a wall node's normal, and a channel or a filled box released by it
@@ -306,19 +304,16 @@ impl<const D: usize> Boundary<D> {
             // wall only once nothing pushes it there, and a sheet that has left stays off
             // whatever the pressure's noise about zero says
             let pushed = pressure.is_some_and(|p| p[j] > 0.0) && !self.leaving[k];
-            self.released[k] = face && off > floor && !pushed;
+            self.released[k] = u8::from(face && off > floor && !pushed) << axis;
         }
-        // the axes released at each node, over its pairs (a node's pairs are consecutive): a
-        // no-slip wall's grip must not hold a component another wall at the node released
-        self.released_axes.resize(self.nodes.len(), 0);
+        // over each node's pairs (consecutive; at most one per axis): a no-slip wall's grip
+        // must not hold a component another wall at the node released
         let mut start = 0;
         while start < self.nodes.len() {
             let i = self.nodes[start].0;
             let end = start + self.nodes[start..].iter().take_while(|p| p.0 == i).count();
-            let axes = (start..end)
-                .filter(|&k| self.released[k])
-                .fold(0u8, |m, k| m | 1 << (self.nodes[k].1 / 2));
-            self.released_axes[start..end].fill(axes);
+            let axes = self.released[start..end].iter().fold(0, |m, &a| m | a);
+            self.released[start..end].fill(axes);
             start = end;
         }
     }
@@ -336,7 +331,8 @@ impl<const D: usize> Boundary<D> {
     /// Whether pair k is released this step ([`Boundary::settle_contacts`]).
     #[inline]
     fn released(&self, k: usize) -> bool {
-        self.released.get(k).copied().unwrap_or(false)
+        let axis = self.nodes[k].1 / 2;
+        self.released.get(k).is_some_and(|&m| m >> axis & 1 == 1)
     }
 
     /// A released pair's condition: the normal motion of node component `vn` into face `f`'s
@@ -534,7 +530,7 @@ impl<const D: usize> Boundary<D> {
             if self.released(k) {
                 if kind == BoundaryKind::NoSlip {
                     // the grip along the wall, on the axes no wall at the node released
-                    for c in (0..D).filter(|&c| self.released_axes[k] & (1 << c) == 0) {
+                    for c in (0..D).filter(|&c| self.released[k] & (1 << c) == 0) {
                         mask[i][c] = 0.0;
                     }
                 }
@@ -561,7 +557,7 @@ impl<const D: usize> Boundary<D> {
                 // the normal one-sided; a no-slip wall's grip stays while the node has mass
                 // by it
                 if kind == BoundaryKind::NoSlip {
-                    for c in (0..D).filter(|&c| self.released_axes[k] & (1 << c) == 0) {
+                    for c in (0..D).filter(|&c| self.released[k] & (1 << c) == 0) {
                         store(&mut v[i][c], wall[c]);
                     }
                 }
