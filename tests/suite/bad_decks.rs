@@ -401,6 +401,19 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "bad.toml:17:11: grid.boundary.contact: unknown value \"sticky\" (allowed: \"separating\", \"bonded\")",
         ),
         (
+            "an unknown wall friction",
+            edit(&[("x_min = \"slip\"\n", "x_min = \"slip\"\nfriction = \"rough\"\n")]),
+            "bad.toml:17:12: grid.boundary.friction: unknown value \"rough\" (allowed: \"none\", \"wall_law\")",
+        ),
+        (
+            "the law of the wall with a mud",
+            edit(&[
+                ("x_min = \"slip\"\n", "x_min = \"slip\"\nfriction = \"wall_law\"\n"),
+                ("density = 1000.0", "model = \"bingham\"\ndensity = 1000.0\nyield_stress = 10.0\npapanastasiou_exponent = 100.0"),
+            ]),
+            "bad.toml: grid.boundary.friction: \"wall_law\" is the law of the wall of a Newtonian fluid with a viscosity; material \"water\" is not one (model Bingham, viscosity 0.001 Pa s)",
+        ),
+        (
             "an unknown place for the pressure",
             format!("{SMALL_2D}\n[pressure]\nunknowns = \"faces\"\n"),
             "bad.toml:41:12: pressure.unknowns: unknown value \"faces\"; did you mean \"nodes\"? (allowed: \"nodes\", \"cells\")",

@@ -1209,6 +1209,107 @@ particles_per_cell = 2
     assert!(held < 0.5 * free, "bonded lid: dropped {held} m");
 }
 
+/// The column of [`hydrostatic_column_2d_is_exact_from_the_first_step`] with the law of the wall on its slip walls
+/// (`grid.boundary.friction = "wall_law"`): at rest nothing slides, and it stays exact.
+#[test]
+fn hydrostatic_column_2d_is_exact_with_wall_friction() {
+    let size = [0.2, 0.4];
+    let mut d = column_deck(2, 0.01, &size, &water_body(&size), "");
+    d.grid.boundary.friction = Some(pmpm::deck::WallFriction::WallLaw);
+    let (r, _) = in_pool(2, || {
+        run_at_rest::<2>(&d, RHO * G * 0.4, |y| RHO * G * (0.4 - y), false)
+    });
+    check_exact("hydrostatic 2D, wall friction", &r);
+}
+
+/// A layer of water 0.05 m deep sliding at 1 m/s over a floor with the law of the wall
+/// (periodic along it, no gravity, h = 0.01 m): in its first step every floor node slides at
+/// 1 m/s, so the layer loses exactly the momentum the wall shear tau_w(1 m/s) takes from the
+/// floor's length over the step (per metre, 2D), whichever scheme; and it keeps slowing, never
+/// reversing. tau_w itself is Spalding's law at the floor nodes' sampling distance h / 3: the
+/// unit tests of `pmpm::wall_law` check the law against its viscous and logarithmic limits.
+#[test]
+fn a_layer_sliding_on_a_floor_loses_the_wall_shear_s_momentum() {
+    let text = |scheme: &str| {
+        format!(
+            r#"
+[simulation]
+dimension = 2
+scheme = "{scheme}"
+end_time = 0.2
+dt = 1.0e-3
+gravity = [0.0, 0.0]
+transfer = "apic"
+[grid]
+size = [0.2, 0.1]
+cell_size = 0.01
+[grid.boundary]
+x_min = "periodic"
+x_max = "periodic"
+y_min = "slip"
+y_max = "open"
+friction = "wall_law"
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+bulk_modulus = 2.0e4
+[[bodies]]
+material = "water"
+shape = {{ type = "box", min = [0.0, 0.0], max = [0.2, 0.05] }}
+velocity = [1.0, 0.0]
+particles_per_cell = 2
+"#
+        )
+    };
+    let law = pmpm::wall_law::WallLaw::new(
+        RHO,
+        1.0e-3,
+        0.01,
+        2,
+        pmpm::deck::ShapeFunction::Linear,
+        0.25,
+    );
+    let tau = law.shear(1.0);
+    for scheme in ["projection", "explicit"] {
+        let d = deck(&text(scheme));
+        let (first, last, reversed) = in_pool(2, || {
+            let mut sim = Simulation::<2>::new(&d).unwrap();
+            let momentum = |s: &Simulation<2>| {
+                (0..s.particles.len())
+                    .map(|p| s.particles.mass[p] * s.particles.v[p][0])
+                    .sum::<f64>()
+            };
+            let p0 = momentum(&sim);
+            let mut first = f64::NAN;
+            let mut reversed = false;
+            drive(&d, &mut sim, |s, _| {
+                if s.steps == 1 {
+                    first = p0 - momentum(s);
+                }
+                reversed |= s.particles.v.iter().any(|v| v[0] < 0.0);
+                true
+            });
+            (first, p0 - momentum(&sim), reversed)
+        });
+        let expected = tau * 0.2 * 1.0e-3;
+        println!(
+            "{scheme}: tau_w(1 m/s) = {tau:.3} Pa; first step lost {first:.6e} kg m/s, expected \
+             {expected:.6e}; over 0.2 s {last:.4} kg m/s of {:.1}",
+            RHO * 0.2 * 0.05
+        );
+        assert!(
+            (first / expected - 1.0).abs() < 1e-9,
+            "{scheme}: first step lost {first}, the shear takes {expected}"
+        );
+        assert!(!reversed, "{scheme}: a particle slid backwards");
+        assert!(
+            last > 100.0 * expected && last < RHO * 0.2 * 0.05,
+            "{scheme}: lost {last}"
+        );
+    }
+}
+
 /// The B-spline column of [`hydrostatic_column_2d_with_bspline2_and_a_rigid_body_stays_at_rest`]
 /// against separating walls, within the same bounds: its v* carries 1e-4 m/s of noise at the
 /// side walls, and the velocity alone released them (1.2e-3 m/s at rest); the water's weight on

@@ -13,6 +13,7 @@ use crate::grid::{GridGeometry, Vector};
 use crate::pages::store;
 use crate::particles::Particles;
 use crate::shape::PAD;
+use crate::wall_law::WallLaw;
 use rayon::prelude::*;
 
 /// The speed away from a wall, relative to the fastest wall node's, above which a node leaves
@@ -100,6 +101,8 @@ pub struct Boundary<const D: usize> {
     /// The nodes of the inflows' buffers: on a patch, behind it and in the first rows in
     /// front of it, which the particles in a buffer read from ([`Boundary::hold_buffers`]).
     buffer_nodes: Vec<usize>,
+    /// The slip walls' shear (`grid.boundary.friction`; None: they slide freely).
+    friction: Option<WallLaw>,
 }
 
 impl<const D: usize> Boundary<D> {
@@ -185,6 +188,7 @@ impl<const D: usize> Boundary<D> {
             inflows: Vec::new(),
             inflow_of: Vec::new(),
             buffer_nodes: Vec::new(),
+            friction: None,
         };
         b.set_time(0.0, geo);
         b
@@ -246,6 +250,27 @@ impl<const D: usize> Boundary<D> {
     pub fn with_separation(mut self, on: bool) -> Self {
         self.separating = on;
         self
+    }
+
+    /// The same conditions with the slip walls' shear given by `law` ([`crate::wall_law`]).
+    pub fn with_friction(mut self, law: Option<WallLaw>) -> Self {
+        self.friction = law;
+        self
+    }
+
+    /// Step 2: the slip walls' shear on v* ([`crate::wall_law`]), from each face node's slide
+    /// at the step's start (`before`, v^n), on the nodes with material (`mass`) that the wall
+    /// holds this step; a released node's material is leaving the wall and feels none.
+    pub fn rub(&self, v: &mut [Vector<D>], before: &[Vector<D>], mass: &[f64], dt: f64) {
+        let Some(law) = &self.friction else {
+            return;
+        };
+        for (k, &(i, f)) in self.nodes.iter().enumerate() {
+            if self.face_node[k] == i && self.kind(k, f) == BoundaryKind::Slip && !self.released(k)
+            {
+                law.rub(&mut v[i], &before[i], mass[i], f / 2, &self.wall(k, f), dt);
+            }
+        }
     }
 
     /// Decides which face nodes the walls hold this step, from the node velocities `v` (v^n,

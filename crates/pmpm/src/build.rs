@@ -16,6 +16,7 @@ use crate::rigid::{Free, Motion, Pose, RigidBodies, RigidBox, ShapedBody};
 use crate::scheme::{least_density, Parts, Scheme, Simulation, StepPolicy, Stepper, LIGHT_NODE};
 use crate::seed::Seeding;
 use crate::transfer::TransferSettings;
+use crate::wall_law::{WallFriction, WallLaw};
 
 impl<const D: usize> Simulation<D> {
     /// Sets up particles, grid and every part of the step from a validated deck.
@@ -222,8 +223,22 @@ pub fn boundary<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Boundary<
     let mirrors = deck.simulation.scheme == Scheme::Projection
         && deck.pressure.unknowns == PressureUnknowns::Nodes;
     let separating = deck.grid.boundary.contact == Some(crate::deck::WallContact::Separating);
+    let friction = (deck.grid.boundary.friction == Some(WallFriction::WallLaw)).then(|| {
+        // the checks let the law on with one Newtonian fluid only
+        let m = &deck.materials[0];
+        let ppc = deck.bodies.first().map_or(2, |b| b.particles_per_cell);
+        WallLaw::new(
+            m.density,
+            m.viscosity,
+            geo.h,
+            D,
+            deck.simulation.shape_function,
+            0.5 / ppc as f64,
+        )
+    });
     Boundary::new(faces, fields, mirrors, rigid_bodies(deck), geo)
         .with_separation(separating)
+        .with_friction(friction)
         .with_inflows(
             crate::flow::InflowDeck::build(
                 &deck.inflows,

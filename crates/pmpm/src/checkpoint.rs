@@ -171,6 +171,8 @@ fn as_run_then(deck: &mut toml::Table) {
         .and_then(|g| g.get_mut("boundary"))
     {
         b.entry("contact").or_insert_with(|| "bonded".into());
+        // before wall friction (pmpm 0.1 up to 2026-12-03) the slip walls slid freely
+        b.entry("friction").or_insert_with(|| "none".into());
     }
     let Some(toml::Value::Table(s)) = deck.get_mut("simulation") else {
         return;

@@ -96,6 +96,7 @@ pub mod shape;
 pub mod timing;
 pub(crate) mod transfer;
 pub(crate) mod viscosity;
+pub mod wall_law;
 
 pub use deck::{limits, Deck};
 pub use error::Error;

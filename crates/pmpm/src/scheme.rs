@@ -326,8 +326,11 @@ impl<const D: usize> Simulation<D> {
             self.settings.mass_epsilon,
             self.settings.mass_floor,
         );
-        // the walls this step holds: those v* presses on
+        // the walls this step holds: those v* presses on, and the slip walls' shear on them
         self.settle_contacts(true, dt);
+        let g = &mut self.grid;
+        self.boundary
+            .rub(&mut g.velocity_new, &g.velocity, &g.mass, dt);
     }
 
     /// The largest body force per unit mass on a particle, |g| or the field's.

@@ -39,6 +39,7 @@ pub use crate::geometry::{Numbers, ShapeDeck, ShapeKind};
 pub use crate::material::Model;
 pub use crate::material::{MaterialDeck, MAX_MATERIAL_PARAMETER};
 pub use crate::particles::InitialStress;
+pub use crate::wall_law::WallFriction;
 
 const BOUNDARY_KINDS: &[&str] = &["slip", "no_slip", "open", "outflow", "periodic"];
 
@@ -293,6 +294,10 @@ pub struct BoundaryDeck {
     /// the default) or `"separating"` (it may leave them); filled in by the checks.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact: Option<WallContact>,
+    /// The slip faces' shear: `"none"` (the default) or `"wall_law"`; filled in by the
+    /// checks ([`crate::wall_law`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub friction: Option<WallFriction>,
 }
 
 /// `grid.boundary.contact`: whether the walls let the material go
@@ -506,6 +511,7 @@ fn allowed_values(key: &str) -> Option<Vec<String>> {
         "quadrature" => variants::<Quadrature>(),
         "unknowns" => variants::<PressureUnknowns>(),
         "rigid_faces" => variants::<RigidFaces>(),
+        "friction" => variants::<WallFriction>(),
         "model" => variants::<Model>(),
         "formats" => variants::<Format>(),
         "stress" => variants::<InitialStress>(),
@@ -784,6 +790,7 @@ impl Deck {
             self.simulation.scheme == Scheme::Explicit,
             &c,
         )?;
+        self.check_friction(&c)?;
         self.check_cells_hold_solids(&c)?;
         self.check_bodies(&c)?;
         let solids = self.check_rigid_bodies(&c)?;
@@ -958,6 +965,23 @@ impl Deck {
             }
         }
         Ok(())
+    }
+
+    /// `grid.boundary.friction`, filled in (after the materials: the law needs their fluid).
+    fn check_friction(&mut self, c: &Check) -> Result<(), DeckError> {
+        let dim = self.simulation.dimension;
+        let b = &mut self.grid.boundary;
+        let friction = *b.friction.get_or_insert(WallFriction::None);
+        let slip = b.faces()[..2 * dim]
+            .iter()
+            .filter(|f| f.as_ref().map_or(BoundaryKind::Slip, |f| f.kind()) == BoundaryKind::Slip)
+            .count();
+        let materials: Vec<_> = self
+            .materials
+            .iter()
+            .map(|m| (m.name.as_str(), m.model, m.density, m.viscosity))
+            .collect();
+        friction.check(c, &materials, slip)
     }
 
     /// `grid.boundary.contact`, filled in: the cell projection's constraint is built for walls
