@@ -911,17 +911,18 @@ impl Deck {
             self.pressure.free_surface = Some(FreeSurface::LevelSet);
         }
         // the particles' volumes held by a position correction wherever a fluid has a free
-        // surface; a fluid that fills its container keeps the container's volume, and a solid's
-        // J is its deformation (the strip footing's nodal run threw a particle out of its heave
-        // with the correction)
+        // surface; a fluid that fills its container keeps the container's volume, but its
+        // particles bunch and open gaps as it stirs, which the correction from their positions
+        // evens out (the cavity's and the vortex's velocities then follow the reference more
+        // closely); a solid's J is its deformation (the strip footing's nodal run threw a
+        // particle out of its heave with the correction)
         if self.pressure.density_correction.is_none() {
-            let free = self.pressure.free_surface != Some(FreeSurface::None)
-                && self.pressure.unknowns == PressureUnknowns::Nodes
+            let fluid = self.pressure.unknowns == PressureUnknowns::Nodes
                 && !self.materials.iter().any(MaterialDeck::is_solid);
-            self.pressure.density_correction = Some(if free {
-                DensityCorrection::Positions
-            } else {
-                DensityCorrection::None
+            self.pressure.density_correction = Some(match self.pressure.free_surface {
+                _ if !fluid => DensityCorrection::None,
+                Some(FreeSurface::None) => DensityCorrection::Particles,
+                _ => DensityCorrection::Positions,
             });
         }
         let vc = self.pressure.volume_correction;
