@@ -1215,7 +1215,10 @@ particles_per_cell = 2
 fn hydrostatic_column_2d_is_exact_with_wall_friction() {
     let size = [0.2, 0.4];
     let mut d = column_deck(2, 0.01, &size, &water_body(&size), "");
+    // one fluid, as the law needs (the deck's second material is not used)
+    d.materials.retain(|m| m.name == "water");
     d.grid.boundary.friction = Some(pmpm::deck::WallFriction::WallLaw);
+    d.validate("test.toml").expect("a deck the checks accept");
     let (r, _) = in_pool(2, || {
         run_at_rest::<2>(&d, RHO * G * 0.4, |y| RHO * G * (0.4 - y), false)
     });
@@ -1308,6 +1311,71 @@ particles_per_cell = 2
             "{scheme}: lost {last}"
         );
     }
+}
+
+/// Water filling a 3D duct (0.2 m long and periodic along x, 0.1 m wide, 0.06 m high, slip
+/// walls with the law of the wall all round, h = 0.02 m, no gravity) and sliding along it at
+/// 1 m/s: in its first step it loses exactly the momentum tau_w(1 m/s) takes from the four
+/// walls' area, 0.2 m x 2 (0.1 + 0.06) m. The nodes on the duct's edges hold half of each
+/// wall's cell, and both walls meeting there rub them: counted whole, the edges would add
+/// 2 h of perimeter (+12 %).
+#[test]
+fn water_sliding_along_a_3d_duct_loses_the_shear_of_its_walls_area() {
+    let d = deck(
+        r#"
+[simulation]
+dimension = 3
+scheme = "projection"
+end_time = 1.0e-3
+dt = 1.0e-3
+gravity = [0.0, 0.0, 0.0]
+transfer = "apic"
+[grid]
+size = [0.2, 0.06, 0.1]
+cell_size = 0.02
+[grid.boundary]
+x_min = "periodic"
+x_max = "periodic"
+friction = "wall_law"
+[pressure]
+free_surface = "none"
+density_correction = "none"
+[[materials]]
+name = "water"
+density = 1000.0
+viscosity = 1.0e-3
+[[bodies]]
+material = "water"
+shape = { type = "box", min = [0.0, 0.0, 0.0], max = [0.2, 0.06, 0.1] }
+velocity = [1.0, 0.0, 0.0]
+particles_per_cell = 2
+"#,
+    );
+    let law = pmpm::wall_law::WallLaw::new(
+        RHO,
+        1.0e-3,
+        0.02,
+        3,
+        pmpm::deck::ShapeFunction::Linear,
+        0.25,
+    );
+    let expected = law.shear(1.0) * 0.2 * 2.0 * (0.1 + 0.06) * 1.0e-3;
+    let lost = in_pool(2, || {
+        let mut sim = Simulation::<3>::new(&d).unwrap();
+        let momentum = |s: &Simulation<3>| {
+            (0..s.particles.len())
+                .map(|p| s.particles.mass[p] * s.particles.v[p][0])
+                .sum::<f64>()
+        };
+        let p0 = momentum(&sim);
+        drive(&d, &mut sim, |_, _| true);
+        p0 - momentum(&sim)
+    });
+    println!("3D duct: first step lost {lost:.6e} kg m/s, the walls' shear {expected:.6e}");
+    assert!(
+        (lost / expected - 1.0).abs() < 1e-9,
+        "lost {lost}, the walls' shear takes {expected}"
+    );
 }
 
 /// The B-spline column of [`hydrostatic_column_2d_with_bspline2_and_a_rigid_body_stays_at_rest`]

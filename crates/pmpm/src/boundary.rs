@@ -101,8 +101,10 @@ pub struct Boundary<const D: usize> {
     /// The nodes of the inflows' buffers: on a patch, behind it and in the first rows in
     /// front of it, which the particles in a buffer read from ([`Boundary::hold_buffers`]).
     buffer_nodes: Vec<usize>,
-    /// The slip walls' shear (`grid.boundary.friction`; None: they slide freely).
-    friction: Option<WallLaw>,
+    /// The slip walls' shear (`grid.boundary.friction`; None: they slide freely), the
+    /// share of its wall each pair's node rubs on (0: none, not a face node of a slip wall
+    /// within the grid), and the mass below which a node is empty.
+    friction: Option<(WallLaw, Vec<f64>, f64)>,
 }
 
 impl<const D: usize> Boundary<D> {
@@ -252,23 +254,62 @@ impl<const D: usize> Boundary<D> {
         self
     }
 
-    /// The same conditions with the slip walls' shear given by `law` ([`crate::wall_law`]).
-    pub fn with_friction(mut self, law: Option<WallLaw>) -> Self {
-        self.friction = law;
+    /// The same conditions with the slip walls' shear given by `law` ([`crate::wall_law`]),
+    /// on nodes above `mass_epsilon`. Each face node of a slip wall rubs on its share of the
+    /// wall: h^(D-1), halved for each edge of the wall it sits on (a corner of a 2D floor
+    /// holds half a cell of it, an edge node of a 3D floor half, a corner a quarter), and
+    /// none for a node beyond the wall's edges (a ghost node behind another face). Along a
+    /// periodic axis the wall has no edge, and an image node rubs as the node it copies.
+    pub fn with_friction(
+        mut self,
+        law: Option<WallLaw>,
+        geo: &GridGeometry<D>,
+        mass_epsilon: f64,
+    ) -> Self {
+        self.friction = law.map(|law| {
+            let shares = (self.nodes.iter().enumerate())
+                .map(|(k, &(i, f))| {
+                    if self.face_node[k] != i || self.faces[f].0 != BoundaryKind::Slip {
+                        return 0.0;
+                    }
+                    let idx = geo.multi(i);
+                    let mut share = law.area();
+                    for d in (0..D).filter(|&d| d != f / 2) {
+                        if self.faces[2 * d].0 == BoundaryKind::Periodic {
+                            continue;
+                        }
+                        let (first, last) = (PAD, PAD + geo.cells[d]);
+                        if idx[d] < first || idx[d] > last {
+                            return 0.0;
+                        }
+                        if idx[d] == first || idx[d] == last {
+                            share *= 0.5;
+                        }
+                    }
+                    share
+                })
+                .collect();
+            (law, shares, mass_epsilon)
+        });
         self
     }
 
     /// Step 2: the slip walls' shear on v* ([`crate::wall_law`]), from each face node's slide
     /// at the step's start (`before`, v^n), on the nodes with material (`mass`) that the wall
-    /// holds this step; a released node's material is leaving the wall and feels none.
+    /// holds this step; a released node's material is leaving the wall and feels none. At an
+    /// edge the walls rub one after the other, each on what the last left.
     pub fn rub(&self, v: &mut [Vector<D>], before: &[Vector<D>], mass: &[f64], dt: f64) {
-        let Some(law) = &self.friction else {
+        let Some((law, shares, eps)) = &self.friction else {
             return;
         };
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
-            if self.face_node[k] == i && self.kind(k, f) == BoundaryKind::Slip && !self.released(k)
-            {
-                law.rub(&mut v[i], &before[i], mass[i], f / 2, &self.wall(k, f), dt);
+            let share = shares[k];
+            if share > 0.0 && mass[i] > *eps && self.kind(k, f) == BoundaryKind::Slip {
+                if self.released(k) {
+                    continue;
+                }
+                let wall = self.wall(k, f);
+                law.rub(&mut v[i], &before[i], (mass[i], share), f / 2, &wall, dt);
             }
         }
     }

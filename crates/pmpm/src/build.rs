@@ -81,7 +81,7 @@ impl<const D: usize> Simulation<D> {
                 0
             },
         };
-        let boundary = boundary(deck, &geo);
+        let boundary = boundary(deck, &geo, settings.mass_epsilon);
         let probes = probes(deck, &geo);
         let stepper = match deck.simulation.scheme {
             Scheme::Explicit => Stepper::Explicit,
@@ -196,8 +196,13 @@ pub fn clock(deck: &Deck) -> Clock {
     }
 }
 
-/// The walls and rigid bodies of a validated deck on a grid.
-pub fn boundary<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Boundary<D> {
+/// The walls and rigid bodies of a validated deck on a grid; below `mass_epsilon` a node is
+/// empty (the walls' friction passes it by).
+pub fn boundary<const D: usize>(
+    deck: &Deck,
+    geo: &GridGeometry<D>,
+    mass_epsilon: f64,
+) -> Boundary<D> {
     let faces: Vec<(BoundaryKind, Vector<D>)> = deck.grid.boundary.faces()[..2 * D]
         .iter()
         .map(|f| {
@@ -238,7 +243,7 @@ pub fn boundary<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Boundary<
     });
     Boundary::new(faces, fields, mirrors, rigid_bodies(deck), geo)
         .with_separation(separating)
-        .with_friction(friction)
+        .with_friction(friction, geo, mass_epsilon)
         .with_inflows(
             crate::flow::InflowDeck::build(
                 &deck.inflows,

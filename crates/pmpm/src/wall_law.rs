@@ -126,33 +126,40 @@ impl WallLaw {
     }
 
     /// Slows face node velocity `v` (v*, mass `m`) along a wall normal to `axis` moving at
-    /// `wall`, over a step `dt`, by the wall shear of the node's slide `before` it (v^n): the
-    /// shear is a force of the predictor, explicit in time like the others, so the projection
-    /// sees it, and the gravity a side wall's v* carries before the pressure cancels it is not
-    /// read as sliding. It takes at most the slide's own momentum.
+    /// `wall`, over a step `dt`, by the wall shear of the node's slide `before` it (v^n) on
+    /// its `share` of the wall (m^(D-1)): the shear is a force of the predictor, explicit in
+    /// time like the others, so the projection sees it, and the gravity a side wall's v*
+    /// carries before the pressure cancels it is not read as sliding. It takes at most the
+    /// slide v* still has in that direction: it never reverses the node's motion along the
+    /// wall, however light the node or opposed the other forces.
     #[inline]
     pub fn rub<const D: usize>(
         &self,
         v: &mut Vector<D>,
         before: &Vector<D>,
-        m: f64,
+        (m, share): (f64, f64),
         axis: usize,
         wall: &Vector<D>,
         dt: f64,
     ) {
-        if m <= 0.0 {
-            return;
-        }
         let mut slide = *before - wall;
         slide[axis] = 0.0;
         let u = slide.norm();
         if u == 0.0 {
             return;
         }
-        let slowed = (self.shear(u) * self.area * dt / m).min(u);
+        let along = slide / u;
+        let mut now = *v - wall;
+        now[axis] = 0.0;
+        let slowed = (self.shear(u) * share * dt / m).min(now.dot(&along).max(0.0));
         for c in (0..D).filter(|&c| c != axis) {
-            v[c] -= slide[c] * (slowed / u);
+            v[c] -= along[c] * slowed;
         }
+    }
+
+    /// A face node's share of the wall when it sits on no edge of it, h^(D-1) (m^(D-1)).
+    pub fn area(&self) -> f64 {
+        self.area
     }
 
     /// The wall shear tau_w (Pa) under material sliding at `u` (m/s).
@@ -180,6 +187,11 @@ fn spalding(u: f64) -> (f64, f64) {
 pub fn u_plus(re: f64) -> f64 {
     if re <= 0.0 {
         return 0.0;
+    }
+    // deep in the sublayer u+ = y+ to round-off (the bracket's terms are of order u+^4 / 3e4,
+    // and cancel in floating point below it)
+    if re < 1e-6 {
+        return re.sqrt();
     }
     let (mut lo, mut hi) = (0.0, re.sqrt());
     let log_law = ((re.max(1.0)).ln() / KAPPA + B).min(hi);
@@ -259,20 +271,57 @@ mod tests {
     fn the_shear_slows_a_node_without_reversing_it() {
         let law = WallLaw::new(1000.0, 1e-3, 0.01, 2, ShapeFunction::Linear, 0.0);
         let wall = Vector::<2>::zeros();
+        let share = law.area();
         // a full floor node (half a cell of water, 0.05 kg per metre) sliding at 1 m/s
         let before = Vector::<2>::new(1.0, -0.1);
         let mut v = before;
         let tau = law.shear(1.0);
-        law.rub(&mut v, &before, 0.05, 1, &wall, 1e-3);
+        law.rub(&mut v, &before, (0.05, share), 1, &wall, 1e-3);
         assert!((v[0] - (1.0 - tau * 0.01 * 1e-3 / 0.05)).abs() < 1e-14);
         assert_eq!(v[1], -0.1);
         // a nearly empty node stops along the wall, and no further
         let mut v = Vector::<2>::new(1.0, 0.0);
-        law.rub(&mut v, &Vector::<2>::new(1.0, 0.0), 1e-9, 1, &wall, 1e-3);
+        law.rub(
+            &mut v,
+            &Vector::<2>::new(1.0, 0.0),
+            (1e-9, share),
+            1,
+            &wall,
+            1e-3,
+        );
         assert_eq!(v[0], 0.0);
+        // a light node whose other forces already slowed v* to 0.2 m/s stops there, not at
+        // -0.8 m/s
+        let mut v = Vector::<2>::new(0.2, 0.0);
+        law.rub(
+            &mut v,
+            &Vector::<2>::new(1.0, 0.0),
+            (1e-9, share),
+            1,
+            &wall,
+            1e-3,
+        );
+        assert_eq!(v[0], 0.0);
+        // and one pushed back past the wall's speed by them is left alone
+        let mut v = Vector::<2>::new(-0.3, 0.0);
+        law.rub(
+            &mut v,
+            &Vector::<2>::new(1.0, 0.0),
+            (1e-9, share),
+            1,
+            &wall,
+            1e-3,
+        );
+        assert_eq!(v[0], -0.3);
         // at rest (v^n) a node is not rubbed, whatever its v* (gravity along a side wall)
         let mut v = Vector::<2>::new(0.0, -0.05);
-        law.rub(&mut v, &Vector::<2>::zeros(), 0.05, 0, &wall, 1e-3);
+        law.rub(&mut v, &Vector::<2>::zeros(), (0.05, share), 0, &wall, 1e-3);
         assert_eq!(v[1], -0.05);
+    }
+
+    #[test]
+    fn u_plus_is_continuous_where_the_sublayer_shortcut_starts() {
+        let (below, above) = (u_plus(0.999_999e-6), u_plus(1.000_001e-6));
+        assert!((below / above - 1.0).abs() < 1e-6, "{below} {above}");
     }
 }
