@@ -21,14 +21,15 @@
 //! is smooth.
 //!
 //! In the grid's terms: each face node of a slip wall that holds material (a released node of
-//! a separating wall does not) is slowed along the wall by the shear on its share of the wall,
-//! h^(D-1), over its mass, a force of the predictor (step 2): v* loses min(tau_w h^(D-1) dt /
-//! m, U) along the slide, U the node's slide along the wall at the step's start (v^n relative
-//! to the wall), the mass-weighted mean of its particles', and y the
-//! centroid of its shape function's weights on the material side (h / 3 for linear shapes,
-//! 13 h / 32 for quadratic B-splines), where that mean is taken. A node with little mass, the
-//! thin tip of a surge, is slowed the most, as a thin layer is. At rest U = 0 and nothing
-//! changes: a column of water at rest stays exact.
+//! a separating wall does not) is slowed along the wall by the shear on its share A of the
+//! wall (h^(D-1), halved on each of the wall's edges), over its mass m, a force of the
+//! predictor (step 2): v* loses tau_w A dt / m along the slide, and never more than it still
+//! slides that way. U is the node's slide along the wall at the step's start (v^n relative to
+//! the wall), the mass-weighted mean of its particles', and y the centroid of its shape
+//! function's weights on the material side (h / 3 for linear shapes, 13 h / 32 for quadratic
+//! B-splines), where that mean is taken. A node with little mass, the thin tip of a surge, is
+//! slowed the most, as a thin layer is. At rest U = 0 and nothing changes: a column of water at
+//! rest stays exact.
 
 use crate::error::DeckError;
 use crate::grid::Vector;

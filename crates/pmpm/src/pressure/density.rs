@@ -57,9 +57,9 @@ pub struct PositionCorrection<const D: usize> {
     /// from J; its moves also carry each particle's velocity to where it goes, v_p += C_p dx
     /// (the first-order Taylor correction of particle shifting in SPH: Xu, Stansby & Laurence
     /// 2009, J. Comput. Phys. 228; Lind et al. 2012, J. Comput. Phys. 231), C_p APIC's affine
-    /// matrix, the velocity gradient at the particle. Without it a shifted particle brings
-    /// its old velocity to a new place, a dissipation the Taylor-Green vortex read as a decay
-    /// rate 8.9 % fast at h = 1/64 (2.7 % with it).
+    /// matrix, the velocity gradient at the particle (zero under FLIP and PIC, which carry
+    /// nothing). Without it a shifted particle brings its old velocity to a new place, a
+    /// dissipation (docs/method.md, item 4 of the density correction).
     from_positions: bool,
     tolerance: f64,
     max_iterations: usize,
