@@ -1225,6 +1225,13 @@ fn hydrostatic_column_2d_is_exact_with_wall_friction() {
     check_exact("hydrostatic 2D, wall friction", &r);
 }
 
+/// The particles' momentum along x (per metre in 2D).
+fn x_momentum<const D: usize>(s: &Simulation<D>) -> f64 {
+    (0..s.particles.len())
+        .map(|p| s.particles.mass[p] * s.particles.v[p][0])
+        .sum()
+}
+
 /// A layer of water 0.05 m deep sliding at 1 m/s over a floor with the law of the wall
 /// (periodic along it, no gravity, h = 0.01 m): in its first step every floor node slides at
 /// 1 m/s, so the layer loses exactly the momentum the wall shear tau_w(1 m/s) takes from the
@@ -1278,22 +1285,17 @@ particles_per_cell = 2
         let d = deck(&text(scheme));
         let (first, last, reversed) = in_pool(2, || {
             let mut sim = Simulation::<2>::new(&d).unwrap();
-            let momentum = |s: &Simulation<2>| {
-                (0..s.particles.len())
-                    .map(|p| s.particles.mass[p] * s.particles.v[p][0])
-                    .sum::<f64>()
-            };
-            let p0 = momentum(&sim);
+            let p0 = x_momentum(&sim);
             let mut first = f64::NAN;
             let mut reversed = false;
             drive(&d, &mut sim, |s, _| {
                 if s.steps == 1 {
-                    first = p0 - momentum(s);
+                    first = p0 - x_momentum(s);
                 }
                 reversed |= s.particles.v.iter().any(|v| v[0] < 0.0);
                 true
             });
-            (first, p0 - momentum(&sim), reversed)
+            (first, p0 - x_momentum(&sim), reversed)
         });
         let expected = tau * 0.2 * 1.0e-3;
         println!(
@@ -1362,14 +1364,9 @@ particles_per_cell = 2
     let expected = law.shear(1.0) * 0.2 * 2.0 * (0.1 + 0.06) * 1.0e-3;
     let lost = in_pool(2, || {
         let mut sim = Simulation::<3>::new(&d).unwrap();
-        let momentum = |s: &Simulation<3>| {
-            (0..s.particles.len())
-                .map(|p| s.particles.mass[p] * s.particles.v[p][0])
-                .sum::<f64>()
-        };
-        let p0 = momentum(&sim);
+        let p0 = x_momentum(&sim);
         drive(&d, &mut sim, |_, _| true);
-        p0 - momentum(&sim)
+        p0 - x_momentum(&sim)
     });
     println!("3D duct: first step lost {lost:.6e} kg m/s, the walls' shear {expected:.6e}");
     assert!(

@@ -304,10 +304,8 @@ impl<const D: usize> Boundary<D> {
         };
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
             let share = shares[k];
-            if share > 0.0 && mass[i] > *eps && self.kind(k, f) == BoundaryKind::Slip {
-                if self.released(k) {
-                    continue;
-                }
+            let rubs = share > 0.0 && mass[i] > *eps && self.kind(k, f) == BoundaryKind::Slip;
+            if rubs && !self.released(k) {
                 let wall = self.wall(k, f);
                 law.rub(&mut v[i], &before[i], (mass[i], share), f / 2, &wall, dt);
             }
