@@ -15,6 +15,7 @@ pub(crate) mod cell;
 pub(crate) mod density;
 pub mod free_surface;
 mod settings;
+mod spacing;
 
 pub use settings::{DensityCorrection, Preconditioner, PressureSettings, Solver, MULTIGRID_CELLS};
 
