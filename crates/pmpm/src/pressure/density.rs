@@ -307,9 +307,8 @@ impl<const D: usize> PositionCorrection<D> {
         boundary.held_components(&mut self.held);
         boundary.hold_buffers_components(&mut self.held);
         // the pairs' pushes with the linear hat only: with the quadratic B-spline the solve's
-        // own moves gather particles into the corners of no-slip walls (a lid-driven cavity's
-        // corner cell held 20 particles at t = 8, 28 cells were empty), and the pushes, which
-        // cannot spread such a pile, crowded it further (108 particles; the cavity stopped)
+        // own moves gather particles into the corners of no-slip walls, and the pushes, which
+        // cannot spread such a pile, crowd it until the run stops (docs/method.md)
         let pairs = if shape == ShapeFunction::Linear {
             rate
         } else {
@@ -432,8 +431,8 @@ impl<const D: usize> PositionCorrection<D> {
     /// part, so a node's fill there does not measure the particles' arrangement: where a node
     /// next to it (the corners of the cells its hat covers) is not an unknown (nor inside a
     /// body), nothing is corrected. A deficit there is no void, and spreading an excess there
-    /// pushes particles out through the surface: the water then takes more room than its
-    /// summed J V0, and the step gives the difference back as compression under the surface.
+    /// pushes particles out through the surface, where the water then loses more of its
+    /// summed J V0 (docs/method.md, item 4 of the density correction).
     fn fill_excess(
         &mut self,
         geo: &GridGeometry<D>,

@@ -4,7 +4,7 @@
 //! The packing's solve measures the density on the grid's nodes, so it cannot see how the
 //! particles sit inside a cell. A flow that stretches one way and squeezes the other (a
 //! collapsing column) deforms the particles' lattice with it: at J = 1 they end up in lines a
-//! cell or two apart along x, a fifth of their rest spacing apart along y, and a hat a cell
+//! cell or two apart along x, a quarter of their rest spacing apart along y, and a hat a cell
 //! wide reads full and empty columns by turns. Every particle of such a line sits in the same
 //! place of the same cells, so any displacement the nodes give (a gradient, an average)
 //! moves the line whole and never opens it. Particle shifting in SPH acts between the
@@ -21,7 +21,7 @@
 //! the push ends at s, so it never draws particles together or spreads a free surface. A line
 //! is unstable under it: a particle slightly off the line is pushed further off by its close
 //! neighbours along it, and the line opens into the gaps beside it. Pairs are summed both
-//! ways with the same weight, so the moves add no net displacement. The neighbours are found
+//! ways with the same weight, so before the bounds on a move they add no net displacement. The neighbours are found
 //! through the cell bins (the particles of the 3^D cells around a particle's own), which
 //! reach every neighbour closer than s wherever s <= h (a particle per cell or more). The
 //! packing pushes with the linear hat only ([`super::density`]). Written
@@ -172,6 +172,52 @@ fn for_each_neighbour_cell<const D: usize>(
             }
             k[d] = 0;
             d += 1;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::GridGeometry;
+
+    /// The pushes of particles at `x` (rest volume 0.25 h^2 each, J = 1) on a 10 x 10 grid of
+    /// h = 1, periodic along x if asked.
+    fn pushes(x: &[Vector<2>], periodic: bool) -> Vec<Vector<2>> {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [10, 10])
+            .with_periodic([periodic, false]);
+        let mut bins = CellBins::default();
+        bins.sort(&geo, x);
+        let v0 = vec![0.25; x.len()];
+        let jac = vec![1.0; x.len()];
+        let mut s = Spacing::<2>::default();
+        s.pushes(&geo, &bins, (x, &v0, &jac), 1.0);
+        s.push
+    }
+
+    /// A regular lattice at its rest spacing (0.5) is not moved.
+    #[test]
+    fn a_lattice_at_rest_spacing_is_left_alone() {
+        let x: Vec<Vector<2>> = (0..16)
+            .flat_map(|i| {
+                (0..16).map(move |j| Vector::<2>::new(1.25 + 0.5 * i as f64, 1.25 + 0.5 * j as f64))
+            })
+            .collect();
+        assert!(pushes(&x, false).iter().all(|p| p.norm() == 0.0));
+    }
+
+    /// Two particles 0.3 apart (rest spacing 0.5) are pushed apart along their line, equally
+    /// and oppositely, by (1/2) s (1 - r/s)^2 each; across a periodic face as inside.
+    #[test]
+    fn a_close_pair_is_pushed_apart_along_its_line() {
+        let expected = 0.5 * 0.5 * (1.0 - 0.3 / 0.5_f64).powi(2);
+        for (a, b, periodic) in [(4.35, 4.65, false), (0.1, 9.8, true)] {
+            let x = [Vector::<2>::new(a, 5.0), Vector::<2>::new(b, 5.0)];
+            let p = pushes(&x, periodic);
+            // the first is pushed towards -x inside, towards +x across the periodic face
+            let sign = if periodic { 1.0 } else { -1.0 };
+            assert!((p[0][0] - sign * expected).abs() < 1e-14, "{p:?}");
+            assert!((p[0] + p[1]).norm() < 1e-14 && p[0][1] == 0.0, "{p:?}");
         }
     }
 }
