@@ -83,7 +83,7 @@ impl<const D: usize> Simulation<D> {
         };
         let boundary = boundary(deck, &geo, settings.mass_epsilon);
         let probes = probes(deck, &geo);
-        let stepper = match deck.simulation.scheme {
+        let mut stepper = match deck.simulation.scheme {
             Scheme::Explicit => Stepper::Explicit,
             Scheme::Projection => Stepper::Projection(Box::new(Projection::new(
                 &deck.pressure,
@@ -95,6 +95,9 @@ impl<const D: usize> Simulation<D> {
                 settings.mass_epsilon,
             ))),
         };
+        if let Stepper::Projection(p) = &mut stepper {
+            p.shared.surface.set_ceilings(settings.gravity.as_slice());
+        }
         // the projection with nodal pressures reads J with the nodally averaged dilatation (the
         // F-bar idea): its velocity is divergence free node by node, in the weak sense, not at
         // each particle, and the density correction restores volumes node by node

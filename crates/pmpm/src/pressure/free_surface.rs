@@ -46,6 +46,9 @@ pub struct Surface {
     cracks: bool,
     /// Whether each face (x_min, x_max, y_min, ...) is open.
     pub open: Vec<bool>,
+    /// Whether a cell past each face counts as full to [`close_cracks`]: a closed face that
+    /// is no ceiling ([`Surface::set_ceilings`]).
+    behind: Vec<bool>,
     /// Particle volume fraction of each cell (numbered like its lower-corner node), with
     /// enclosed gaps closed.
     pub fraction: Vec<f64>,
@@ -75,7 +78,22 @@ impl Surface {
             (0..2 * D).map(|f| boundary.is_open(f)).collect(),
         );
         s.cracks = pd.density_correction == Some(super::DensityCorrection::Particles);
+        s.behind = s.open.iter().map(|o| !o).collect();
         s
+    }
+
+    /// The faces the body force `gravity` pulls the fluid away from (its outward normal n
+    /// with g . n < 0: a lid, and any face facing down) are ceilings: a gap one cell deep
+    /// under one is water falling away, not a crack between bunched particles, so
+    /// [`close_cracks`] does not fill it (it did, and held a block of water to a lid it
+    /// should have left as free water; against a floor or a side wall the water's own
+    /// pressure closes such a gap).
+    pub fn set_ceilings(&mut self, gravity: &[f64]) {
+        for (f, behind) in self.behind.iter_mut().enumerate() {
+            let (d, side) = (f / 2, f % 2);
+            let g_out = if side == 0 { -gravity[d] } else { gravity[d] };
+            *behind = !self.open[f] && g_out >= 0.0;
+        }
     }
 
     /// The method, the volume-fraction tolerance, the bubble bound and which faces are open.
@@ -90,6 +108,7 @@ impl Surface {
             tolerance,
             bubble_cells,
             cracks: false,
+            behind: open.iter().map(|o| !o).collect(),
             open,
             fraction: Vec::new(),
             raw: Vec::new(),
@@ -153,7 +172,7 @@ impl Surface {
                     _ => self.tolerance,
                 };
                 let cracks = &mut self.flood.component;
-                close_cracks(geo, low, &self.open, &mut self.fraction, cracks);
+                close_cracks(geo, low, &self.behind, &mut self.fraction, cracks);
             }
         }
         // the share of each cell the rigid bodies cover
@@ -882,13 +901,14 @@ pub fn close_bubbles<const D: usize>(
 /// neighbours along some axis are both above it: a crack one cell wide between particles
 /// that have bunched on either side, not air. Left open, its nodes hold p = 0 inside the
 /// water, and the correction that would spread the particles back into it cannot (a column
-/// of such cells opened beside the back wall of a collapsing column). A cell past a closed
-/// face counts as full, past an open face as empty. The cells are found first and filled
-/// after, so a gap two cells across in every direction stays open. `cracks` is scratch.
+/// of such cells opened beside the back wall of a collapsing column). A cell past face f
+/// counts as full where `behind[f]` (a closed face, not a ceiling: [`Surface::set_ceilings`]),
+/// as empty otherwise. The cells are found first and filled after, so a gap two cells
+/// across in every direction stays open. `cracks` is scratch.
 pub fn close_cracks<const D: usize>(
     geo: &GridGeometry<D>,
     tolerance: f64,
-    open: &[bool],
+    behind: &[bool],
     fraction: &mut [f64],
     cracks: &mut Vec<usize>,
 ) {
@@ -901,7 +921,7 @@ pub fn close_cracks<const D: usize>(
             n
         };
         if n < PAD as isize || n >= (PAD + geo.cells[d]) as isize {
-            return !open[2 * d + side];
+            return behind[2 * d + side];
         }
         let mut m = *idx;
         m[d] = n as usize;
@@ -1230,26 +1250,47 @@ mod tests {
         });
         let mut out = vf.clone();
         let mut scratch = Vec::new();
-        close_cracks(&geo, 0.5, &[false; 4], &mut out, &mut scratch);
+        close_cracks(&geo, 0.5, &[true; 4], &mut out, &mut scratch);
         let at = |v: &[f64], cx: usize, cy: usize| v[geo.flat(&[cx + PAD, cy + PAD])];
         assert!((0..5).all(|cy| at(&out, 2, cy) == 1.0));
         assert_eq!((at(&out, 5, 2), at(&out, 6, 2)), (0.0, 0.0));
         assert!((0..8).all(|cx| at(&out, cx, 6) == 0.0 && at(&out, cx, 7) == 0.0));
         // a cell against the x_max face: closed vertically by the water above and below it;
         // three such cells in a column close against a closed face, not an open one
-        let after = |gap: &[(usize, usize)], open: [bool; 4]| {
+        let after = |gap: &[(usize, usize)], behind: [bool; 4]| {
             let mut out = fractions(&geo, |cx, cy| match (cx, cy) {
                 c if gap.contains(&c) => 0.0,
                 (_, y) if y < 6 => 1.0,
                 _ => 0.0,
             });
-            close_cracks(&geo, 0.5, &open, &mut out, &mut Vec::new());
+            close_cracks(&geo, 0.5, &behind, &mut out, &mut Vec::new());
             at(&out, 7, 3)
         };
-        let east_open = [false, true, false, false];
+        let east_open = [true, false, true, true];
         assert_eq!(after(&[(7, 3)], east_open), 1.0);
         assert_eq!(after(&[(7, 2), (7, 3), (7, 4)], east_open), 0.0);
-        assert_eq!(after(&[(7, 2), (7, 3), (7, 4)], [false; 4]), 1.0);
+        assert_eq!(after(&[(7, 2), (7, 3), (7, 4)], [true; 4]), 1.0);
+    }
+
+    /// A row of cells emptied under a closed lid (water below it, gravity down) is water
+    /// falling away: it stays open; the same row over a closed floor, gravity up, too; with
+    /// gravity along x both are cracks.
+    #[test]
+    fn a_gap_under_a_ceiling_is_no_crack() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [4, 4]);
+        let gap = |row: usize, gravity: [f64; 2]| {
+            let mut s = Surface::with_settings(FreeSurface::LevelSet, 0.5, 0, vec![false; 4]);
+            s.set_ceilings(&gravity);
+            let mut out = fractions(&geo, |_, cy| if cy == row { 0.0 } else { 1.0 });
+            close_cracks(&geo, 0.5, &s.behind, &mut out, &mut Vec::new());
+            (0..4)
+                .map(|cx| out[geo.flat(&[cx + PAD, row + PAD])])
+                .sum::<f64>()
+        };
+        assert_eq!(gap(3, [0.0, -9.81]), 0.0);
+        assert_eq!(gap(0, [0.0, 9.81]), 0.0);
+        assert_eq!(gap(3, [9.81, 0.0]), 4.0);
+        assert_eq!(gap(0, [0.0, -9.81]), 4.0);
     }
 
     #[test]
