@@ -643,7 +643,11 @@ fn near_surface<const D: usize>(geo: &GridGeometry<D>, kinds: &[NodeKind], i: us
 /// moves it. `push` (the sub-cell spacing's, [`super::spacing`]) is added to it. Towards a
 /// node where a wall or a body holds component d (`held`, bit d), the shift along d is at
 /// most half the particle's distance from that node: a particle closes a gap against a wall
-/// but is never moved through it.
+/// but is never moved through it. On an inflow's buffer nodes (every bit of `held` set,
+/// [`Boundary::hold_buffers_components`]) the shift is nothing: it is scaled by the
+/// particle's weight on the other nodes, as the volume correction's nodal displacement,
+/// zero there, is interpolated (buffer particles moved back towards the patch let less
+/// water in than the patch gives).
 #[inline]
 fn own_shift<const D: usize>(
     shape: ShapeFunction,
@@ -658,9 +662,13 @@ fn own_shift<const D: usize>(
     // per axis, the distance to the nearest held node below and above the particle
     let mut below = Vector::<D>::repeat(f64::INFINITY);
     let mut above = Vector::<D>::repeat(f64::INFINITY);
+    let mut free = 0.0;
     st.for_each(|nw| {
         let i = geo.flat(&nw.node);
         grad += nw.grad * q[i];
+        if held[i] != u8::MAX {
+            free += nw.n;
+        }
         if held[i] != 0 {
             let at = geo.node_position(&nw.node);
             for d in (0..D).filter(|d| held[i] >> d & 1 == 1) {
@@ -678,7 +686,7 @@ fn own_shift<const D: usize>(
     if norm > limit {
         grad *= limit / norm;
     }
-    let shift = push - grad;
+    let shift = (push - grad) * free.min(1.0);
     Vector::<D>::from_fn(|d, _| shift[d].clamp(-0.5 * below[d], 0.5 * above[d]))
 }
 
