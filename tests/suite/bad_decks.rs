@@ -305,6 +305,11 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
             "bad.toml: pressure.volume_correction: must be >= 0 and < 1 (a fraction of the drift given back per step), got 1.5",
         ),
         (
+            "a correction of J under the explicit scheme",
+            format!("{SMALL_2D}\n[pressure]\ndensity_correction = \"positions\"\n"),
+            "bad.toml: pressure.density_correction: \"positions\" applies to the projection: under the explicit scheme J is the equation of state's measure of the pressure, which a correction of J would overwrite; use \"particles\" (the particles packed to rest density, J left as it is) or \"none\"",
+        ),
+        (
             "cut-cell rigid faces with B-splines",
             format!(
                 "{}\n[pressure]\nrigid_faces = \"cut\"\n",

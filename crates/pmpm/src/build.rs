@@ -11,7 +11,7 @@ use crate::error::Error;
 use crate::grid::{GridGeometry, Vector};
 use crate::material::MaterialParams;
 use crate::particles::Particles;
-use crate::pressure::{PressureUnknowns, Projection};
+use crate::pressure::{DensityCorrection, Packing, PressureUnknowns, Projection};
 use crate::rigid::{Free, Motion, Pose, RigidBodies, RigidBox, ShapedBody};
 use crate::scheme::{least_density, Parts, Scheme, Simulation, StepPolicy, Stepper, LIGHT_NODE};
 use crate::seed::Seeding;
@@ -83,21 +83,7 @@ impl<const D: usize> Simulation<D> {
         };
         let boundary = boundary(deck, &geo, settings.mass_epsilon);
         let probes = probes(deck, &geo);
-        let mut stepper = match deck.simulation.scheme {
-            Scheme::Explicit => Stepper::Explicit,
-            Scheme::Projection => Stepper::Projection(Box::new(Projection::new(
-                &deck.pressure,
-                deck.simulation.shape_function,
-                deck.materials.iter().any(MaterialDeck::is_solid),
-                &particles,
-                &boundary,
-                geo.cells.iter().product(),
-                settings.mass_epsilon,
-            ))),
-        };
-        if let Stepper::Projection(p) = &mut stepper {
-            p.shared.surface.set_ceilings(settings.gravity.as_slice());
-        }
+        let stepper = stepper(deck, &particles, &boundary, &geo, &settings);
         // the projection with nodal pressures reads J with the nodally averaged dilatation (the
         // F-bar idea): its velocity is divergence free node by node, in the weak sense, not at
         // each particle, and the density correction restores volumes node by node
@@ -137,6 +123,34 @@ impl<const D: usize> Simulation<D> {
             }),
         };
         Ok(Self::from_parts(parts))
+    }
+}
+
+/// The scheme's state: the projection with its solves, or the explicit scheme with its
+/// packing where `density_correction = "particles"`; the free surface's ceilings from the body
+/// force at the origin.
+fn stepper<const D: usize>(
+    deck: &Deck,
+    particles: &Particles<D>,
+    boundary: &Boundary<D>,
+    geo: &GridGeometry<D>,
+    settings: &TransferSettings<D>,
+) -> Stepper<D> {
+    let (pd, shape) = (&deck.pressure, deck.simulation.shape_function);
+    let cells = geo.cells.iter().product();
+    let gravity = settings.gravity.as_slice();
+    match deck.simulation.scheme {
+        Scheme::Explicit => Stepper::Explicit(
+            (pd.density_correction == Some(DensityCorrection::Particles))
+                .then(|| Box::new(Packing::new(pd, shape, boundary, cells, gravity))),
+        ),
+        Scheme::Projection => {
+            let solids = deck.materials.iter().any(MaterialDeck::is_solid);
+            let epsilon = settings.mass_epsilon;
+            let mut p = Projection::new(pd, shape, solids, particles, boundary, cells, epsilon);
+            p.shared.surface.set_ceilings(gravity);
+            Stepper::Projection(Box::new(p))
+        }
     }
 }
 

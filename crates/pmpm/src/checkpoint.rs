@@ -90,6 +90,15 @@ fn fingerprint(deck: &Deck) -> toml::Table {
             s.remove(name);
         }
     }
+    // earlier builds filled in "positions" under the explicit scheme, which never read it:
+    // under it the key counts only where it packs
+    if deck.simulation.scheme == crate::scheme::Scheme::Explicit
+        && deck.pressure.density_correction != Some(crate::pressure::DensityCorrection::Particles)
+    {
+        if let Some(toml::Value::Table(p)) = t.get_mut("pressure") {
+            p.remove("density_correction");
+        }
+    }
     if !deck.mesh_files.is_empty() {
         let files: toml::Table = deck
             .mesh_files

@@ -13,6 +13,7 @@ use crate::grid::{Grid, GridGeometry, Vector};
 use crate::linalg::SolveError;
 use crate::material::{self, in_mask, MaterialParams};
 use crate::particles::{Particles, PermuteScratch};
+use crate::pressure::Packing;
 use crate::pressure::Projection;
 use crate::shape::Stencil;
 use crate::timing::{Phase, PhaseTimers};
@@ -34,10 +35,11 @@ pub enum Scheme {
 
 /// The scheme a simulation steps with, and the state it keeps between steps.
 pub enum Stepper<const D: usize> {
-    /// Weakly compressible: the pressure is the particles' equation of state, p = K (1 - J).
-    Explicit,
-    /// Chorin's projection with its solves and their work (boxed: the explicit scheme keeps
-    /// nothing).
+    /// Weakly compressible: the pressure is the particles' equation of state, p = K (1 - J);
+    /// with `density_correction = "particles"`, the particles' packing (boxed: without it the
+    /// explicit scheme keeps nothing).
+    Explicit(Option<Box<Packing<D>>>),
+    /// Chorin's projection with its solves and their work.
     Projection(Box<Projection<D>>),
 }
 
@@ -45,7 +47,7 @@ impl<const D: usize> Stepper<D> {
     /// Which scheme.
     pub fn scheme(&self) -> Scheme {
         match self {
-            Stepper::Explicit => Scheme::Explicit,
+            Stepper::Explicit(_) => Scheme::Explicit,
             Stepper::Projection(_) => Scheme::Projection,
         }
     }
@@ -53,7 +55,7 @@ impl<const D: usize> Stepper<D> {
     /// The projection's state, under the projection.
     pub fn projection(&self) -> Option<&Projection<D>> {
         match self {
-            Stepper::Explicit => None,
+            Stepper::Explicit(_) => None,
             Stepper::Projection(p) => Some(p),
         }
     }
@@ -61,7 +63,7 @@ impl<const D: usize> Stepper<D> {
     /// The projection's state to change, under the projection.
     pub fn projection_mut(&mut self) -> Option<&mut Projection<D>> {
         match self {
-            Stepper::Explicit => None,
+            Stepper::Explicit(_) => None,
             Stepper::Projection(p) => Some(p),
         }
     }
@@ -285,7 +287,8 @@ impl<const D: usize> Simulation<D> {
         // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme)
         self.update_materials(dt);
         self.timers.lap(Phase::Constitutive);
-        // 6. projection: the particles moved back towards their rest volumes
+        // 6. the particles moved back towards their rest volumes (projection), or packed
+        //    (explicit, where the deck asks)
         self.correct_density(dt)?;
         self.time += dt;
         self.steps += 1;
@@ -355,7 +358,7 @@ impl<const D: usize> Simulation<D> {
             (&self.grid.velocity, Some(self.body_acceleration() * dt))
         };
         match &self.stepper {
-            Stepper::Explicit => self.boundary.settle_contacts(v, None, None),
+            Stepper::Explicit(_) => self.boundary.settle_contacts(v, None, None),
             Stepper::Projection(p) => match p.wall_pressure(self.grid.geo.node_count()) {
                 Some(pressure) => self.boundary.settle_contacts(v, Some(pressure), leaving),
                 None => self.boundary.hold_all(),
@@ -416,8 +419,9 @@ impl<const D: usize> Simulation<D> {
     /// Step 3 by the scheme: the walls' conditions on v* (explicit), or the projection. The
     /// projection's state is taken out of the simulation for the stage and put back.
     fn pressure(&mut self, dt: f64) -> Result<(), Error> {
-        match std::mem::replace(&mut self.stepper, Stepper::Explicit) {
-            Stepper::Explicit => {
+        match std::mem::replace(&mut self.stepper, Stepper::Explicit(None)) {
+            explicit @ Stepper::Explicit(_) => {
+                self.stepper = explicit;
                 self.hold_walls(dt);
                 Ok(())
             }
@@ -548,13 +552,14 @@ impl<const D: usize> Simulation<D> {
         }
     }
 
-    /// Step 6 (projection): the particles moved back towards their rest volumes, at the pace
-    /// of the flow (a few corrections per cell crossing).
+    /// Step 6: the particles moved back towards their rest volumes (projection), or packed to
+    /// rest density (explicit, with `density_correction = "particles"`), at the pace of the
+    /// flow (a few corrections per cell crossing).
     fn correct_density(&mut self, dt: f64) -> Result<(), Error> {
-        let corrects = self
-            .stepper
-            .projection()
-            .is_some_and(|p| p.corrects_density());
+        let corrects = match &self.stepper {
+            Stepper::Projection(p) => p.corrects_density(),
+            Stepper::Explicit(packing) => packing.is_some(),
+        };
         let rate = if corrects {
             crate::pressure::density::PositionCorrection::<D>::rate(
                 dt,
@@ -565,16 +570,28 @@ impl<const D: usize> Simulation<D> {
         } else {
             0.0
         };
-        if let Some(projection) = self.stepper.projection_mut() {
-            projection
-                .correct_density(&mut self.particles, &self.grid.geo, &self.boundary, rate)
-                .map_err(|e| {
-                    Error::BlowUp(format!(
-                        "run stopped at step {}, t = {:.6} s: the density correction: {e}",
-                        self.steps + 1,
-                        self.time
-                    ))
-                })?;
+        let (ps, geo, boundary) = (&mut self.particles, &self.grid.geo, &self.boundary);
+        // the explicit scheme packs once every few steps ([`Packing::share_due`])
+        let moved = match &mut self.stepper {
+            Stepper::Projection(projection) => projection
+                .correct_density(ps, geo, boundary, rate)
+                .map(|_| true),
+            Stepper::Explicit(Some(packing)) => {
+                match Packing::<D>::share_due(self.time, dt, rate) {
+                    Some(share) => packing.pack(ps, geo, boundary, share).map(|_| true),
+                    None => Ok(false),
+                }
+            }
+            Stepper::Explicit(None) => Ok(false),
+        }
+        .map_err(|e| {
+            Error::BlowUp(format!(
+                "run stopped at step {}, t = {:.6} s: the density correction: {e}",
+                self.steps + 1,
+                self.time
+            ))
+        })?;
+        if moved {
             self.boundary
                 .confine(&self.grid.geo, dt, &mut self.particles);
             self.drain_outflow();

@@ -916,11 +916,20 @@ impl Deck {
         // evens out (the cavity's and the vortex's velocities then follow the reference more
         // closely); a solid's J is its deformation (the strip footing's nodal run threw a
         // particle out of its heave with the correction)
+        // the explicit scheme's J is its equation of state: "positions" would move the pressure
+        // itself; it packs the particles with "particles", and does nothing by default
+        let explicit = self.simulation.scheme == Scheme::Explicit;
+        if explicit && self.pressure.density_correction == Some(DensityCorrection::Positions) {
+            return Err(c.err(
+                "pressure.density_correction",
+                "\"positions\" applies to the projection: under the explicit scheme J is the equation of state's measure of the pressure, which a correction of J would overwrite; use \"particles\" (the particles packed to rest density, J left as it is) or \"none\"",
+            ));
+        }
         if self.pressure.density_correction.is_none() {
             let fluid = self.pressure.unknowns == PressureUnknowns::Nodes
                 && !self.materials.iter().any(MaterialDeck::is_solid);
             self.pressure.density_correction = Some(match self.pressure.free_surface {
-                _ if !fluid => DensityCorrection::None,
+                _ if explicit || !fluid => DensityCorrection::None,
                 Some(FreeSurface::None) => DensityCorrection::Particles,
                 _ => DensityCorrection::Positions,
             });

@@ -50,10 +50,81 @@ const MAX_RATE: f64 = 0.2;
 /// residual of 1e-5 leaves fill errors far below the 5 % the packing aims at.
 const PACK_TOLERANCE: f64 = 1e-5;
 
+/// How many times as often as the projection's pace ([`PACE`]) the explicit scheme packs
+/// ([`Packing::share_due`]): its particles follow a velocity with the sound's ringing in it,
+/// and bunch again faster between packs than the projection's do (docs/method.md).
+pub const EXPLICIT_PACKS: f64 = 4.0;
+
 /// Corrections per cell crossing: the volume error is given back over the time
 /// h / (PACE max |v|), a third of the time a particle takes to cross a cell (see
 /// [`PositionCorrection::rate`]).
 pub const PACE: f64 = 3.0;
+
+/// The explicit scheme's density correction (`density_correction = "particles"` there): the
+/// packing alone ([`PositionCorrection::packing_only`]) with a solver and stage buffers of its
+/// own, the explicit scheme having no projection to share them with.
+pub struct Packing<const D: usize> {
+    correction: PositionCorrection<D>,
+    solver: LinearSolver,
+    shared: Shared<D>,
+}
+
+impl<const D: usize> Packing<D> {
+    /// The packing with the `[pressure]` solver settings, on a grid of `cells` cells (the
+    /// preconditioner's default follows it), under the body force `gravity` at the origin
+    /// (the free surface's ceilings).
+    pub fn new(
+        pd: &PressureSettings,
+        shape: ShapeFunction,
+        boundary: &Boundary<D>,
+        cells: usize,
+        gravity: &[f64],
+    ) -> Self {
+        let mut shared = Shared::new(pd, boundary);
+        shared.surface.set_ceilings(gravity);
+        Self {
+            correction: PositionCorrection::new(pd, shape).packing_only(),
+            solver: super::linear_solver(pd, cells),
+            shared,
+        }
+    }
+
+    /// The share of the packing due at the end of a step from `time` to `time + dt`, where
+    /// the projection would give back the share `rate` ([`PositionCorrection::rate`]) each
+    /// step: the whole of it [`EXPLICIT_PACKS`] times as often as that pace, once every
+    /// dt / (EXPLICIT_PACKS rate) of time (the moment `time + dt` passes a multiple of it),
+    /// not a sliver every step. The explicit step is tied to the speed of sound, tens of
+    /// times shorter than the flow's own time, and a solve per step would cost more than the
+    /// step. It depends only on the step's own figures, so a resumed run packs at the same
+    /// steps as one that was never stopped.
+    pub fn share_due(time: f64, dt: f64, rate: f64) -> Option<f64> {
+        let rate = EXPLICIT_PACKS * rate;
+        if rate >= 1.0 {
+            return Some(1.0);
+        }
+        if rate <= 0.0 || dt <= 0.0 {
+            return None;
+        }
+        let period = dt / rate;
+        (((time + dt) / period).floor() > (time / period).floor()).then_some(1.0)
+    }
+
+    /// Packs the particles the share `share` of the way to rest density; returns the solve's
+    /// iterations.
+    pub fn pack(
+        &mut self,
+        ps: &mut Particles<D>,
+        geo: &GridGeometry<D>,
+        boundary: &Boundary<D>,
+        share: f64,
+    ) -> Result<usize, SolveError> {
+        let linear = (&mut self.solver, &mut self.shared);
+        Ok(self
+            .correction
+            .correct(ps, geo, boundary, share, linear)?
+            .iterations)
+    }
+}
 
 /// State and buffers of the density correction, reused from step to step.
 pub struct PositionCorrection<const D: usize> {
@@ -66,6 +137,10 @@ pub struct PositionCorrection<const D: usize> {
     /// nothing). Without it a shifted particle brings its old velocity to a new place, a
     /// dissipation (docs/method.md, item 4 of the density correction).
     from_positions: bool,
+    /// Whether the volumes J V0 are corrected (the solve on 1 - J and its move, which deform
+    /// F): the projection's; the explicit scheme's J is its equation of state's, and its
+    /// correction only packs ([`Self::packing_only`]).
+    volumes: bool,
     tolerance: f64,
     max_iterations: usize,
     /// sum_p V_p N_ip per node (the particles' volume at the node).
@@ -113,6 +188,7 @@ impl<const D: usize> PositionCorrection<D> {
         Self {
             shape,
             from_positions: pd.density_correction == Some(DensityCorrection::Particles),
+            volumes: true,
             tolerance: pd.tolerance,
             max_iterations: pd.max_iterations,
             weight: Vec::new(),
@@ -130,6 +206,16 @@ impl<const D: usize> PositionCorrection<D> {
                 relative_residual: 0.0,
             },
         }
+    }
+
+    /// The packing alone, for the explicit scheme (`density_correction = "particles"` there):
+    /// the particles spread to rest density from where they are ([`Self::pack`]), J, F and the
+    /// equation of state's pressure left as they are, as particle shifting leaves them in
+    /// weakly compressible SPH (Lind et al. 2012).
+    pub fn packing_only(mut self) -> Self {
+        self.volumes = false;
+        self.from_positions = true;
+        self
     }
 
     /// Moves the particles (positions, F and J) so that their volumes return the share `rate`
@@ -153,7 +239,9 @@ impl<const D: usize> PositionCorrection<D> {
         // the particles' volumes evened out below the grid's resolution first: the solve below
         // sees J only through its nodal averages, and cannot give one particle's volume back
         // against its neighbour's in the same cell
-        self.averaging.smooth_jacobian(ps, geo, shape, rate);
+        if self.volumes {
+            self.averaging.smooth_jacobian(ps, geo, shape, rate);
+        }
         let Shared {
             bins,
             surface,
@@ -208,8 +296,10 @@ impl<const D: usize> PositionCorrection<D> {
         let (matrix, rhs) = (&mut system.matrix, &mut system.rhs);
         let quadrature = gauss.quadrature(false);
         super::assemble::assemble(geo, shape, &quadrature, &system_rows, 1.0, matrix, rhs);
-        for (b, &i) in rhs.iter_mut().zip(&system.unknowns.node_of_row) {
-            *b += self.excess[i as usize];
+        if self.volumes {
+            for (b, &i) in rhs.iter_mut().zip(&system.unknowns.node_of_row) {
+                *b += self.excess[i as usize];
+            }
         }
         matrix.pin_empty_rows(rhs);
         let u = &mut system.unknowns;
@@ -220,11 +310,13 @@ impl<const D: usize> PositionCorrection<D> {
             phi: surface.level_set(),
             free,
         };
-        let linear = (&mut *solver, &*system, &mut *solution);
-        self.stats = self.solve(self.tolerance, &stage, linear, [scratch, first_layer])?;
-        // correction: u on the nodes, then the particles moved and deformed by it
-        self.node_displacement(ps, geo, boundary, (vector_bands, displacement));
-        self.move_particles(ps, geo, &surface.kinds, displacement);
+        if self.volumes {
+            let linear = (&mut *solver, &*system, &mut *solution);
+            self.stats = self.solve(self.tolerance, &stage, linear, [scratch, first_layer])?;
+            // correction: u on the nodes, then the particles moved and deformed by it
+            self.node_displacement(ps, geo, boundary, (vector_bands, displacement));
+            self.move_particles(ps, geo, &surface.kinds, displacement);
+        }
         if self.from_positions {
             let q = gauss.quadrature(false);
             let points = (q.x, q.half_width, q.volume_over_density);
@@ -868,6 +960,59 @@ particles_per_cell = 2
             // J is not told: the move only rearranges the particles
             assert!(ps.jacobian.iter().all(|j| (j - 1.0).abs() < 1e-12));
         }
+    }
+
+    /// The explicit scheme's packing ([`Packing`]): the bunched band of
+    /// [`a_bunched_band_is_spread_to_rest_density`] with J off 1 as an equation of state
+    /// leaves it (a compressed strip) is spread as well, and J and F, the explicit scheme's
+    /// pressure, are not touched at all.
+    #[test]
+    fn the_explicit_packing_spreads_a_band_and_leaves_j() {
+        let (mut deck, sim) = pool("linear");
+        deck.simulation.scheme = crate::scheme::Scheme::Explicit;
+        deck.pressure.density_correction = Some(DensityCorrection::Particles);
+        let mut ps = sim.particles.clone();
+        for (x, j) in ps.x.iter_mut().zip(ps.jacobian.iter_mut()) {
+            if (0.3..0.7).contains(&x[0]) {
+                x[0] = 0.5 + 0.8 * (x[0] - 0.5);
+                *j = 0.99;
+            }
+        }
+        let (jacobian, deformation) = (ps.jacobian.clone(), ps.deformation.clone());
+        let pressure = ps.pressure.clone();
+        let before = fill_of(&ps, 0.05);
+        let cells = sim.grid.geo.cells.iter().product();
+        let shape = ShapeFunction::Linear;
+        let mut packing = Packing::<2>::new(&deck.pressure, shape, &sim.boundary, cells, &[0.0; 2]);
+        for _ in 0..20 {
+            packing
+                .pack(&mut ps, &sim.grid.geo, &sim.boundary, 1.0)
+                .unwrap();
+        }
+        let after = fill_of(&below(&ps, 0.4), 0.05);
+        assert!(before.p99 > 1.19, "{before:?}");
+        assert!(
+            after.p99 < 1.001 && after.p1 > 0.999,
+            "{before:?} -> {after:?}"
+        );
+        assert_eq!(ps.jacobian, jacobian);
+        assert_eq!(ps.deformation, deformation);
+        assert_eq!(ps.pressure, pressure);
+    }
+
+    /// The explicit scheme's schedule: at a share r per step it packs whole once every
+    /// 1 / (EXPLICIT_PACKS r) steps, at the same steps whatever the step the run started from,
+    /// and every step where the projection would give back all of it.
+    #[test]
+    fn the_explicit_packing_comes_at_its_pace() {
+        let (dt, rate) = (1e-4, 0.01 / EXPLICIT_PACKS);
+        let due: Vec<usize> = (0..1000)
+            .filter(|&n| Packing::<2>::share_due(n as f64 * dt, dt, rate).is_some())
+            .collect();
+        assert_eq!(due.len(), 10, "{due:?}");
+        assert!(due.windows(2).all(|w| w[1] - w[0] == 100), "{due:?}");
+        assert_eq!(Packing::<2>::share_due(0.5, dt, 1.0), Some(1.0));
+        assert_eq!(Packing::<2>::share_due(0.5, dt, 0.0), None);
     }
 
     /// Particles as seeded, J = 1, tile the pool: the correction leaves them where they are,

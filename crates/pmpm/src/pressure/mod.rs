@@ -13,6 +13,7 @@
 pub(crate) mod assemble;
 pub(crate) mod cell;
 pub(crate) mod density;
+pub use density::Packing;
 pub mod free_surface;
 mod settings;
 mod spacing;
