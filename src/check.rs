@@ -744,7 +744,7 @@ fn step_limits(deck: &Deck, dt0: f64, out: &mut String) {
     }
 }
 
-/// The pressure solve's settings, under the projection.
+/// The pressure solve's settings, under the projection; the explicit scheme's packing.
 fn pressure(deck: &Deck, out: &mut String) {
     let cells = deck.grid.cells().iter().product();
     let s = &deck.simulation;
@@ -789,6 +789,13 @@ fn pressure(deck: &Deck, out: &mut String) {
                 p.beta,
             );
         }
+    } else if deck.pressure.density_correction == Some(pmpm::deck::DensityCorrection::Particles) {
+        let p = &deck.pressure;
+        *out += &format!(
+            "  packing          particles spread to rest density by a position correction (density_correction = \"particles\"), J and its pressure untouched, twelve times per cell crossing at the flow's speed; {} ({})\n",
+            format!("{:?}", p.solver).to_lowercase(),
+            format!("{:?}", p.preconditioner(cells)).to_lowercase(),
+        );
     }
 }
 

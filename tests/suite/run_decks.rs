@@ -202,6 +202,25 @@ fn check_suggests_cell_pressure_for_solids() {
     }
 }
 
+/// `pmpm check` names the explicit scheme's packing where the deck asks for it, and not
+/// otherwise.
+#[test]
+fn check_names_the_explicit_packing() {
+    let dir = scratch_dir("check-packing");
+    let deck = dir.join("packed.toml");
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/dam_break_2d_explicit.toml"),
+    )
+    .unwrap()
+        + "\n[pressure]\ndensity_correction = \"particles\"\n";
+    std::fs::write(&deck, text).unwrap();
+    let line = "  packing          particles spread to rest density";
+    let packed = check(deck.to_str().unwrap());
+    assert!(packed.contains(line), "{packed}");
+    let plain = check("examples/dam_break_2d_explicit.toml");
+    assert!(!plain.contains("packing"), "{plain}");
+}
+
 /// `pmpm check` names the viscous step limit only where it binds: a yield-stress fluid's
 /// regularised viscosity, not water's under the projection.
 #[test]
