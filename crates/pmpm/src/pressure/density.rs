@@ -161,6 +161,9 @@ pub struct PositionCorrection<const D: usize> {
     held: Vec<u8>,
     /// The sub-cell spacing's pushes (with the density from positions).
     spacing: super::spacing::Spacing<D>,
+    /// Per node, 1 where the packing measures and corrects the fill (with the density from
+    /// positions; [`Self::fill_excess`]).
+    measured: Vec<u8>,
     averaging: crate::averaging::NodalAveraging<D>,
     /// Statistics of the last solve.
     pub stats: SolveStats,
@@ -200,6 +203,7 @@ impl<const D: usize> PositionCorrection<D> {
             spray: Vec::new(),
             held: Vec::new(),
             spacing: Default::default(),
+            measured: Vec::new(),
             averaging: crate::averaging::NodalAveraging::new(rayon::current_num_threads(), 0),
             stats: SolveStats {
                 iterations: 0,
@@ -413,7 +417,7 @@ impl<const D: usize> PositionCorrection<D> {
         } else {
             self.spacing.clear(ps.len());
         }
-        let (q, held) = (&self.potential, &self.held);
+        let (q, held, measured) = (&self.potential, &self.held, &self.measured);
         let carry = self.from_positions;
         (
             ps.x.par_iter_mut(),
@@ -424,7 +428,7 @@ impl<const D: usize> PositionCorrection<D> {
         )
             .into_par_iter()
             .for_each(|(x, &lp, v, c, &push)| {
-                let d = own_shift(shape, geo, (q, held), x, lp, push);
+                let d = own_shift(shape, geo, (q, held, measured), x, lp, push);
                 *x += d;
                 // the velocity of where it goes ([`Self::from_positions`])
                 if carry {
@@ -545,18 +549,25 @@ impl<const D: usize> PositionCorrection<D> {
             &mut self.sums,
         );
         let sums = &self.sums;
-        self.excess.par_iter_mut().enumerate().for_each(|(i, e)| {
-            let space = sums[i][0];
-            if *e == 0.0 && space == 0.0 {
-                return;
-            }
-            let error = if near_surface(geo, kinds, i) {
-                0.0
-            } else {
-                (*e - space).clamp(-MAX_RATE * space, MAX_RATE * space)
-            };
-            crate::pages::store(e, rate * error);
-        });
+        crate::pages::fit(&mut self.measured, geo.node_count());
+        (self.excess.par_iter_mut(), self.measured.par_iter_mut())
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(i, (e, measured))| {
+                let space = sums[i][0];
+                if *e == 0.0 && space == 0.0 {
+                    crate::pages::store(measured, 0);
+                    return;
+                }
+                let interior = !near_surface(geo, kinds, i);
+                let error = if interior {
+                    (*e - space).clamp(-MAX_RATE * space, MAX_RATE * space)
+                } else {
+                    0.0
+                };
+                crate::pages::store(e, rate * error);
+                crate::pages::store(measured, u8::from(interior));
+            });
     }
 
     /// u_i = -sum_p V_p N_ip (grad q)_p / sum_p V_p N_ip, held at the walls (no normal
@@ -739,12 +750,17 @@ fn near_surface<const D: usize>(geo: &GridGeometry<D>, kinds: &[NodeKind], i: us
 /// [`Boundary::hold_buffers_components`]) the shift is nothing: it is scaled by the
 /// particle's weight on the other nodes, as the volume correction's nodal displacement,
 /// zero there, is interpolated (buffer particles moved back towards the patch let less
-/// water in than the patch gives).
+/// water in than the patch gives). A particle none of whose nodes has its fill measured
+/// (`measured`, [`PositionCorrection::fill_excess`]: a film whose every node reaches the
+/// free surface) takes no shift from the solve, only its push: the solve corrects nothing
+/// there, and q there is only the ghost values' extrapolation and the tail of the interior's
+/// solution, whose gradient moved the films of creeping flows without any measure of their
+/// arrangement, and they lost J V0 under it (docs/method.md).
 #[inline]
 fn own_shift<const D: usize>(
     shape: ShapeFunction,
     geo: &GridGeometry<D>,
-    (q, held): (&[f64], &[u8]),
+    (q, held, measured): (&[f64], &[u8], &[u8]),
     x: &Vector<D>,
     lp: f64,
     push: Vector<D>,
@@ -755,9 +771,11 @@ fn own_shift<const D: usize>(
     let mut below = Vector::<D>::repeat(f64::INFINITY);
     let mut above = Vector::<D>::repeat(f64::INFINITY);
     let mut free = 0.0;
+    let mut measured_node = false;
     st.for_each(|nw| {
         let i = geo.flat(&nw.node);
         grad += nw.grad * q[i];
+        measured_node |= nw.n > 0.0 && measured[i] != 0;
         if held[i] != u8::MAX {
             free += nw.n;
         }
@@ -773,6 +791,9 @@ fn own_shift<const D: usize>(
             }
         }
     });
+    if !measured_node {
+        grad = Vector::<D>::zeros();
+    }
     let limit = MAX_SHIFT * geo.h;
     let norm = grad.norm();
     if norm > limit {
