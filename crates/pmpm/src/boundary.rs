@@ -63,6 +63,11 @@ impl BoundaryKind {
     }
 }
 
+/// The held-components mark of a node on an inflow's buffer
+/// ([`Boundary::hold_buffers_components`]): every bit, every component held, which no
+/// wall's mark reaches (a wall sets one bit per axis it holds, at most three).
+pub const BUFFER_HELD: u8 = u8::MAX;
+
 /// The conditions of all faces and the nodes they act on.
 #[derive(Debug, Clone)]
 pub struct Boundary<const D: usize> {
@@ -577,11 +582,11 @@ impl<const D: usize> Boundary<D> {
         }
     }
 
-    /// Sets every bit of `bits[i]` on the inflows' buffer nodes, where
+    /// Sets `bits[i]` to [`BUFFER_HELD`] (every bit) on the inflows' buffer nodes, where
     /// [`Self::hold_buffers`] zeroes the displacement.
     pub fn hold_buffers_components(&self, bits: &mut [u8]) {
         for &i in &self.buffer_nodes {
-            bits[i] = u8::MAX;
+            bits[i] = BUFFER_HELD;
         }
     }
 

@@ -746,8 +746,8 @@ fn near_surface<const D: usize>(geo: &GridGeometry<D>, kinds: &[NodeKind], i: us
 /// moves it. `push` (the sub-cell spacing's, [`super::spacing`]) is added to it. Towards a
 /// node where a wall or a body holds component d (`held`, bit d), the shift along d is at
 /// most half the particle's distance from that node: a particle closes a gap against a wall
-/// but is never moved through it. On an inflow's buffer nodes (every bit of `held` set,
-/// [`Boundary::hold_buffers_components`]) the shift is nothing: it is scaled by the
+/// but is never moved through it. On an inflow's buffer nodes (`held` at
+/// [`crate::boundary::BUFFER_HELD`]) the shift is nothing: it is scaled by the
 /// particle's weight on the other nodes, as the volume correction's nodal displacement,
 /// zero there, is interpolated (buffer particles moved back towards the patch let less
 /// water in than the patch gives). A particle none of whose nodes has its fill measured
@@ -776,7 +776,7 @@ fn own_shift<const D: usize>(
         let i = geo.flat(&nw.node);
         grad += nw.grad * q[i];
         measured_node |= nw.n > 0.0 && measured[i] != 0;
-        if held[i] != u8::MAX {
+        if held[i] != crate::boundary::BUFFER_HELD {
             free += nw.n;
         }
         if held[i] != 0 {
