@@ -373,8 +373,8 @@ impl<const D: usize> PositionCorrection<D> {
     /// ([`Self::fill_excess`]), the same matrix as the volume correction's, and each particle
     /// shifted by its own -(grad q)(x_p) ([`own_shift`]) and pushed apart from the particles
     /// closer to it than their rest spacing ([`super::spacing`], what the nodes cannot see,
-    /// at the same rate; `bins` sorted again for it). Positions only: J and F are not
-    /// touched. The volume correction before it has given J back its share; what is left is
+    /// at the same rate; `bins` sorted again for it where the volume correction moved the
+    /// particles). Positions only: J and F are not touched. The volume correction before it has given J back its share; what is left is
     /// the particles' arrangement, which J does not see (they bunch at J = 1 where they move
     /// with the velocity interpolated within a cell while J integrates its nodal average), so
     /// a move that only rearranges them must not change J either.
@@ -411,7 +411,11 @@ impl<const D: usize> PositionCorrection<D> {
             0.0
         };
         if pairs > 0.0 {
-            bins.sort(geo, &ps.x);
+            // binned before the volume correction's move; without it (the explicit scheme's
+            // packing) the particles are where they were binned
+            if self.volumes {
+                bins.sort(geo, &ps.x);
+            }
             let particles = (&ps.x[..], &ps.volume0[..], &ps.jacobian[..]);
             self.spacing.pushes(geo, bins, particles, pairs);
         } else {

@@ -78,7 +78,6 @@ impl Surface {
             (0..2 * D).map(|f| boundary.is_open(f)).collect(),
         );
         s.cracks = pd.density_correction == Some(super::DensityCorrection::Particles);
-        s.behind = s.open.iter().map(|o| !o).collect();
         s
     }
 
