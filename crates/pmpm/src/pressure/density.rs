@@ -61,7 +61,7 @@ pub const EXPLICIT_PACKS: f64 = 4.0;
 pub const PACE: f64 = 3.0;
 
 /// The explicit scheme's density correction (`density_correction = "particles"` there): the
-/// packing alone ([`PositionCorrection::packing_only`]) with a solver and stage buffers of its
+/// packing alone (`PositionCorrection::packing_only`) with a solver and stage buffers of its
 /// own, the explicit scheme having no projection to share them with.
 pub struct Packing<const D: usize> {
     correction: PositionCorrection<D>,
@@ -90,8 +90,8 @@ impl<const D: usize> Packing<D> {
     }
 
     /// The share of the packing due at the end of a step from `time` to `time + dt`, where
-    /// the projection would give back the share `rate` ([`PositionCorrection::rate`]) each
-    /// step: the whole of it [`EXPLICIT_PACKS`] times as often as that pace, once every
+    /// the projection would give back the share `rate` (`PositionCorrection::rate`) each
+    /// step: the whole of it `EXPLICIT_PACKS` times as often as that pace, once every
     /// dt / (EXPLICIT_PACKS rate) of time (the moment `time + dt` passes a multiple of it),
     /// not a sliver every step. The explicit step is tied to the speed of sound, tens of
     /// times shorter than the flow's own time, and a solve per step would cost more than the
