@@ -27,6 +27,17 @@ const SEPARATION_FLOOR: f64 = 1e-6;
 /// 0.8 told the two apart in the test suite's cases, and a half sits within that.
 const LEAVING: f64 = 0.5;
 
+/// The scales that tell material leaving a wall from the solve's noise about p = 0
+/// ([`Boundary::settle_contacts`]).
+#[derive(Debug, Clone, Copy)]
+pub struct Leaving {
+    /// A step of the body force, |g| dt (m/s).
+    pub speed: f64,
+    /// The weight of one cell of the densest material on a unit of wall, rho |g| h (Pa): the
+    /// least pressure difference the grid resolves in a column at rest.
+    pub weight: f64,
+}
+
 /// Kind of a boundary face.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -88,6 +99,9 @@ pub struct Boundary<const D: usize> {
     /// Per pair, whether its face node's material already moved away from the wall at the
     /// step's start faster than a step of the body force gives ([`Boundary::settle_contacts`]).
     leaving: Vec<bool>,
+    /// The pressure a leaving node's last solve must exceed to hold it, rho |g| h
+    /// ([`Leaving::weight`]).
+    leaving_weight: f64,
     /// Wall velocities given by expressions in x, y, z, t, per face (None: constant).
     fields: Vec<Option<crate::field::CompiledField>>,
     /// Per (node, face) pair, the wall velocity at the node now (only with `fields`).
@@ -188,6 +202,7 @@ impl<const D: usize> Boundary<D> {
             separating: false,
             released: Vec::new(),
             leaving: Vec::new(),
+            leaving_weight: 0.0,
             fields,
             node_x,
             time: f64::NAN,
@@ -325,8 +340,10 @@ impl<const D: usize> Boundary<D> {
     /// pressure, so a face node is released only where both say it leaves: its v moves away
     /// from the wall (by more than round-off) and either the last pressure there did not push
     /// (p <= 0) or its material already moved away at the step's start (v^n, the call given
-    /// `leaving_speed`) faster than half of `leaving_speed`, a step of the body force: once
-    /// off, the solve's noise about p = 0 does not put it back on. A released node's
+    /// `leaving`) faster than half a step of the body force and the last pressure there
+    /// pushed by less than one cell's weight ([`Leaving`]): once off, the solve's noise about
+    /// p = 0 does not put it back on, and a jet that runs along a wall under pressure, whose
+    /// v^n carries a little motion off it from the particles, stays on. A released node's
     /// [`Boundary::apply`] removes only motion into the wall, a no-slip wall keeps its grip
     /// along it, and a ghost node behind it continues the face node's normal velocity
     /// linearly instead of mirroring the wall's. A column at rest (v* = g dt into the floor,
@@ -337,7 +354,7 @@ impl<const D: usize> Boundary<D> {
         &mut self,
         v: &[Vector<D>],
         pressure: Option<&[f64]>,
-        leaving_speed: Option<f64>,
+        leaving: Option<Leaving>,
     ) {
         if !self.separating {
             return;
@@ -364,15 +381,18 @@ impl<const D: usize> Boundary<D> {
             } else {
                 w - v[j][axis]
             };
-            if let Some(fast) = leaving_speed {
+            if let Some(Leaving { speed, weight }) = leaving {
                 // without a body force there is no step to measure by: the pressure decides
-                self.leaving[k] = fast > 0.0 && off > floor.max(LEAVING * fast);
+                self.leaving[k] = speed > 0.0 && off > floor.max(LEAVING * speed);
+                self.leaving_weight = weight;
             }
             // a wall the pressure pressed on last step holds, unless its material already
-            // moves away faster than a step of the body force gives: the water leaves a side
-            // wall only once nothing pushes it there, and a sheet that has left stays off
-            // whatever the pressure's noise about zero says
-            let pushed = pressure.is_some_and(|p| p[j] > 0.0) && !self.leaving[k];
+            // moves away faster than a step of the body force gives and the push was below
+            // what the grid resolves: the water leaves a side wall only once nothing pushes
+            // it there, and a sheet that has left stays off whatever the pressure's noise
+            // about zero says
+            let pushed = pressure
+                .is_some_and(|p| p[j] > 0.0 && (!self.leaving[k] || p[j] > self.leaving_weight));
             self.released[k] = u8::from(face && off > floor && !pushed) << axis;
         }
         // over each node's pairs (consecutive; at most one per axis): a no-slip wall's grip

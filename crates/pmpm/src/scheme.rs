@@ -5,7 +5,7 @@
 //! between the predictor and the corrector.
 
 use crate::averaging::NodalAveraging;
-use crate::boundary::Boundary;
+use crate::boundary::{Boundary, Leaving};
 use crate::error::Error;
 use crate::flow::{has_left, Ledger};
 use crate::grid::CellBins;
@@ -355,7 +355,13 @@ impl<const D: usize> Simulation<D> {
         let (v, leaving) = if predicted {
             (&self.grid.velocity_new, None)
         } else {
-            (&self.grid.velocity, Some(self.body_acceleration() * dt))
+            let g = self.body_acceleration();
+            let rho = self.materials.iter().map(|m| m.density).fold(0.0, f64::max);
+            let leaving = Leaving {
+                speed: g * dt,
+                weight: rho * g * self.grid.geo.h,
+            };
+            (&self.grid.velocity, Some(leaving))
         };
         match &self.stepper {
             Stepper::Explicit(_) => self.boundary.settle_contacts(v, None, None),
