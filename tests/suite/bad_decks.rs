@@ -98,7 +98,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "unknown boundary kind",
             edit(&[("y_min = \"no_slip\"", "y_min = \"noslip\"")]),
-            "bad.toml:18:9: grid.boundary.y_min: unknown value \"noslip\"; did you mean \"no_slip\"? (allowed: \"slip\", \"no_slip\", \"open\", \"outflow\", \"periodic\")",
+            "bad.toml:18:9: grid.boundary.y_min: unknown value \"noslip\"; did you mean \"no_slip\"? (allowed: \"slip\", \"no_slip\", \"open\", \"outflow\", \"periodic\", \"symmetry\")",
         ),
         (
             "unknown moving-wall type",
@@ -106,7 +106,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
                 "y_max = \"open\"",
                 "y_max = { type = \"wall\", velocity = [1.0, 0.0] }",
             )]),
-            "bad.toml:19:18: grid.boundary.y_max.type: unknown value \"wall\" (allowed: \"slip\", \"no_slip\", \"open\", \"outflow\", \"periodic\")",
+            "bad.toml:19:18: grid.boundary.y_max.type: unknown value \"wall\" (allowed: \"slip\", \"no_slip\", \"open\", \"outflow\", \"periodic\", \"symmetry\")",
         ),
         (
             "unknown output format",
@@ -463,6 +463,11 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
                 "shape = { type = \"box\", min = [0.0, 0.0], max = [0.1, 0.1], rotate = [0.0, 0.0, 30.0] }",
             )]),
             "bad.toml: bodies[0].shape.rotate: in 2D is one angle in degrees (counter-clockwise)",
+        ),
+        (
+            "a moving symmetry plane",
+            edit(&[("x_max = \"slip\"", "x_max = { type = \"symmetry\", velocity = [0.0, 1.0] }")]),
+            "bad.toml: grid.boundary.x_max.velocity: a symmetry plane stands still: a moving wall is \"slip\" or \"no_slip\"",
         ),
         // open boundaries
         (

@@ -4,8 +4,8 @@
 //! A face's condition holds on its wall nodes and on the ghost nodes behind it, so that the
 //! wide shape functions (GIMP, B-splines) see the wall too; under the nodal projection a ghost
 //! node's normal component mirrors the node as far inside ([`Boundary::apply`]). Walls hold
-//! v . n both ways, or, with `grid.boundary.contact = "separating"`, only push
-//! ([`Boundary::settle_contacts`]).
+//! v . n both ways (`grid.boundary.contact = "bonded"`, and a `"symmetry"` face always) or
+//! only push (`"separating"`, [`Boundary::settle_contacts`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -53,6 +53,9 @@ pub enum BoundaryKind {
     Outflow,
     /// Periodic on both faces of the axis.
     Periodic,
+    /// A mirror plane: v . n = 0 both ways, no friction, whatever `grid.boundary.contact`
+    /// says (the material on the other side is the mirror image, which never parts from it).
+    Symmetry,
 }
 
 impl BoundaryKind {
@@ -64,6 +67,7 @@ impl BoundaryKind {
             "open" => Self::Open,
             "outflow" => Self::Outflow,
             "periodic" => Self::Periodic,
+            "symmetry" => Self::Symmetry,
             _ => return None,
         })
     }
@@ -92,6 +96,9 @@ pub struct Boundary<const D: usize> {
     face_node: Vec<usize>,
     /// Whether the slip and no-slip faces let the material go ([`Boundary::settle_contacts`]).
     separating: bool,
+    /// Per face, whether it is a symmetry plane (held as a slip wall both ways, without
+    /// friction).
+    symmetric: Vec<bool>,
     /// Per pair, the axes whose walls its node's material leaves this step, over all the
     /// node's pairs (bit d: axis d; empty: every pair holds). A pair whose own axis is among
     /// them holds only the normal motion into its wall.
@@ -141,6 +148,18 @@ impl<const D: usize> Boundary<D> {
         rigid: crate::rigid::RigidBodies<D>,
         geo: &GridGeometry<D>,
     ) -> Self {
+        // a symmetry plane holds as a slip wall does, and never lets go or rubs
+        let symmetric: Vec<bool> = faces
+            .iter()
+            .map(|f| f.0 == BoundaryKind::Symmetry)
+            .collect();
+        let faces: Vec<_> = faces
+            .into_iter()
+            .map(|(kind, v)| match kind {
+                BoundaryKind::Symmetry => (BoundaryKind::Slip, v),
+                kind => (kind, v),
+            })
+            .collect();
         let mut nodes = Vec::new();
         for flat in 0..geo.node_count() {
             let idx = geo.multi(flat);
@@ -200,6 +219,7 @@ impl<const D: usize> Boundary<D> {
             mirror,
             face_node,
             separating: false,
+            symmetric,
             released: Vec::new(),
             leaving: Vec::new(),
             leaving_weight: 0.0,
@@ -289,7 +309,10 @@ impl<const D: usize> Boundary<D> {
         self.friction = law.map(|law| {
             let shares = (self.nodes.iter().enumerate())
                 .map(|(k, &(i, f))| {
-                    if self.face_node[k] != i || self.faces[f].0 != BoundaryKind::Slip {
+                    if self.face_node[k] != i
+                        || self.faces[f].0 != BoundaryKind::Slip
+                        || self.symmetric[f]
+                    {
                         return 0.0;
                     }
                     let idx = geo.multi(i);
@@ -373,7 +396,8 @@ impl<const D: usize> Boundary<D> {
         for (k, &(_, f)) in self.nodes.iter().enumerate() {
             let wall = self.faces[f].0;
             let face = matches!(self.inflow_of.get(k), None | Some(&u32::MAX))
-                && matches!(wall, BoundaryKind::Slip | BoundaryKind::NoSlip);
+                && matches!(wall, BoundaryKind::Slip | BoundaryKind::NoSlip)
+                && !self.symmetric[f];
             let (axis, w) = (f / 2, self.wall(k, f)[f / 2]);
             let j = self.face_node[k];
             let off = if f % 2 == 0 {
@@ -626,7 +650,7 @@ impl<const D: usize> Boundary<D> {
                 continue;
             }
             match kind {
-                BoundaryKind::Slip => mask[i][f / 2] = 0.0,
+                BoundaryKind::Slip | BoundaryKind::Symmetry => mask[i][f / 2] = 0.0,
                 BoundaryKind::NoSlip => mask[i] = Vector::<D>::zeros(),
                 BoundaryKind::Open | BoundaryKind::Outflow | BoundaryKind::Periodic => {}
             }
@@ -655,7 +679,7 @@ impl<const D: usize> Boundary<D> {
             }
             match kind {
                 // (stores that leave an empty node's zeros unwritten, see crate::pages)
-                BoundaryKind::Slip => store(&mut v[i][f / 2], wall[f / 2]),
+                BoundaryKind::Slip | BoundaryKind::Symmetry => store(&mut v[i][f / 2], wall[f / 2]),
                 BoundaryKind::NoSlip => store(&mut v[i], wall),
                 BoundaryKind::Open | BoundaryKind::Outflow | BoundaryKind::Periodic => {}
             }

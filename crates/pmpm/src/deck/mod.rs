@@ -41,7 +41,7 @@ pub use crate::material::{MaterialDeck, MAX_MATERIAL_PARAMETER};
 pub use crate::particles::InitialStress;
 pub use crate::wall_law::WallFriction;
 
-const BOUNDARY_KINDS: &[&str] = &["slip", "no_slip", "open", "outflow", "periodic"];
+const BOUNDARY_KINDS: &[&str] = &["slip", "no_slip", "open", "outflow", "periodic", "symmetry"];
 
 /// One face's condition: a kind, and for a moving wall its velocity.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -291,7 +291,8 @@ pub struct BoundaryDeck {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub z_max: Option<BoundarySpec>,
     /// How the slip and no-slip faces hold the material: `"bonded"` (v . n held both ways,
-    /// the default) or `"separating"` (it may leave them); filled in by the checks.
+    /// the default) or `"separating"` (it may leave them); filled in by the checks. A
+    /// `"symmetry"` face holds both ways whatever it says.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact: Option<WallContact>,
     /// The slip faces' shear: `"none"` (the default) or `"wall_law"`; filled in by the
@@ -1070,6 +1071,12 @@ impl Deck {
                     return Err(c.err(
                         format!("{key}.velocity"),
                         "a periodic face imposes nothing: a velocity needs \"slip\" or \"no_slip\"",
+                    ))
+                }
+                BoundaryKind::Symmetry if spec.velocity().is_some() => {
+                    return Err(c.err(
+                        format!("{key}.velocity"),
+                        "a symmetry plane stands still: a moving wall is \"slip\" or \"no_slip\"",
                     ))
                 }
                 BoundaryKind::Open | BoundaryKind::Outflow if spec.velocity().is_some() => {
