@@ -327,6 +327,7 @@ fn summary_dim<const D: usize>(deck: &Deck, file: &str) -> Result<String, Error>
         geo.h,
         geo.node_count()
     );
+    out += &walls(deck, D);
     let mut warn = Vec::new();
     bodies(deck, &sim, &mut out, &mut warn);
     for m in &deck.materials {
@@ -742,6 +743,38 @@ fn step_limits(deck: &Deck, dt0: f64, out: &mut String) {
             s.end_time
         );
     }
+}
+
+/// The faces of the grid and how its walls hold the material (`grid.boundary.contact`).
+fn walls(deck: &Deck, dim: usize) -> String {
+    use pmpm::deck::{BoundaryKind as K, WallContact};
+    let names = ["x_min", "x_max", "y_min", "y_max", "z_min", "z_max"];
+    let faces = deck.grid.boundary.faces();
+    let list: Vec<String> = (0..2 * dim)
+        .map(|f| {
+            let kind = match faces[f].as_ref().map_or(K::Slip, |s| s.kind()) {
+                K::Slip => "slip",
+                K::NoSlip => "no_slip",
+                K::Open => "open",
+                K::Outflow => "outflow",
+                K::Periodic => "periodic",
+                K::Symmetry => "symmetry",
+            };
+            let moving = faces[f].as_ref().is_some_and(|s| s.velocity().is_some());
+            format!(
+                "{} {kind}{}",
+                names[f],
+                if moving { " (moving)" } else { "" }
+            )
+        })
+        .collect();
+    let contact = match deck.grid.boundary.contact {
+        Some(WallContact::Bonded) => {
+            "they hold the material both ways (contact = \"bonded\": water under a lid hangs in tension)"
+        }
+        _ => "they only push (contact = \"separating\": water leaves a lid as free water; a symmetry face holds both ways)",
+    };
+    format!("  walls            {}; {contact}\n", list.join(", "))
 }
 
 /// The pressure solve's settings, under the projection; the explicit scheme's packing.

@@ -221,6 +221,17 @@ fn check_names_the_explicit_packing() {
     assert!(!plain.contains("packing"), "{plain}");
 }
 
+/// `pmpm check` lists the faces and says how the walls hold the material: by default they
+/// only push, a mirror plane is its own kind.
+#[test]
+fn check_says_how_the_walls_hold() {
+    let mud = check("examples/bingham_slump_2d.toml");
+    assert!(
+        mud.contains("  walls            x_min symmetry, x_max slip, y_min no_slip, y_max open; they only push (contact = \"separating\""),
+        "{mud}"
+    );
+}
+
 /// `pmpm check` names the viscous step limit only where it binds: a yield-stress fluid's
 /// regularised viscosity, not water's under the projection.
 #[test]

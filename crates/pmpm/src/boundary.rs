@@ -3,9 +3,9 @@
 //!
 //! A face's condition holds on its wall nodes and on the ghost nodes behind it, so that the
 //! wide shape functions (GIMP, B-splines) see the wall too; under the nodal projection a ghost
-//! node's normal component mirrors the node as far inside ([`Boundary::apply`]). Walls hold
-//! v . n both ways (`grid.boundary.contact = "bonded"`, and a `"symmetry"` face always) or
-//! only push (`"separating"`, [`Boundary::settle_contacts`]).
+//! node's normal component mirrors the node as far inside ([`Boundary::apply`]). Walls only
+//! push (`grid.boundary.contact = "separating"`, the default; [`Boundary::settle_contacts`])
+//! or hold v . n both ways (`"bonded"`, and a `"symmetry"` face always).
 
 use serde::{Deserialize, Serialize};
 

@@ -290,9 +290,9 @@ pub struct BoundaryDeck {
     pub z_min: Option<BoundarySpec>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub z_max: Option<BoundarySpec>,
-    /// How the slip and no-slip faces hold the material: `"bonded"` (v . n held both ways,
-    /// the default) or `"separating"` (it may leave them); filled in by the checks. A
-    /// `"symmetry"` face holds both ways whatever it says.
+    /// How the slip and no-slip faces hold the material: `"separating"` (it may leave them,
+    /// the default) or `"bonded"` (v . n held both ways, the cell projection's default);
+    /// filled in by the checks. A `"symmetry"` face holds both ways whatever it says.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact: Option<WallContact>,
     /// The slip faces' shear: `"none"` (the default) or `"wall_law"`; filled in by the
@@ -1008,7 +1008,11 @@ impl Deck {
             )),
             Some(_) => Ok(()),
             None => {
-                *contact = Some(WallContact::Bonded);
+                *contact = Some(if cells {
+                    WallContact::Bonded
+                } else {
+                    WallContact::Separating
+                });
                 Ok(())
             }
         }
