@@ -291,7 +291,8 @@ pub struct BoundaryDeck {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub z_max: Option<BoundarySpec>,
     /// How the slip and no-slip faces hold the material: `"separating"` (it may leave them,
-    /// the default) or `"bonded"` (v . n held both ways, the cell projection's default);
+    /// the nodal projection's default) or `"bonded"` (v . n held both ways, the default of
+    /// the cell projection and the explicit scheme);
     /// filled in by the checks. A `"symmetry"` face holds both ways whatever it says.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact: Option<WallContact>,
@@ -995,11 +996,13 @@ impl Deck {
         friction.check(c, &materials, slip)
     }
 
-    /// `grid.boundary.contact`, filled in: the cell projection's constraint is built for walls
-    /// held both ways.
+    /// `grid.boundary.contact`, filled in: separating under the nodal projection, whose last
+    /// pressure tells a wall that pushes from one the water leaves. The cell projection's
+    /// constraint is built for walls held both ways, and the explicit scheme, which decides by
+    /// its ringing velocity alone, let a column at rest move (docs/method.md).
     fn check_contact(&mut self, c: &Check) -> Result<(), DeckError> {
-        let cells = self.simulation.scheme == Scheme::Projection
-            && self.pressure.unknowns == PressureUnknowns::Cells;
+        let projection = self.simulation.scheme == Scheme::Projection;
+        let cells = projection && self.pressure.unknowns == PressureUnknowns::Cells;
         let contact = &mut self.grid.boundary.contact;
         match contact {
             Some(WallContact::Separating) if cells => Err(c.err(
@@ -1008,10 +1011,10 @@ impl Deck {
             )),
             Some(_) => Ok(()),
             None => {
-                *contact = Some(if cells {
-                    WallContact::Bonded
-                } else {
+                *contact = Some(if projection && !cells {
                     WallContact::Separating
+                } else {
+                    WallContact::Bonded
                 });
                 Ok(())
             }
