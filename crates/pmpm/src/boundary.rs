@@ -4,8 +4,9 @@
 //! A face's condition holds on its wall nodes and on the ghost nodes behind it, so that the
 //! wide shape functions (GIMP, B-splines) see the wall too; under the nodal projection a ghost
 //! node's normal component mirrors the node as far inside ([`Boundary::apply`]). Walls only
-//! push (`grid.boundary.contact = "separating"`, the default; [`Boundary::settle_contacts`])
-//! or hold v . n both ways (`"bonded"`, and a `"symmetry"` face always).
+//! push (`grid.boundary.contact = "separating"`, the projection's default;
+//! [`Boundary::settle_contacts`]) or hold v . n both ways (`"bonded"`, the explicit scheme's
+//! default, and a `"symmetry"` face always).
 
 use serde::{Deserialize, Serialize};
 
