@@ -747,25 +747,15 @@ fn step_limits(deck: &Deck, dt0: f64, out: &mut String) {
 
 /// The faces of the grid and how its walls hold the material (`grid.boundary.contact`).
 fn walls(deck: &Deck, dim: usize) -> String {
-    use pmpm::deck::{BoundaryKind as K, WallContact};
-    let names = ["x_min", "x_max", "y_min", "y_max", "z_min", "z_max"];
+    use pmpm::deck::{BoundaryKind, WallContact, FACE_NAMES};
     let faces = deck.grid.boundary.faces();
     let list: Vec<String> = (0..2 * dim)
         .map(|f| {
-            let kind = match faces[f].as_ref().map_or(K::Slip, |s| s.kind()) {
-                K::Slip => "slip",
-                K::NoSlip => "no_slip",
-                K::Open => "open",
-                K::Outflow => "outflow",
-                K::Periodic => "periodic",
-                K::Symmetry => "symmetry",
-            };
-            let moving = faces[f].as_ref().is_some_and(|s| s.velocity().is_some());
-            format!(
-                "{} {kind}{}",
-                names[f],
-                if moving { " (moving)" } else { "" }
-            )
+            let spec = faces[f].as_ref();
+            let kind = spec.map_or(BoundaryKind::Slip, |s| s.kind()).name();
+            let moving = spec.is_some_and(|s| s.velocity().is_some());
+            let moving = if moving { " (moving)" } else { "" };
+            format!("{} {kind}{moving}", FACE_NAMES[f])
         })
         .collect();
     let contact = match deck.grid.boundary.contact {

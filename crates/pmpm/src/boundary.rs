@@ -73,6 +73,23 @@ impl BoundaryKind {
         })
     }
 
+    /// The name the deck gives the kind.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Slip => "slip",
+            Self::NoSlip => "no_slip",
+            Self::Open => "open",
+            Self::Outflow => "outflow",
+            Self::Periodic => "periodic",
+            Self::Symmetry => "symmetry",
+        }
+    }
+
+    /// A wall: slip, no-slip or a symmetry plane, which hold the normal velocity.
+    pub fn is_wall(self) -> bool {
+        matches!(self, Self::Slip | Self::NoSlip | Self::Symmetry)
+    }
+
     /// Open or outflow: nothing held on the velocity, p = 0 beyond the face.
     pub fn is_open(self) -> bool {
         matches!(self, Self::Open | Self::Outflow)
@@ -97,9 +114,6 @@ pub struct Boundary<const D: usize> {
     face_node: Vec<usize>,
     /// Whether the slip and no-slip faces let the material go ([`Boundary::settle_contacts`]).
     separating: bool,
-    /// Per face, whether it is a symmetry plane (held as a slip wall both ways, without
-    /// friction).
-    symmetric: Vec<bool>,
     /// Per pair, the axes whose walls its node's material leaves this step, over all the
     /// node's pairs (bit d: axis d; empty: every pair holds). A pair whose own axis is among
     /// them holds only the normal motion into its wall.
@@ -149,18 +163,6 @@ impl<const D: usize> Boundary<D> {
         rigid: crate::rigid::RigidBodies<D>,
         geo: &GridGeometry<D>,
     ) -> Self {
-        // a symmetry plane holds as a slip wall does, and never lets go or rubs
-        let symmetric: Vec<bool> = faces
-            .iter()
-            .map(|f| f.0 == BoundaryKind::Symmetry)
-            .collect();
-        let faces: Vec<_> = faces
-            .into_iter()
-            .map(|(kind, v)| match kind {
-                BoundaryKind::Symmetry => (BoundaryKind::Slip, v),
-                kind => (kind, v),
-            })
-            .collect();
         let mut nodes = Vec::new();
         for flat in 0..geo.node_count() {
             let idx = geo.multi(flat);
@@ -220,7 +222,6 @@ impl<const D: usize> Boundary<D> {
             mirror,
             face_node,
             separating: false,
-            symmetric,
             released: Vec::new(),
             leaving: Vec::new(),
             leaving_weight: 0.0,
@@ -310,10 +311,7 @@ impl<const D: usize> Boundary<D> {
         self.friction = law.map(|law| {
             let shares = (self.nodes.iter().enumerate())
                 .map(|(k, &(i, f))| {
-                    if self.face_node[k] != i
-                        || self.faces[f].0 != BoundaryKind::Slip
-                        || self.symmetric[f]
-                    {
+                    if self.face_node[k] != i || self.faces[f].0 != BoundaryKind::Slip {
                         return 0.0;
                     }
                     let idx = geo.multi(i);
@@ -396,9 +394,9 @@ impl<const D: usize> Boundary<D> {
         let floor = SEPARATION_FLOOR * speed;
         for (k, &(_, f)) in self.nodes.iter().enumerate() {
             let wall = self.faces[f].0;
+            // (a symmetry plane never lets go: its other side is the mirror image)
             let face = matches!(self.inflow_of.get(k), None | Some(&u32::MAX))
-                && matches!(wall, BoundaryKind::Slip | BoundaryKind::NoSlip)
-                && !self.symmetric[f];
+                && matches!(wall, BoundaryKind::Slip | BoundaryKind::NoSlip);
             let (axis, w) = (f / 2, self.wall(k, f)[f / 2]);
             let j = self.face_node[k];
             let off = if f % 2 == 0 {
@@ -506,7 +504,7 @@ impl<const D: usize> Boundary<D> {
         let faces = self
             .faces
             .iter()
-            .filter(|(kind, _)| matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip))
+            .filter(|(kind, _)| kind.is_wall())
             .map(|(_, v)| v.norm());
         let nodes = self.node_wall.iter().map(|v| v.norm());
         faces.chain(nodes).fold(self.rigid.max_speed(), f64::max)
@@ -583,7 +581,7 @@ impl<const D: usize> Boundary<D> {
             let axis = f / 2;
             if self.released(k) {
                 Self::one_sided(&mut v[i][axis], f, wall[axis]);
-            } else if matches!(kind, BoundaryKind::Slip | BoundaryKind::NoSlip) {
+            } else if kind.is_wall() {
                 v[i][axis] = wall[axis];
             }
         }
@@ -600,7 +598,7 @@ impl<const D: usize> Boundary<D> {
     /// particle off a wall either, which is the step's to do.
     pub fn hold_still(&self, u: &mut [Vector<D>]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
-            if matches!(self.kind(k, f), BoundaryKind::Slip | BoundaryKind::NoSlip) {
+            if self.kind(k, f).is_wall() {
                 store(&mut u[i][f / 2], 0.0);
             }
         }
@@ -610,7 +608,7 @@ impl<const D: usize> Boundary<D> {
     /// Sets bit d of `bits[i]` where [`Self::hold_still`] zeroes component d of node i.
     pub fn held_components(&self, bits: &mut [u8]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
-            if matches!(self.kind(k, f), BoundaryKind::Slip | BoundaryKind::NoSlip) {
+            if self.kind(k, f).is_wall() {
                 bits[i] |= 1 << (f / 2);
             }
         }
@@ -702,9 +700,7 @@ impl<const D: usize> Boundary<D> {
     fn mirror_ghosts(&self, v: &mut [Vector<D>]) {
         for (k, &(i, f)) in self.nodes.iter().enumerate() {
             let m = self.mirror[k];
-            if m == usize::MAX
-                || !matches!(self.kind(k, f), BoundaryKind::Slip | BoundaryKind::NoSlip)
-            {
+            if m == usize::MAX || !self.kind(k, f).is_wall() {
                 continue;
             }
             let axis = f / 2;

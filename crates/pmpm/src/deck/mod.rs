@@ -1502,14 +1502,10 @@ fn frame<'a>(
     grid: &GridDeck,
     materials: &'a [MaterialDeck],
 ) -> Frame<'a> {
-    let faces = grid.boundary.faces().map(|f| {
-        let kind = f.as_ref().map_or(BoundaryKind::Slip, |s| s.kind());
-        BOUNDARY_KINDS
-            .iter()
-            .find(|n| BoundaryKind::from_name(n) == Some(kind))
-            .copied()
-            .unwrap_or("slip")
-    });
+    let faces = grid
+        .boundary
+        .faces()
+        .map(|f| f.as_ref().map_or(BoundaryKind::Slip, |s| s.kind()).name());
     Frame {
         dim: simulation.dimension,
         lo: grid.origin.clone(),
