@@ -222,9 +222,13 @@ fn grid_frames_hold_the_named_fields() {
 /// The Martin & Moyce dam break (the shipped example, h = a/20, to t = 0.4 s) past its impact
 /// on the far wall, with three probes at one point of that wall, 3.5 cells above the floor (on the nodes;
 /// on the particles within a cell; on those within three cells), and a pressure gauge there,
-/// its walls' `contact` as given. Returns the rows of probes.csv and gauges.csv.
-fn impact_run(contact: &str) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
-    let dir = scratch_dir(&format!("impact-probe-{contact}"));
+/// its walls' `contact` and its `density_correction` as given. Returns the rows of probes.csv
+/// and gauges.csv. The tests below read it with `"positions"`: with the particles packed (the
+/// deck's default) the wide probe's jumps stay near the nodes' (measured, separating walls:
+/// the nodes' lowest -572 Pa and largest jump 1018 Pa, the wide probe's 0 Pa and 885 Pa), an
+/// open defect of the packing (docs/method.md), not of the probes.
+fn impact_run(contact: &str, correction: &str) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+    let dir = scratch_dir(&format!("impact-probe-{contact}-{correction}"));
     let at = "position = [0.4572, 0.01]";
     let probes = format!(
         "name = \"nodes\"\n{at}\n\n\
@@ -242,6 +246,10 @@ fn impact_run(contact: &str) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
         .replace(
             "[grid.boundary]\n",
             &format!("[grid.boundary]\ncontact = \"{contact}\"\n"),
+        )
+        .replace(
+            "[pressure]\n",
+            &format!("[pressure]\ndensity_correction = \"{correction}\"\n"),
         );
     let deck = dir.join("impact.toml");
     std::fs::write(&deck, text).unwrap();
@@ -277,7 +285,7 @@ fn impact_run(contact: &str) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
 /// (lowest -29 Pa, largest jump 568 Pa, peak 1177 Pa against 1291 Pa).
 #[test]
 fn probes_and_gauges_start_at_t_0_and_a_particle_probe_reads_as_the_gauge() {
-    let (probes, gauges) = impact_run("bonded");
+    let (probes, gauges) = impact_run("bonded", "positions");
     assert_eq!(probes[0][0], 0.0, "probes.csv's first row is t = 0");
     assert_eq!(gauges[0][0], 0.0, "gauges.csv's first row is t = 0");
     // the water starts 0.4 m from the wall: nothing at the point at t = 0
@@ -306,7 +314,7 @@ fn probes_and_gauges_start_at_t_0_and_a_particle_probe_reads_as_the_gauge() {
 /// the nodes' -658 Pa and 940 Pa).
 #[test]
 fn a_run_up_under_pressure_stays_on_a_separating_wall() {
-    let (probes, _) = impact_run("separating");
+    let (probes, _) = impact_run("separating", "positions");
     wide_probe_smooths_the_impact(&probes);
 }
 

@@ -47,6 +47,10 @@ fn an_outflow_face_lets_the_water_out_and_counts_it() {
             .replace("end_time = 0.05", "end_time = 0.3")
             .replace("gravity = [0.0, -9.81]", "gravity = [5.0, -9.81]")
             .replace("x_max = \"slip\"", "x_max = \"outflow\"")
+            // a slip floor, as the estimate below assumes: on the no-slip floor the bottom
+            // rows stay behind and half the particles are left at 0.3 s (48 of 100 with
+            // density_correction = "positions", 50 with "particles"), at the bound
+            .replace("y_min = \"no_slip\"", "y_min = \"slip\"")
             .replace("interval = 0.01", "interval = 0.05")
             .replace(
                 "min = [0.0, 0.0], max = [0.1, 0.1]",
@@ -57,7 +61,7 @@ fn an_outflow_face_lets_the_water_out_and_counts_it() {
         let (n, m_out, mass) = (&s["particles"], &s["mass_out"], &s["mass"]);
         let last = n.len() - 1;
         // 0.1 m of water 0.1 to 0.2 m from the face, at 5 m/s2 along x: most of it is out
-        // by t = 0.3 s (it would take 0.28 s to slide 0.2 m)
+        // by t = 0.3 s (it would take 0.28 s to slide 0.2 m; the projection leaves 37 of 100)
         assert!(
             n[last] < 0.5 * n[0],
             "{scheme}: {} of {} particles left",

@@ -566,24 +566,24 @@ impl<const D: usize> Simulation<D> {
             Stepper::Projection(p) => p.corrects_density(),
             Stepper::Explicit(packing) => packing.is_some(),
         };
-        let rate = if corrects {
-            crate::pressure::density::PositionCorrection::<D>::rate(
+        let pace = if corrects {
+            crate::pressure::density::PositionCorrection::<D>::pace(
                 dt,
                 self.max_speed(),
                 self.settings.gravity.norm(),
                 self.grid.geo.h,
             )
         } else {
-            0.0
+            crate::pressure::density::Pace::whole(0.0)
         };
         let (ps, geo, boundary) = (&mut self.particles, &self.grid.geo, &self.boundary);
         // the explicit scheme packs once every few steps ([`Packing::share_due`])
         let moved = match &mut self.stepper {
             Stepper::Projection(projection) => projection
-                .correct_density(ps, geo, boundary, rate)
+                .correct_density(ps, geo, boundary, pace)
                 .map(|_| true),
             Stepper::Explicit(Some(packing)) => {
-                match Packing::<D>::share_due(self.time, dt, rate) {
+                match Packing::<D>::share_due(self.time, dt, pace.volume) {
                     Some(share) => packing.pack(ps, geo, boundary, share).map(|_| true),
                     None => Ok(false),
                 }

@@ -912,12 +912,13 @@ impl Deck {
         if self.pressure.free_surface.is_none() {
             self.pressure.free_surface = Some(FreeSurface::LevelSet);
         }
-        // the particles' volumes held by a position correction wherever a fluid has a free
-        // surface; a fluid that fills its container keeps the container's volume, but its
-        // particles bunch and open gaps as it stirs, which the correction from their positions
-        // evens out (the cavity's and the vortex's velocities then follow the reference more
-        // closely); a solid's J is its deformation (the strip footing's nodal run threw a
-        // particle out of its heave with the correction)
+        // a fluid's particles packed to rest density from their positions, which also holds
+        // their volumes: with a free surface (the dam break's interior fill at p99 1.04
+        // where the correction of J alone lets it reach 2.75, docs/method.md) and where the
+        // fluid fills its container (the container keeps the volume, but the particles bunch
+        // and open gaps as it stirs; the cavity's and the vortex's velocities then follow the
+        // reference more closely); a solid's J is its deformation (the strip footing's nodal
+        // run threw a particle out of its heave with the correction)
         // the explicit scheme's J is its equation of state: "positions" would move the pressure
         // itself; it packs the particles with "particles", and does nothing by default
         let explicit = self.simulation.scheme == Scheme::Explicit;
@@ -930,9 +931,20 @@ impl Deck {
         if self.pressure.density_correction.is_none() {
             let fluid = self.pressure.unknowns == PressureUnknowns::Nodes
                 && !self.materials.iter().any(MaterialDeck::is_solid);
+            // with a free surface, the packing where it is known to hold: linear shapes (with
+            // the quadratic B-spline it moves a pool at rest, and GIMP has no pushes) and no
+            // free rigid body (a floating box sat 3 % deep and bodies resting on the floor
+            // stalled the pressure solve with it, causes not found: docs/method.md); the
+            // correction of J alone elsewhere
+            let packs = self.simulation.shape_function == ShapeFunction::Linear
+                && !self
+                    .rigid_bodies
+                    .iter()
+                    .any(|b| b.motion == crate::rigid::RigidMotion::Free);
             self.pressure.density_correction = Some(match self.pressure.free_surface {
                 _ if explicit || !fluid => DensityCorrection::None,
                 Some(FreeSurface::None) => DensityCorrection::Particles,
+                _ if packs => DensityCorrection::Particles,
                 _ => DensityCorrection::Positions,
             });
         }

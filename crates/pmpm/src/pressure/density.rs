@@ -45,10 +45,10 @@ const MAX_SHIFT: f64 = 0.25;
 /// Largest share of a particle's volume one correction gives back or takes.
 const MAX_RATE: f64 = 0.2;
 
-/// The packing solve's relative residual (the deck's where that is looser): its right-hand
-/// side is at most [`MAX_RATE`] of a node's volume and it is solved again every step, so a
-/// residual of 1e-5 leaves fill errors far below the 5 % the packing aims at.
-const PACK_TOLERANCE: f64 = 1e-5;
+/// The slope of the level set phi = h (1 - 2 f) below which the measured nodes' gradient
+/// takes over from it as a surface particle's outward direction ([`own_shift`]): 0.1, a fill
+/// that changes by 5 % across a cell.
+const NORMAL_SLOPE: f64 = 0.1;
 
 /// How many times as often as the projection's pace ([`PACE`]) the explicit scheme packs
 /// ([`Packing::share_due`]): its particles follow a velocity with the sound's ringing in it,
@@ -59,6 +59,26 @@ pub const EXPLICIT_PACKS: f64 = 4.0;
 /// h / (PACE max |v|), a third of the time a particle takes to cross a cell (see
 /// [`PositionCorrection::rate`]).
 pub const PACE: f64 = 3.0;
+
+/// How far one correction goes ([`PositionCorrection::pace`]), each a share from 0 to 1.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pace {
+    /// The share of the volume error 1 - J given back.
+    pub volume: f64,
+    /// The share of the way the packing goes: of the fill's excess its solve gives back,
+    /// and the strength of the pairs' pushes ([`super::spacing`]).
+    pub packing: f64,
+}
+
+impl Pace {
+    /// The same share for both (the explicit scheme's packing, whole when it is due).
+    pub fn whole(share: f64) -> Self {
+        Self {
+            volume: share,
+            packing: share,
+        }
+    }
+}
 
 /// The explicit scheme's density correction (`density_correction = "particles"` there): the
 /// packing alone (`PositionCorrection::packing_only`) with a solver and stage buffers of its
@@ -121,7 +141,7 @@ impl<const D: usize> Packing<D> {
         let linear = (&mut self.solver, &mut self.shared);
         Ok(self
             .correction
-            .correct(ps, geo, boundary, share, linear)?
+            .correct(ps, geo, boundary, Pace::whole(share), linear)?
             .iterations)
     }
 }
@@ -183,7 +203,25 @@ impl<const D: usize> PositionCorrection<D> {
     /// that drift pile up.
     pub fn rate(dt: f64, max_speed: f64, gravity: f64, h: f64) -> f64 {
         let fall = dt * (gravity.abs() / (2.0 * h)).sqrt();
-        (PACE * dt * max_speed / h).max(fall).min(1.0)
+        Self::crossing_rate(dt, max_speed, h).max(fall).min(1.0)
+    }
+
+    /// min(1, PACE dt max|v| / h): [`PACE`] corrections per cell crossing.
+    fn crossing_rate(dt: f64, max_speed: f64, h: f64) -> f64 {
+        (PACE * dt * max_speed / h).min(1.0)
+    }
+
+    /// The pace of a correction in a step of `dt`: the volume's share [`Self::rate`], and the
+    /// packing's at the flow's own pace alone, [`PACE`] per cell crossing without the floor
+    /// of one fall per cell. J drifts under a creeping flow's stresses, but the particles'
+    /// arrangement changes only as they move: the packing undoes what the motion made, and
+    /// at the floor's pace it rearranged creeping flows many times faster than they moved
+    /// (a viscous current's nose ran ahead of its similarity solution, docs/method.md).
+    pub fn pace(dt: f64, max_speed: f64, gravity: f64, h: f64) -> Pace {
+        Pace {
+            volume: Self::rate(dt, max_speed, gravity, h),
+            packing: Self::crossing_rate(dt, max_speed, h),
+        }
     }
 
     /// The correction with the pressure's solver settings.
@@ -222,8 +260,8 @@ impl<const D: usize> PositionCorrection<D> {
         self
     }
 
-    /// Moves the particles (positions, F and J) so that their volumes return the share `rate`
-    /// (0 to 1) of the way to V0, in the stages of the projection: free surface, unknowns,
+    /// Moves the particles (positions, F and J) so that their volumes return the share
+    /// `pace.volume` (0 to 1) of the way to V0, in the stages of the projection: free surface, unknowns,
     /// assembly, solve, correction; with the density from the particles' positions
     /// ([`DensityCorrection::Particles`]), then spreads them to rest density with a second
     /// solve of the same matrix ([`Self::pack`]). The solver and the stages' buffers are the
@@ -235,11 +273,15 @@ impl<const D: usize> PositionCorrection<D> {
         ps: &mut Particles<D>,
         geo: &GridGeometry<D>,
         boundary: &Boundary<D>,
-        rate: f64,
+        pace: Pace,
         (solver, shared): (&mut LinearSolver, &mut Shared<D>),
     ) -> Result<SolveStats, SolveError> {
         let shape = self.shape;
-        let rate = rate.clamp(0.0, 1.0);
+        let rate = pace.volume.clamp(0.0, 1.0);
+        let pace = Pace {
+            volume: rate,
+            packing: pace.packing.clamp(0.0, 1.0),
+        };
         // the particles' volumes evened out below the grid's resolution first: the solve below
         // sees J only through its nodal averages, and cannot give one particle's volume back
         // against its neighbour's in the same cell
@@ -316,7 +358,7 @@ impl<const D: usize> PositionCorrection<D> {
         };
         if self.volumes {
             let linear = (&mut *solver, &*system, &mut *solution);
-            self.stats = self.solve(self.tolerance, &stage, linear, [scratch, first_layer])?;
+            self.stats = self.solve(&stage, linear, [scratch, first_layer])?;
             // correction: u on the nodes, then the particles moved and deformed by it
             self.node_displacement(ps, geo, boundary, (vector_bands, displacement));
             self.move_particles(ps, geo, &surface.kinds, displacement);
@@ -327,7 +369,7 @@ impl<const D: usize> PositionCorrection<D> {
             let ghost = [scratch, first_layer];
             let linear = (solver, system, solution);
             let moved = (boundary, &mut *bins);
-            let packed = self.pack(ps, &stage, moved, points, rate, linear, ghost)?;
+            let packed = self.pack(ps, &stage, moved, points, pace, linear, ghost)?;
             self.stats.iterations += packed.iterations;
         }
         Ok(self.stats)
@@ -337,7 +379,6 @@ impl<const D: usize> PositionCorrection<D> {
     /// level set sets them.
     fn solve(
         &mut self,
-        tolerance: f64,
         stage: &Stage<'_, D>,
         (solver, system, solution): (&mut LinearSolver, &super::Assembled, &mut Vec<f64>),
         [scratch, first_layer]: [&mut Vec<f64>; 2],
@@ -351,7 +392,7 @@ impl<const D: usize> PositionCorrection<D> {
             singular: stage.free == 0,
         };
         let params = SolveParams {
-            tolerance,
+            tolerance: self.tolerance,
             max_iterations: self.max_iterations,
         };
         let stats = solver.solve(&linear, &system.rhs, solution, params)?;
@@ -373,7 +414,7 @@ impl<const D: usize> PositionCorrection<D> {
     /// ([`Self::fill_excess`]), the same matrix as the volume correction's, and each particle
     /// shifted by its own -(grad q)(x_p) ([`own_shift`]) and pushed apart from the particles
     /// closer to it than their rest spacing ([`super::spacing`], what the nodes cannot see,
-    /// at the same rate; `bins` sorted again for it where the volume correction moved the
+    /// at the same pace; `bins` sorted again for it where the volume correction moved the
     /// particles). Positions only: J and F are not touched. The volume correction before it has given J back its share; what is left is
     /// the particles' arrangement, which J does not see (they bunch at J = 1 where they move
     /// with the velocity interpolated within a cell while J integrates its nodal average), so
@@ -385,19 +426,18 @@ impl<const D: usize> PositionCorrection<D> {
         stage: &Stage<'_, D>,
         (boundary, bins): (&Boundary<D>, &mut CellBins),
         points: (&[Vector<D>], &[f64], &[f64]),
-        rate: f64,
+        pace: Pace,
         (solver, system, solution): (&mut LinearSolver, &mut super::Assembled, &mut Vec<f64>),
         ghost: [&mut Vec<f64>; 2],
     ) -> Result<SolveStats, SolveError> {
         let (geo, shape) = (stage.geo, self.shape);
         self.gather_rest_volumes(ps, geo);
-        self.fill_excess(geo, points, stage.kinds, rate);
+        self.fill_excess(geo, points, stage.kinds, pace.packing);
         for (b, &i) in system.rhs.iter_mut().zip(&system.unknowns.node_of_row) {
             *b = self.excess[i as usize];
         }
         system.matrix.pin_empty_rows(&mut system.rhs);
-        let tolerance = self.tolerance.max(PACK_TOLERANCE);
-        let stats = self.solve(tolerance, stage, (solver, system, solution), ghost)?;
+        let stats = self.solve(stage, (solver, system, solution), ghost)?;
         crate::pages::fit(&mut self.held, geo.node_count());
         crate::pages::reset(&mut self.held);
         boundary.held_components(&mut self.held);
@@ -406,7 +446,7 @@ impl<const D: usize> PositionCorrection<D> {
         // own moves gather particles into the corners of no-slip walls, and the pushes, which
         // cannot spread such a pile, crowd it until the run stops (docs/method.md)
         let pairs = if shape == ShapeFunction::Linear {
-            rate
+            pace.packing
         } else {
             0.0
         };
@@ -421,7 +461,12 @@ impl<const D: usize> PositionCorrection<D> {
         } else {
             self.spacing.clear(ps.len());
         }
-        let (q, held, measured) = (&self.potential, &self.held, &self.measured);
+        let fields = ShiftFields {
+            q: &self.potential,
+            held: &self.held,
+            measured: &self.measured,
+            phi: stage.phi,
+        };
         let carry = self.from_positions;
         (
             ps.x.par_iter_mut(),
@@ -432,7 +477,7 @@ impl<const D: usize> PositionCorrection<D> {
         )
             .into_par_iter()
             .for_each(|(x, &lp, v, c, &push)| {
-                let d = own_shift(shape, geo, (q, held, measured), x, lp, push);
+                let d = own_shift(shape, geo, &fields, x, lp, push);
                 *x += d;
                 // the velocity of where it goes ([`Self::from_positions`])
                 if carry {
@@ -743,6 +788,19 @@ fn near_surface<const D: usize>(geo: &GridGeometry<D>, kinds: &[NodeKind], i: us
     })
 }
 
+/// The nodal fields a particle's own shift reads ([`own_shift`]).
+#[derive(Clone, Copy)]
+struct ShiftFields<'a> {
+    /// q per node.
+    q: &'a [f64],
+    /// Per node, bit d set where component d is held.
+    held: &'a [u8],
+    /// Per node, 1 where the fill is measured.
+    measured: &'a [u8],
+    /// The free surface's level set, where there is one.
+    phi: Option<&'a [f64]>,
+}
+
 /// A particle's own shift -(grad q)(x_p), at most [`MAX_SHIFT`] cells long. The nodes'
 /// displacement u_i averages grad q over the particles around a node, and is blind to a
 /// pattern that alternates from cell to cell (particles packed in one cell, spread in the
@@ -760,15 +818,32 @@ fn near_surface<const D: usize>(geo: &GridGeometry<D>, kinds: &[NodeKind], i: us
 /// there, and q there is only the ghost values' extrapolation and the tail of the interior's
 /// solution, whose gradient moved the films of creeping flows without any measure of their
 /// arrangement, and they lost J V0 under it (docs/method.md).
+///
+/// A particle at the surface of the bulk (some of its nodes measured, some not) keeps no part
+/// of its push along the outward normal n, the gradient of the level set `phi` at the
+/// particle: its close neighbours are all on the inner side, and pushed out along n it left
+/// the surface as a droplet (ahead of a yield-stress block's front). Lind,
+/// Xu, Stansby & Rogers (JCP 231, 2012) take the normal part off particle shifting at a
+/// free surface the same way; where phi is flatter than [`NORMAL_SLOPE`], the direction in
+/// which the measured nodes end takes over. A film's particles keep their whole push: the
+/// level set does
+/// not resolve a sheet thinner than its cells, and without the normal part their bunching
+/// came back into the dam break's interior after the impact (docs/method.md).
 #[inline]
 fn own_shift<const D: usize>(
     shape: ShapeFunction,
     geo: &GridGeometry<D>,
-    (q, held, measured): (&[f64], &[u8], &[u8]),
+    fields: &ShiftFields<'_>,
     x: &Vector<D>,
     lp: f64,
     push: Vector<D>,
 ) -> Vector<D> {
+    let ShiftFields {
+        q,
+        held,
+        measured,
+        phi,
+    } = *fields;
     let st = Stencil::<D>::new(shape, &geo.to_cells(x), geo.h, lp);
     let mut grad = Vector::<D>::zeros();
     // per axis, the distance to the nearest held node below and above the particle
@@ -776,10 +851,20 @@ fn own_shift<const D: usize>(
     let mut above = Vector::<D>::repeat(f64::INFINITY);
     let mut free = 0.0;
     let mut measured_node = false;
+    let mut surface_node = false;
+    let mut normal = Vector::<D>::zeros();
+    let mut inward = Vector::<D>::zeros();
     st.for_each(|nw| {
         let i = geo.flat(&nw.node);
         grad += nw.grad * q[i];
         measured_node |= nw.n > 0.0 && measured[i] != 0;
+        surface_node |= nw.n > 0.0 && measured[i] == 0;
+        if let Some(phi) = phi {
+            normal += nw.grad * phi[i];
+        }
+        if measured[i] != 0 {
+            inward += nw.grad * geo.h;
+        }
         if held[i] != crate::boundary::BUFFER_HELD {
             free += nw.n;
         }
@@ -797,6 +882,18 @@ fn own_shift<const D: usize>(
     });
     if !measured_node {
         grad = Vector::<D>::zeros();
+    }
+    let mut push = push;
+    if measured_node && surface_node {
+        // phi = h (1 - 2 f) is flat where the cells are full, and a gradient of round-off
+        // there, normalised, took a direction at random (a run's particles then hung on the
+        // order of its sums). Where it is flatter than NORMAL_SLOPE, -h grad m (m = 1 on the
+        // measured nodes, falling towards the surface a node or two further in) takes over
+        // in proportion, so that n, and the shift, stay continuous.
+        let slope = normal.norm();
+        let normal = normal - inward * (1.0 - slope / NORMAL_SLOPE).max(0.0);
+        let n = normal / normal.norm().max(NORMAL_SLOPE);
+        push -= n * push.dot(&n).max(0.0);
     }
     let limit = MAX_SHIFT * geo.h;
     let norm = grad.norm();
@@ -849,8 +946,14 @@ mod tests {
         let mut shared = Shared::new(&deck.pressure, &sim.boundary);
         move |ps| {
             let (geo, boundary) = (&sim.grid.geo, &sim.boundary);
-            c.correct(ps, geo, boundary, 1.0, (&mut solver, &mut shared))
-                .unwrap();
+            c.correct(
+                ps,
+                geo,
+                boundary,
+                Pace::whole(1.0),
+                (&mut solver, &mut shared),
+            )
+            .unwrap();
         }
     }
 

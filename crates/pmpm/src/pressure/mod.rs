@@ -333,14 +333,14 @@ impl<const D: usize> Projection<D> {
     }
 
     /// After the step: moves the particles so that their volumes return towards V0, the
-    /// share `rate` of the way (nothing without the density correction). Returns the solve's
-    /// iterations.
+    /// share `pace.volume` of the way (nothing without the density correction). Returns the
+    /// solves' iterations.
     pub fn correct_density(
         &mut self,
         ps: &mut Particles<D>,
         geo: &crate::grid::GridGeometry<D>,
         boundary: &Boundary<D>,
-        rate: f64,
+        pace: density::Pace,
     ) -> Result<usize, SolveError> {
         match &mut self.density {
             Some(d) => Ok(d
@@ -348,7 +348,7 @@ impl<const D: usize> Projection<D> {
                     ps,
                     geo,
                     boundary,
-                    rate,
+                    pace,
                     (&mut self.solver, &mut self.shared),
                 )?
                 .iterations),

@@ -93,8 +93,9 @@ pub struct PressureSettings {
     /// default) turns it off.
     #[serde(default)]
     pub volume_correction: f64,
-    /// How each particle's volume is kept from drifting; `validate` fills it in: "positions"
-    /// with a free surface, "none" without one (the container holds the volume).
+    /// How each particle's volume is kept from drifting; the deck's check fills it in:
+    /// "particles" for a fluid (with a free surface only with linear shapes and no free rigid
+    /// body, "positions" otherwise), "none" for solids and the explicit scheme.
     #[serde(default)]
     pub density_correction: Option<DensityCorrection>,
     /// Where the pressure unknowns sit: "nodes" (docs/method.md, the default) or "cells".
