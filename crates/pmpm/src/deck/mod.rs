@@ -913,7 +913,7 @@ impl Deck {
             self.pressure.free_surface = Some(FreeSurface::LevelSet);
         }
         // a fluid's particles packed to rest density from their positions, which also holds
-        // their volumes: with a free surface (the dam break's interior fill at p99 1.04
+        // their volumes: with a free surface (the dam break's interior fill at p99 1.02
         // where the correction of J alone lets it reach 2.75, docs/method.md) and where the
         // fluid fills its container (the container keeps the volume, but the particles bunch
         // and open gaps as it stirs; the cavity's and the vortex's velocities then follow the

@@ -78,6 +78,14 @@ impl Pace {
             packing: share,
         }
     }
+
+    /// Each share within 0 to 1.
+    fn clamped(self) -> Self {
+        Self {
+            volume: self.volume.clamp(0.0, 1.0),
+            packing: self.packing.clamp(0.0, 1.0),
+        }
+    }
 }
 
 /// The explicit scheme's density correction (`density_correction = "particles"` there): the
@@ -261,8 +269,8 @@ impl<const D: usize> PositionCorrection<D> {
     }
 
     /// Moves the particles (positions, F and J) so that their volumes return the share
-    /// `pace.volume` (0 to 1) of the way to V0, in the stages of the projection: free surface, unknowns,
-    /// assembly, solve, correction; with the density from the particles' positions
+    /// `pace.volume` (0 to 1) of the way to V0, in the stages of the projection: free surface,
+    /// unknowns, assembly, solve, correction; with the density from the particles' positions
     /// ([`DensityCorrection::Particles`]), then spreads them to rest density with a second
     /// solve of the same matrix ([`Self::pack`]). The solver and the stages' buffers are the
     /// projection's: the solves run one after the other, so they share its work vectors,
@@ -277,11 +285,8 @@ impl<const D: usize> PositionCorrection<D> {
         (solver, shared): (&mut LinearSolver, &mut Shared<D>),
     ) -> Result<SolveStats, SolveError> {
         let shape = self.shape;
-        let rate = pace.volume.clamp(0.0, 1.0);
-        let pace = Pace {
-            volume: rate,
-            packing: pace.packing.clamp(0.0, 1.0),
-        };
+        let pace = pace.clamped();
+        let rate = pace.volume;
         // the particles' volumes evened out below the grid's resolution first: the solve below
         // sees J only through its nodal averages, and cannot give one particle's volume back
         // against its neighbour's in the same cell
@@ -822,13 +827,12 @@ struct ShiftFields<'a> {
 /// A particle at the surface of the bulk (some of its nodes measured, some not) keeps no part
 /// of its push along the outward normal n, the gradient of the level set `phi` at the
 /// particle: its close neighbours are all on the inner side, and pushed out along n it left
-/// the surface as a droplet (ahead of a yield-stress block's front). Lind,
-/// Xu, Stansby & Rogers (JCP 231, 2012) take the normal part off particle shifting at a
-/// free surface the same way; where phi is flatter than [`NORMAL_SLOPE`], the direction in
+/// the surface as a droplet (ahead of a yield-stress block's front). Lind, Xu, Stansby &
+/// Rogers (JCP 231, 2012) take the normal part off particle shifting at a free surface the
+/// same way; where phi is flatter than [`NORMAL_SLOPE`], the direction in
 /// which the measured nodes end takes over. A film's particles keep their whole push: the
-/// level set does
-/// not resolve a sheet thinner than its cells, and without the normal part their bunching
-/// came back into the dam break's interior after the impact (docs/method.md).
+/// level set does not resolve a sheet thinner than its cells, and without the normal part
+/// their bunching came back into the dam break's interior after the impact (docs/method.md).
 #[inline]
 fn own_shift<const D: usize>(
     shape: ShapeFunction,
