@@ -577,17 +577,15 @@ impl<const D: usize> Simulation<D> {
             crate::pressure::density::Pace::whole(0.0)
         };
         let (ps, geo, boundary) = (&mut self.particles, &self.grid.geo, &self.boundary);
-        // the explicit scheme packs once every few steps ([`Packing::share_due`])
+        // the explicit scheme packs a share of the way each step ([`Packing::share`])
         let moved = match &mut self.stepper {
             Stepper::Projection(projection) => projection
                 .correct_density(ps, geo, boundary, pace)
                 .map(|_| true),
-            Stepper::Explicit(Some(packing)) => {
-                match Packing::<D>::share_due(self.time, dt, pace.volume) {
-                    Some(share) => packing.pack(ps, geo, boundary, share).map(|_| true),
-                    None => Ok(false),
-                }
-            }
+            Stepper::Explicit(Some(packing)) => match Packing::<D>::share(pace.packing) {
+                Some(share) => packing.pack(ps, geo, boundary, share).map(|_| true),
+                None => Ok(false),
+            },
             Stepper::Explicit(None) => Ok(false),
         }
         .map_err(|e| {

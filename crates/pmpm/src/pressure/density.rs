@@ -50,9 +50,9 @@ const MAX_RATE: f64 = 0.2;
 /// that changes by 5 % across a cell.
 const NORMAL_SLOPE: f64 = 0.1;
 
-/// How many times as often as the projection's pace ([`PACE`]) the explicit scheme packs
-/// ([`Packing::share_due`]): its particles follow a velocity with the sound's ringing in it,
-/// and bunch again faster between packs than the projection's do (docs/method.md).
+/// How many times the projection's packing share ([`PACE`]) the explicit scheme's packing
+/// takes each step ([`Packing::share`]): its particles follow a velocity with the sound's
+/// ringing in it, and bunch again faster than the projection's do (docs/method.md).
 pub const EXPLICIT_PACKS: f64 = 4.0;
 
 /// Corrections per cell crossing: the volume error is given back over the time
@@ -117,24 +117,14 @@ impl<const D: usize> Packing<D> {
         }
     }
 
-    /// The share of the packing due at the end of a step from `time` to `time + dt`, where
-    /// the projection would give back the share `rate` (`PositionCorrection::rate`) each
-    /// step: the whole of it `EXPLICIT_PACKS` times as often as that pace, once every
-    /// dt / (EXPLICIT_PACKS rate) of time (the moment `time + dt` passes a multiple of it),
-    /// not a sliver every step. The explicit step is tied to the speed of sound, tens of
-    /// times shorter than the flow's own time, and a solve per step would cost more than the
-    /// step. It depends only on the step's own figures, so a resumed run packs at the same
-    /// steps as one that was never stopped.
-    pub fn share_due(time: f64, dt: f64, rate: f64) -> Option<f64> {
-        let rate = EXPLICIT_PACKS * rate;
-        if rate >= 1.0 {
-            return Some(1.0);
-        }
-        if rate <= 0.0 || dt <= 0.0 {
-            return None;
-        }
-        let period = dt / rate;
-        (((time + dt) / period).floor() > (time / period).floor()).then_some(1.0)
+    /// The share of the way to rest density the packing goes in a step where the projection's
+    /// packing would go the share `rate` (`PositionCorrection::crossing_rate`):
+    /// `EXPLICIT_PACKS` times that, at most the whole. Every step, not in whole shares every
+    /// few steps: between such packs the ringing bunched the particles again (docs/method.md).
+    /// It depends only on the step's own figures, so a resumed run packs as one never stopped.
+    pub fn share(rate: f64) -> Option<f64> {
+        let share = (EXPLICIT_PACKS * rate).min(1.0);
+        (share > 0.0).then_some(share)
     }
 
     /// Packs the particles the share `share` of the way to rest density; returns the solve's
@@ -1132,19 +1122,14 @@ particles_per_cell = 2
         assert_eq!(ps.pressure, pressure);
     }
 
-    /// The explicit scheme's schedule: at a share r per step it packs whole once every
-    /// 1 / (EXPLICIT_PACKS r) steps, at the same steps whatever the step the run started from,
-    /// and every step where the projection would give back all of it.
+    /// The explicit scheme's share: `EXPLICIT_PACKS` times the projection's, at most the
+    /// whole, none when the flow stands still.
     #[test]
     fn the_explicit_packing_comes_at_its_pace() {
-        let (dt, rate) = (1e-4, 0.01 / EXPLICIT_PACKS);
-        let due: Vec<usize> = (0..1000)
-            .filter(|&n| Packing::<2>::share_due(n as f64 * dt, dt, rate).is_some())
-            .collect();
-        assert_eq!(due.len(), 10, "{due:?}");
-        assert!(due.windows(2).all(|w| w[1] - w[0] == 100), "{due:?}");
-        assert_eq!(Packing::<2>::share_due(0.5, dt, 1.0), Some(1.0));
-        assert_eq!(Packing::<2>::share_due(0.5, dt, 0.0), None);
+        let rate = 0.01 / EXPLICIT_PACKS;
+        assert!((Packing::<2>::share(rate).unwrap() - 0.01).abs() < 1e-15);
+        assert_eq!(Packing::<2>::share(1.0), Some(1.0));
+        assert_eq!(Packing::<2>::share(0.0), None);
     }
 
     /// Particles as seeded, J = 1, tile the pool: the correction leaves them where they are,
