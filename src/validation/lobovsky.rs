@@ -1,6 +1,7 @@
 //! Lobovsky et al. (2014) dam break, H = 0.3 m: wall pressure at sensor 1 and water levels at
-//! four gauges, against the experiment. The series are read from the reference directory
-//! (never copied into the repository); the case is skipped when they are absent.
+//! four gauges, against the experiment, in 2D and in 3D (the tank's 0.15 m width and side
+//! walls). The series are read from the reference directory (never copied into the
+//! repository); the case is skipped when they are absent.
 
 use super::plot::{colors, save, Panel, Series};
 use super::{interp, load_deck, pct, prose, read_csv, run_deck, Ctx, Row, Section, Verdict};
@@ -9,6 +10,8 @@ use std::path::{Path, PathBuf};
 const G: f64 = 9.81;
 const H: f64 = 0.3;
 const RHO: f64 = 1000.0;
+/// The tank's length (m): sensor 1 is on its downstream wall.
+const TANK: f64 = 1.61;
 /// Non-dimensional end time t sqrt(g/H) of the water-level window.
 const T_END: f64 = 6.0;
 /// Gauges: name, x (m) from the back wall, experimental file (ETSIN 01 series), second file.
@@ -49,11 +52,18 @@ struct Run {
     wall_s: f64,
 }
 
-fn simulate(scheme: &str, h: f64) -> Result<Run, String> {
-    let d = load_deck(&format!("lobovsky_{scheme}"), |d| {
+/// Runs the deck `lobovsky_{name}` (2D or 3D) at cell size `h`.
+fn simulate<const D: usize>(name: &str, h: f64) -> Result<Run, String> {
+    // a length that is not a whole number of cells is rounded up (the quick 3D run's): the
+    // probe stays 1 mm in front of the downstream wall where the grid puts it
+    let wall = (TANK / h - 1e-6).ceil() * h;
+    let d = load_deck(&format!("lobovsky_{name}"), |d| {
         d.grid.cell_size = h;
         d.simulation.end_time = T_END * (H / G).sqrt() + 1e-3;
+        d.output.probes[0].position[0] = wall - 1e-3;
     })?;
+    // the levels' strip: its width 4h along x, and in 3D the tank's width
+    let strip = 4.0 * h * if D == 3 { d.grid.size[1] } else { 1.0 };
     let start = std::time::Instant::now();
     let ts = (G / H).sqrt();
     let mut run = Run {
@@ -62,18 +72,18 @@ fn simulate(scheme: &str, h: f64) -> Result<Run, String> {
         steps: 0,
         wall_s: 0.0,
     };
-    let sim = run_deck::<2>(&d, |sim, t0| {
+    let sim = run_deck::<D>(&d, |sim, t0| {
         run.pressure
             .push((t0 * ts, sim.probes.values[0] / (RHO * G * H)));
         // per gauge: the equivalent depth, the particles' initial volumes (areas in 2D)
-        // within 2h of its x over the strip's width 4h (a narrower strip counts particles in
-        // and out of it from step to step: noise of +-0.1 H at h)
+        // within 2h of its x over the strip (a narrower strip counts particles in and out of
+        // it from step to step: noise of +-0.1 H at h)
         let ps = &sim.particles;
         let mut top = [0.0f64; 4];
         for p in 0..ps.len() {
             for (g, gauge) in GAUGES.iter().enumerate() {
                 if (ps.x[p][0] - gauge.1).abs() <= 2.0 * h {
-                    top[g] += ps.volume0[p] / (4.0 * h);
+                    top[g] += ps.volume0[p] / strip;
                 }
             }
         }
@@ -108,7 +118,7 @@ fn load(dir: &Path, file: &str) -> Result<Vec<(f64, f64)>, String> {
         .collect())
 }
 
-/// Cell size (m).
+/// Cell size (m), 2D.
 fn cell_size(quick: bool) -> f64 {
     if quick {
         0.01
@@ -117,14 +127,30 @@ fn cell_size(quick: bool) -> f64 {
     }
 }
 
+/// Cell size (m), 3D: 5 cells across the tank's width in quick mode, 12 in the full report.
+fn cell_size_3d(quick: bool) -> f64 {
+    if quick {
+        0.03
+    } else {
+        0.0125
+    }
+}
+
 /// Title, set-up, metric and bound (`validation/prose/lobovsky.md`), the experimental series
 /// read from `dir`.
 fn header(quick: bool, dir: &Path) -> Section {
     let h = cell_size(quick);
-    let quick_note = if quick {
-        ", quick mode; the full run uses 0.005 m"
+    let h3 = cell_size_3d(quick);
+    let (quick_note, quick_3d) = if quick {
+        (
+            ", quick mode; the full run uses 0.005 m",
+            format!(
+                ", quick mode, the tank's length rounded up to {:.3} m; the full run uses 0.0125 m",
+                (TANK / h3 - 1e-6).ceil() * h3
+            ),
+        )
     } else {
-        ""
+        ("", String::new())
     };
     prose::section(
         "lobovsky",
@@ -132,6 +158,10 @@ fn header(quick: bool, dir: &Path) -> Section {
             ("h", &h),
             ("h_over", &format!("{:.0}", H / h)),
             ("quick", &quick_note),
+            ("h3", &h3),
+            ("h3_over", &format!("{:.0}", H / h3)),
+            ("across", &format!("{:.0}", 0.15 / h3)),
+            ("quick3", &quick_3d),
             ("dir", &dir.display()),
         ],
     )
@@ -183,8 +213,9 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
         .map(|g| load(&dir, g.2))
         .collect::<Result<_, _>>()?;
     let runs = [
-        ("projection", simulate("projection", h)?),
-        ("explicit", simulate("explicit", h)?),
+        ("projection", simulate::<2>("projection", h)?),
+        ("explicit", simulate::<2>("explicit", h)?),
+        ("projection, 3D", simulate::<3>("3d", cell_size_3d(quick))?),
     ];
     let (ept, epp) = first_peak(&exp_p).unwrap_or((f64::NAN, f64::NAN));
     s.rows.push(Row::report(
@@ -209,7 +240,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
                 .map(|p| (interp(&ts, &ls, p.0) - p.1).abs())
                 .fold(0.0, f64::max)
                 / (hi - lo);
-            let proj = *scheme == "projection";
+            let proj = scheme.starts_with("projection");
             s.rows.push(Row::bounded(
                 format!(
                     "{scheme}: water level {} (x = {} m), max error / range",
@@ -232,7 +263,7 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
         &dir,
         &exp_p,
         &exp_levels,
-        (&runs[0].1, &runs[1].1),
+        [&runs[0].1, &runs[1].1, &runs[2].1],
         ept,
     )?;
     s.notes.extend(closing_notes());
@@ -240,17 +271,18 @@ pub fn run(ctx: &Ctx) -> Result<Section, String> {
     Ok(s)
 }
 
-/// The pressure and level figures: the experiment's series against both schemes' (`runs`:
-/// projection, explicit); `ept` the experiment's first peak time, where the zoom centres.
+/// The pressure and level figures: the experiment's series against the runs' (`runs`:
+/// projection, explicit, projection in 3D); `ept` the experiment's first peak time, where the
+/// zoom centres.
 fn figures(
     ctx: &Ctx,
     dir: &Path,
     exp_p: &[(f64, f64)],
     exp_levels: &[Vec<(f64, f64)>],
-    runs: (&Run, &Run),
+    runs: [&Run; 3],
     ept: f64,
 ) -> Result<(), String> {
-    let (proj, expl) = runs;
+    let [proj, expl, proj3] = runs;
     let p_panel = Panel {
         title: "Pressure at sensor 1 (downstream wall, 3 mm)".into(),
         x_label: "T = t sqrt(g/H)".into(),
@@ -263,6 +295,7 @@ fn figures(
             ),
             Series::line("projection", proj.pressure.clone(), colors::PROJ),
             Series::thin("explicit", expl.pressure.clone(), colors::EXPL),
+            Series::thin("projection, 3D", proj3.pressure.clone(), colors::PROJ2),
         ],
         x_range: Some((0.0, T_END)),
         legend_left: true,
@@ -308,6 +341,11 @@ fn figures(
             "explicit",
             expl.levels[g].clone(),
             colors::EXPL,
+        ));
+        series.push(Series::line(
+            "projection, 3D",
+            proj3.levels[g].clone(),
+            colors::PROJ2,
         ));
         panels.push(Panel {
             title: format!("Water level at {} (x = {} m)", gauge.0, gauge.1),

@@ -525,6 +525,7 @@ fn deck_text(name: &str) -> &'static str {
         "martin_moyce_explicit",
         "lobovsky_projection",
         "lobovsky_explicit",
+        "lobovsky_3d",
         "cavity_re100",
         "cavity_re1000",
         "poiseuille",
