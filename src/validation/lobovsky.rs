@@ -12,6 +12,8 @@ const H: f64 = 0.3;
 const RHO: f64 = 1000.0;
 /// The tank's length (m): sensor 1 is on its downstream wall.
 const TANK: f64 = 1.61;
+/// The tank's width (m), the 3D run's.
+const WIDTH: f64 = 0.15;
 /// Non-dimensional end time t sqrt(g/H) of the water-level window.
 const T_END: f64 = 6.0;
 /// Gauges: name, x (m) from the back wall, experimental file (ETSIN 01 series), second file.
@@ -54,9 +56,8 @@ struct Run {
 
 /// Runs the deck `lobovsky_{name}` (2D or 3D) at cell size `h`.
 fn simulate<const D: usize>(name: &str, h: f64) -> Result<Run, String> {
-    // a length that is not a whole number of cells is rounded up (the quick 3D run's): the
-    // probe stays 1 mm in front of the downstream wall where the grid puts it
-    let wall = (TANK / h - 1e-6).ceil() * h;
+    // the probe stays 1 mm in front of the downstream wall where the grid puts it
+    let wall = tank_length(h);
     let d = load_deck(&format!("lobovsky_{name}"), |d| {
         d.grid.cell_size = h;
         d.simulation.end_time = T_END * (H / G).sqrt() + 1e-3;
@@ -118,6 +119,12 @@ fn load(dir: &Path, file: &str) -> Result<Vec<(f64, f64)>, String> {
         .collect())
 }
 
+/// The tank's length on a grid of cell size `h`: a length that is not a whole number of
+/// cells is rounded up to the next (the quick 3D run's), as the deck's validation does.
+fn tank_length(h: f64) -> f64 {
+    (TANK / h - 1e-6).ceil() * h
+}
+
 /// Cell size (m), 2D.
 fn cell_size(quick: bool) -> f64 {
     if quick {
@@ -146,7 +153,7 @@ fn header(quick: bool, dir: &Path) -> Section {
             ", quick mode; the full run uses 0.005 m",
             format!(
                 ", quick mode, the tank's length rounded up to {:.3} m; the full run uses 0.0125 m",
-                (TANK / h3 - 1e-6).ceil() * h3
+                tank_length(h3)
             ),
         )
     } else {
@@ -160,7 +167,7 @@ fn header(quick: bool, dir: &Path) -> Section {
             ("quick", &quick_note),
             ("h3", &h3),
             ("h3_over", &format!("{:.0}", H / h3)),
-            ("across", &format!("{:.0}", 0.15 / h3)),
+            ("across", &format!("{:.0}", WIDTH / h3)),
             ("quick3", &quick_3d),
             ("dir", &dir.display()),
         ],
