@@ -232,6 +232,10 @@ static ALLOCATOR: Allocator = Allocator;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // under mpirun (the `mpi` feature), one process of several: MPI is started here, before
+    // the worker threads, and finalised as `ranks` goes out of scope at the end of main
+    let ranks = mpi_ranks();
+    let root = ranks.as_ref().is_none_or(|r| r.0.is_root());
     if cli.threads == Some(0) {
         eprintln!("error: --threads must be at least 1");
         return ExitCode::from(2);
@@ -260,17 +264,35 @@ fn main() -> ExitCode {
     // The whole run executes on a worker of the pool: the many short parallel loops of a step
     // then start without waking a sleeping thread from outside the pool each time.
     let allow_large = cli.allow_large;
-    match pool.install(|| execute(cli.command, allow_large)) {
+    match pool.install(|| execute(cli.command, allow_large, ranks.clone())) {
         Ok(0) => ExitCode::SUCCESS,
         Ok(failed) => {
             eprintln!("validate: {failed} row(s) did not meet their bound");
             ExitCode::from(4)
         }
         Err(e) => {
-            eprintln!("error: {}", pmpm::limits::shorten_numbers(&e.to_string()));
+            // every rank stops with the same error: rank 0 says it
+            if root {
+                eprintln!("error: {}", pmpm::limits::shorten_numbers(&e.to_string()));
+            }
             ExitCode::from(e.exit_code())
         }
     }
+}
+
+/// The MPI ranks of a run started under `mpirun` (None on one process, or without the `mpi`
+/// feature).
+#[cfg(feature = "mpi")]
+fn mpi_ranks() -> Option<pmpm::comm::Ranks> {
+    let mpi = pmpm::comm::Mpi::init()?;
+    Some(pmpm::comm::Ranks(std::sync::Arc::new(mpi)))
+}
+
+/// The MPI ranks of a run started under `mpirun` (None on one process, or without the `mpi`
+/// feature).
+#[cfg(not(feature = "mpi"))]
+fn mpi_ranks() -> Option<pmpm::comm::Ranks> {
+    None
 }
 
 /// The cores this process may use.
@@ -293,7 +315,11 @@ fn warning_lines(d: &pmpm::Deck, file: &str) -> Vec<String> {
 }
 
 /// Runs a command; Ok(number of failed validation rows).
-fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
+fn execute(
+    cmd: Command,
+    allow_large: bool,
+    ranks: Option<pmpm::comm::Ranks>,
+) -> Result<usize, Error> {
     match cmd {
         Command::Run {
             deck,
@@ -301,7 +327,7 @@ fn execute(cmd: Command, allow_large: bool) -> Result<usize, Error> {
             quiet,
             force,
             resume,
-        } => run_command(&deck, output, quiet, force, resume, allow_large),
+        } => run_command(&deck, output, quiet, force, resume, allow_large, ranks),
         Command::Bench {
             deck,
             steps,
@@ -407,8 +433,11 @@ fn run_command(
     force: bool,
     resume: Option<PathBuf>,
     allow_large: bool,
+    ranks: Option<pmpm::comm::Ranks>,
 ) -> Result<usize, Error> {
     progress::catch_interrupts();
+    // rank 0 speaks for a run over several ranks
+    let quiet = quiet || ranks.as_ref().is_some_and(|r| !r.0.is_root());
     let d = run::load(deck)?;
     let file = deck.display().to_string();
     pmpm::limits::refuse_beyond_limits(&d, &file, allow_large)?;
@@ -432,6 +461,7 @@ fn run_command(
             max_steps: None,
             resume,
             interrupt: Some(progress::interrupt_flag()),
+            ranks,
         },
         &mut progress,
     )?;
@@ -472,6 +502,7 @@ fn bench_command(
             max_steps: steps,
             resume: None,
             interrupt: Some(progress::interrupt_flag()),
+            ranks: None,
         },
         // the deck's warnings only, as the run starts
         &mut Progress::new(true, false, String::new(), warning_lines(&d, &file)),

@@ -90,6 +90,8 @@ pub struct NodalAveraging<const D: usize> {
     /// The nodal average of the field last projected (d_i for tr L, or the pressure), 0 where
     /// no particle reaches.
     average: Vec<f64>,
+    /// The ranks whose particles' sums are added up before the average ([`crate::comm`]).
+    pub comm: crate::comm::Ranks,
 }
 
 impl<const D: usize> NodalAveraging<D> {
@@ -99,6 +101,7 @@ impl<const D: usize> NodalAveraging<D> {
             bands: vec![Band::default(); threads.max(1)],
             weight: crate::pages::zeroed(nodes),
             average: crate::pages::zeroed(nodes),
+            comm: crate::comm::Ranks::default(),
         }
     }
 
@@ -177,6 +180,8 @@ impl<const D: usize> NodalAveraging<D> {
             .copied()
             .max()
             .map_or(0, |m| m as usize + 1);
+        // the same count on every rank, whose collectives it repeats
+        let materials = self.comm.max_scalar(materials as f64) as usize;
         for m in 0..materials {
             let m = m as u16;
             crate::with_shape!(shape, S => {
@@ -268,11 +273,13 @@ impl<const D: usize> NodalAveraging<D> {
             }
         });
         // the threads' sums in a fixed order, then the average; with periodic axes the images
-        // are folded onto their nodes first, so the division waits for that
+        // are folded onto their nodes first, and over several ranks the ranks' sums added up,
+        // so the division waits for that
         crate::pages::fit(&mut self.weight, geo.node_count());
         crate::pages::fit(&mut self.average, geo.node_count());
         let bands = &self.bands;
         let periodic = geo.has_periodic();
+        let later = periodic || self.comm.is_distributed();
         (self.weight.par_iter_mut(), self.average.par_iter_mut())
             .into_par_iter()
             .enumerate()
@@ -282,15 +289,19 @@ impl<const D: usize> NodalAveraging<D> {
                     weight += b[0];
                     sum += b[1];
                 }
-                if !periodic {
+                if !later {
                     sum = divide(sum, weight);
                 }
                 crate::pages::store(w, weight);
                 crate::pages::store(a, sum);
             });
-        if periodic {
-            geo.fold(&mut self.weight);
-            geo.fold(&mut self.average);
+        if later {
+            if periodic {
+                geo.fold(&mut self.weight);
+                geo.fold(&mut self.average);
+            }
+            self.comm
+                .sum_all(&mut [&mut self.weight, &mut self.average]);
             self.average
                 .par_iter_mut()
                 .zip(self.weight.par_iter())

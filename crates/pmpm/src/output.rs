@@ -636,16 +636,21 @@ impl OutputWriter {
         before: f64,
         sim: &Simulation<D>,
     ) -> Result<(), Error> {
-        if self.gauges.is_none() {
+        if !self.gauge_due(before, sim.time) {
             return Ok(());
         }
-        if let Some(every) = self.gauge_interval {
-            let eps = 1e-9 * every;
-            if ((sim.time + eps) / every).floor() <= ((before + eps) / every).floor() {
-                return Ok(());
-            }
-        }
         self.gauge_row_now(sim)
+    }
+
+    /// Whether a step from `before` to `time` brings a row of gauge readings.
+    pub fn gauge_due(&self, before: f64, time: f64) -> bool {
+        if self.gauges.is_none() {
+            return false;
+        }
+        self.gauge_interval.is_none_or(|every| {
+            let eps = 1e-9 * every;
+            ((time + eps) / every).floor() > ((before + eps) / every).floor()
+        })
     }
 
     /// Frame 0 and the gauges' row of the state at t = 0, before the first step (the probes'

@@ -24,6 +24,9 @@ pub struct RunOptions {
     /// Set from outside (a signal handler) to stop the run at the end of its current step,
     /// with a frame and a checkpoint written; the run then returns [`Error::Interrupted`].
     pub interrupt: Option<Arc<AtomicBool>>,
+    /// The MPI ranks the run is spread over (`mpirun`, the `mpi` feature); one process where
+    /// `None` ([`crate::distributed`]).
+    pub ranks: Option<crate::comm::Ranks>,
 }
 
 /// Where a run is, as its [`Observer`] is told.
@@ -151,21 +154,35 @@ fn run_dim<const D: usize>(
     observer: &mut dyn Observer,
 ) -> Result<RunSummary, Error> {
     let start = Instant::now();
+    let comm = opts
+        .ranks
+        .as_ref()
+        .map_or_else(crate::comm::serial, |r| r.0.clone());
     let mut sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
+    if comm.is_distributed() {
+        // refused on every rank alike, before rank 0 takes the directory
+        crate::distributed::check(&sim, comm.size()).map_err(|e| e.with_file(file))?;
+    }
     let clock = crate::build::clock(deck);
-    // the directory's lock is held to the run's end, after the output is closed: a second run
-    // on it is refused
-    let (_lock, mut w) = Writing::open(deck, &mut sim, file, dir, opts, &clock, start)?;
-    observer.started(&w.status(&sim, 0.0, 0.0));
-    let mut driver = if opts.resume.is_some() {
-        Driver::resume(clock, w.driver.next_frame)
-    } else {
-        w.out
-            .first_frame(&sim)
-            .map_err(|e| write_failure_hint(e, None, ""))?;
-        Driver::new(clock)
+    let launch = launcher(&*comm);
+    // rank 0 writes; the directory's lock is held to the run's end, after the output is closed:
+    // a second run on it is refused
+    let (_lock, mut w) = open_on_root(deck, &mut sim, file, dir, opts, &clock, start, &*comm)?;
+    let mut driver = match &opts.resume {
+        Some(path) => {
+            if !comm.is_root() {
+                checkpoint::read(path, deck, &mut sim)?;
+            }
+            let next = w.as_ref().map_or(0.0, |w| w.driver.next_frame);
+            Driver::resume(clock, comm.max_scalar(next))
+        }
+        None => Driver::new(clock),
     };
-    w.driver.next_frame = driver.next_frame;
+    crate::distributed::distribute(&mut sim, comm.clone(), opts.resume.is_none())?;
+    if let Some(w) = &mut w {
+        observer.started(&w.status(&sim, 0.0, 0.0));
+        w.driver.next_frame = driver.next_frame;
+    }
     let mut last_dt = 0.0;
     sim.timers.lap(Phase::Other);
     let result = loop {
@@ -174,48 +191,142 @@ fn run_dim<const D: usize>(
         }
         let t0 = sim.time;
         let stepped = driver.step(&mut sim);
-        w.driver.next_frame = driver.next_frame;
-        w.count_iterations(&sim);
+        let interrupted = comm.any(
+            opts.interrupt
+                .as_ref()
+                .is_some_and(|f| f.load(Ordering::SeqCst)),
+        );
+        let last = opts.max_steps.is_some_and(|n| sim.steps >= n);
+        let end = stepped.as_ref().ok().map(|step| StepEnd {
+            scheduled: step.frame,
+            last,
+            interrupted,
+        });
         sim.timers.lap(Phase::Other);
-        if let Err(e) = w.step_rows(t0, &sim, stepped.is_ok()) {
+        // what the step brings to write, with every rank's particles on rank 0 where it reads
+        // them
+        let due = w.as_ref().is_some_and(|w| w.reads_particles(t0, &sim, end));
+        let due = comm.any(due);
+        let written = crate::distributed::gathered(&mut sim, due, |sim| match &mut w {
+            Some(w) => {
+                w.driver.next_frame = driver.next_frame;
+                w.count_iterations(sim);
+                w.step_rows(t0, sim, end.is_some())?;
+                match (end, &stepped) {
+                    (Some(end), Ok(step)) => w.after_step(deck, sim, step.dt, end, observer),
+                    _ => Ok(()),
+                }
+            }
+            None => Ok(()),
+        });
+        if let Err(e) = written {
             break Err(e);
         }
         let step = match stepped {
             Ok(step) => step,
             Err(e) => {
-                let resume = resume_command(file, &w.checkpoint_path, dir, deck);
-                break Err(blow_up_hint(
-                    e.with_file(file),
-                    w.last_checkpoint,
-                    &resume,
-                    file,
-                ));
+                let resume = resume_command(file, &checkpoint_path(dir), dir, deck, &launch);
+                let last = w.as_ref().and_then(|w| w.last_checkpoint);
+                break Err(blow_up_hint(e.with_file(file), last, &resume, file));
             }
         };
         last_dt = step.dt;
-        let interrupted = opts
-            .interrupt
-            .as_ref()
-            .is_some_and(|f| f.load(Ordering::SeqCst));
-        let last = opts.max_steps.is_some_and(|n| sim.steps >= n);
-        let end = StepEnd {
-            scheduled: step.frame,
-            last,
-            interrupted,
-        };
-        if let Err(e) = w.after_step(deck, &mut sim, step.dt, end, observer) {
-            break Err(e);
-        }
         sim.timers.lap(Phase::Output);
-        let wall = start.elapsed().as_secs_f64();
-        observer.stepped(&w.status(&sim, step.dt, wall));
+        if let Some(w) = &w {
+            let wall = start.elapsed().as_secs_f64();
+            observer.stepped(&w.status(&sim, step.dt, wall));
+        }
         if interrupted {
-            let resume = resume_command(file, &w.checkpoint_path, dir, deck);
+            let resume = resume_command(file, &checkpoint_path(dir), dir, deck, &launch);
             break Err(interrupted_error(&sim, &resume));
         }
     };
-    w.finish(result, file, dir, deck)?;
-    Ok(w.summary(&sim, last_dt))
+    let summary = summary(&sim, &w, start, last_dt);
+    if let Some(w) = &mut w {
+        w.finish(result, file, dir, deck)?;
+    } else {
+        result?;
+    }
+    Ok(summary)
+}
+
+/// The run's output, opened on rank 0 ([`Writing::open`]; a resumed run reads its
+/// checkpoint into `sim` there); every rank learns whether it opened, and stops with rank
+/// 0's error where it did not. On one process, the frame of t = 0 is written here too.
+#[allow(clippy::too_many_arguments)]
+fn open_on_root<const D: usize>(
+    deck: &Deck,
+    sim: &mut Simulation<D>,
+    file: &str,
+    dir: &Path,
+    opts: &RunOptions,
+    clock: &Clock,
+    start: Instant,
+    comm: &dyn crate::comm::Comm,
+) -> Result<(Option<crate::output::DirectoryLock>, Option<Writing>), Error> {
+    let opened = if comm.is_root() {
+        Writing::open(deck, sim, file, dir, opts, clock, start).and_then(|(lock, mut w)| {
+            w.launch = launcher(comm);
+            if opts.resume.is_none() {
+                w.out
+                    .first_frame(sim)
+                    .map_err(|e| write_failure_hint(e, None, ""))?;
+            }
+            Ok((lock, w))
+        })
+    } else {
+        Err(Error::Usage(String::new()))
+    };
+    if !comm.is_distributed() {
+        let (lock, w) = opened?;
+        return Ok((Some(lock), Some(w)));
+    }
+    let mut message = match &opened {
+        Ok(_) => Vec::new(),
+        Err(e) => e.to_string().into_bytes(),
+    };
+    comm.broadcast(&mut message);
+    match opened {
+        Ok((lock, w)) => Ok((Some(lock), Some(w))),
+        Err(e) if comm.is_root() => Err(e),
+        Err(_) if message.is_empty() => Ok((None, None)),
+        Err(_) => Err(Error::Usage(String::from_utf8_lossy(&message).into_owned())),
+    }
+}
+
+/// What starts a run over `comm`'s ranks again, for the messages that say how to resume it.
+fn launcher(comm: &dyn crate::comm::Comm) -> String {
+    if comm.is_distributed() {
+        format!("mpirun -n {} ", comm.size())
+    } else {
+        String::new()
+    }
+}
+
+/// Where the run's checkpoint is written.
+fn checkpoint_path(dir: &Path) -> std::path::PathBuf {
+    dir.join("checkpoint.bin")
+}
+
+/// What the finished run reports; its particles counted over every rank.
+fn summary<const D: usize>(
+    sim: &Simulation<D>,
+    w: &Option<Writing>,
+    start: Instant,
+    last_dt: f64,
+) -> RunSummary {
+    let particles = sim.comm.sum_scalar(sim.particles.len() as f64) as usize;
+    RunSummary {
+        steps: sim.steps,
+        frames: w.as_ref().map_or(0, |w| w.out.frames),
+        particles,
+        wall_seconds: start.elapsed().as_secs_f64(),
+        time: sim.time,
+        timers: sim.timers.clone(),
+        pressure_iterations: w.as_ref().map_or((0, 0), |w| w.driver.iterations),
+        peak_memory: peak_memory(),
+        last_dt,
+    }
 }
 
 /// How a step ended, for what is written after it ([`Writing::after_step`]).
@@ -258,6 +369,8 @@ struct Writing {
     last_checkpoint: Option<f64>,
     /// The guard against inflows that fill a closed grid.
     room: Option<RoomGuard>,
+    /// What starts the run (`mpirun -n N ` over N ranks), for the resume command.
+    launch: String,
 }
 
 /// Stops a run whose inflows have filled a closed grid ([`crate::deck::room`]): the
@@ -323,7 +436,7 @@ impl Writing {
         // checkpoints at every frame unless the deck says otherwise: one file, overwritten, and
         // small next to the frames
         let checkpoint_interval = deck.output.checkpoint_interval.unwrap_or(interval);
-        let checkpoint_path = dir.join("checkpoint.bin");
+        let checkpoint_path = checkpoint_path(dir);
         let (out, driver, lock) =
             open_output(deck, sim, file, dir, opts, checkpoint_interval, eps)?;
         let wall_before = driver.wall_seconds;
@@ -340,6 +453,7 @@ impl Writing {
             // a resumed run's last good state is the checkpoint it started from
             last_checkpoint: opts.resume.as_ref().map(|_| sim.time),
             room: RoomGuard::of(deck, sim),
+            launch: String::new(),
         };
         Ok((lock, w))
     }
@@ -347,6 +461,26 @@ impl Writing {
     /// The observer's view of `sim` after a step of `dt`, `wall` seconds into the run.
     fn status<const D: usize>(&self, sim: &Simulation<D>, dt: f64, wall: f64) -> Status {
         status(sim, self.end, self.start_steps, dt, self.out.frames, wall)
+    }
+
+    /// Whether what a step from `t0` to `sim.time` brings to write reads the particles: a
+    /// frame, a gauges' row, the final probe row or a checkpoint (`end`: how the step ended,
+    /// `None` where it failed, and only the probes' row is written).
+    fn reads_particles<const D: usize>(
+        &self,
+        t0: f64,
+        sim: &Simulation<D>,
+        end: Option<StepEnd>,
+    ) -> bool {
+        let Some(end) = end else { return false };
+        let at_end = sim.time >= self.end - self.eps;
+        let checkpoint = sim.time >= self.driver.next_checkpoint - self.eps;
+        end.scheduled
+            || end.last
+            || end.interrupted
+            || at_end
+            || checkpoint
+            || self.out.gauge_due(t0, sim.time)
     }
 
     /// Adds the last step's pressure iterations to the run's totals.
@@ -446,24 +580,9 @@ impl Writing {
         deck: &Deck,
     ) -> Result<(), Error> {
         let flushed = self.out.finish();
-        let resume = resume_command(file, &self.checkpoint_path, dir, deck);
+        let resume = resume_command(file, &self.checkpoint_path, dir, deck, &self.launch);
         result.map_err(|e| write_failure_hint(e, self.last_checkpoint, &resume))?;
         flushed.map_err(|e| write_failure_hint(e, self.last_checkpoint, &resume))
-    }
-
-    /// What the finished run of `sim` reports, its last step `last_dt`.
-    fn summary<const D: usize>(&self, sim: &Simulation<D>, last_dt: f64) -> RunSummary {
-        RunSummary {
-            steps: sim.steps,
-            frames: self.out.frames,
-            particles: sim.particles.len(),
-            wall_seconds: self.start.elapsed().as_secs_f64(),
-            time: sim.time,
-            timers: sim.timers.clone(),
-            pressure_iterations: self.driver.iterations,
-            peak_memory: peak_memory(),
-            last_dt,
-        }
     }
 }
 
@@ -516,13 +635,17 @@ fn open_output<const D: usize>(
 }
 
 /// The command that resumes this run from its checkpoint.
-fn resume_command(file: &str, checkpoint: &Path, dir: &Path, deck: &Deck) -> String {
+/// `launch`: what starts it (`mpirun -n N ` for a run over N ranks, else nothing).
+fn resume_command(file: &str, checkpoint: &Path, dir: &Path, deck: &Deck, launch: &str) -> String {
     let output = if dir != Path::new(&deck.output.directory) {
         format!(" --output {}", dir.display())
     } else {
         String::new()
     };
-    format!("pmpm run {file} --resume {}{output}", checkpoint.display())
+    format!(
+        "{launch}pmpm run {file} --resume {}{output}",
+        checkpoint.display()
+    )
 }
 
 /// Adds to a failed write (a full disk, a file-size limit) where the last good state is and

@@ -6,6 +6,7 @@
 
 use crate::averaging::NodalAveraging;
 use crate::boundary::{Boundary, Leaving};
+use crate::comm::Comm;
 use crate::error::Error;
 use crate::flow::{has_left, Ledger};
 use crate::grid::CellBins;
@@ -21,6 +22,7 @@ use crate::transfer::{self, P2gScratch, StressUpdate, TransferSettings};
 use crate::viscosity::{ImplicitViscosity, ViscousError};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 /// Time-integration scheme: the paper's projection or the weakly compressible baseline.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -203,6 +205,9 @@ pub struct Simulation<const D: usize> {
     pub ledger: Ledger,
     /// Wall-clock seconds per phase of the step.
     pub timers: PhaseTimers,
+    /// The ranks the run is spread over ([`crate::comm`]); one, [`crate::comm::Serial`],
+    /// unless [`Simulation::set_comm`] gave it others.
+    pub comm: Arc<dyn Comm>,
 }
 
 impl<const D: usize> Simulation<D> {
@@ -252,6 +257,7 @@ impl<const D: usize> Simulation<D> {
                 ..Ledger::default()
             },
             timers: PhaseTimers::default(),
+            comm: crate::comm::serial(),
         }
     }
 
@@ -299,6 +305,37 @@ impl<const D: usize> Simulation<D> {
         self.check_volumes()
     }
 
+    /// Makes this simulation a rank of `comm`'s: its sums of particles onto the grid (P2G, the
+    /// nodal averaging, the bodies' pushes) are added up over the ranks from now on.
+    pub fn set_comm(&mut self, comm: Arc<dyn Comm>) {
+        if let Some(averaging) = &mut self.averaging {
+            averaging.comm = crate::comm::Ranks(comm.clone());
+        }
+        self.boundary.rigid.comm = crate::comm::Ranks(comm.clone());
+        self.comm = comm;
+    }
+
+    /// The first setting of the explicit scheme that a run over several ranks does not
+    /// support yet (the distributed module asks it), as the deck's key.
+    pub(crate) fn unsupported_distributed(&self) -> Option<&'static str> {
+        let open =
+            (0..2 * D).any(|f| self.boundary.is_outflow(f)) || !self.boundary.inflows.is_empty();
+        [
+            (
+                matches!(self.stepper, Stepper::Explicit(Some(_))),
+                "pressure.density_correction = \"particles\"",
+            ),
+            (
+                self.viscosity.is_some(),
+                "simulation.viscosity = \"implicit\"",
+            ),
+            (self.body_force.is_some(), "simulation.body_force"),
+            (open, "grid.boundary = \"open\" (or an inflow)"),
+        ]
+        .into_iter()
+        .find_map(|(set, key)| set.then_some(key))
+    }
+
     /// Stops the run if a free rigid body's position or velocity is no longer a number.
     fn check_bodies(&self) -> Result<(), Error> {
         let Some(b) = self.boundary.rigid.runaway() else {
@@ -339,7 +376,9 @@ impl<const D: usize> Simulation<D> {
     /// The largest body force per unit mass on a particle, |g| or the field's.
     fn body_acceleration(&self) -> f64 {
         match &self.body_force {
-            Some((_, f)) => f.iter().map(|f| f.norm()).fold(0.0, f64::max),
+            Some((_, f)) => self
+                .comm
+                .max_scalar(f.iter().map(|f| f.norm()).fold(0.0, f64::max)),
             None => self.settings.gravity.norm(),
         }
     }
@@ -509,6 +548,7 @@ impl<const D: usize> Simulation<D> {
                     &mut self.grid,
                     &mut self.work.p2g,
                     &self.settings,
+                    &*self.comm,
                 );
                 self.boundary.apply(&mut self.grid.velocity_new);
                 transfer::gradient_and_move(
@@ -609,6 +649,14 @@ impl<const D: usize> Simulation<D> {
     /// [`MAX_PARTICLE_CELLS`] cells: its state no longer says anything about the
     /// material, and its volume would go on into the output and the transfers.
     pub fn check_volumes(&self) -> Result<(), Error> {
+        match self.comm.agree(self.volume_fault()) {
+            Some(message) => Err(Error::BlowUp(message)),
+            None => Ok(()),
+        }
+    }
+
+    /// What [`Simulation::check_volumes`] finds wrong with this rank's particles.
+    fn volume_fault(&self) -> Option<String> {
         let limits = self.policy.volume_limits;
         let [lo, hi] = limits.unwrap_or([0.0, f64::INFINITY]);
         let cell = self.grid.geo.h.powi(D as i32);
@@ -619,7 +667,7 @@ impl<const D: usize> Simulation<D> {
             .par_iter()
             .zip(ps.volume0.par_iter())
             .position_first(|(&j, &v0)| !(j > lo && j <= hi && j * v0 <= largest));
-        let Some(p) = bad else { return Ok(()) };
+        let p = bad?;
         let (j, v0) = (ps.jacobian[p], ps.volume0[p]);
         let parts: Vec<String> = ps.x[p].iter().map(|c| format!("{c:.6}")).collect();
         let what = if j * v0 > largest && j <= hi {
@@ -646,14 +694,14 @@ impl<const D: usize> Simulation<D> {
                  grid.cell_size or lower simulation.cfl"
             ),
         };
-        Err(Error::BlowUp(format!(
+        Some(format!(
             "run stopped at step {}, t = {:.6} s: particle {} at x = ({}) has a volume ratio \
              J = V / V0 = {j:.4e}; {what}. Likely cause: {cause}",
             self.steps,
             self.time,
             ps.id[p],
             parts.join(", ")
-        )))
+        ))
     }
 
     /// The body force at each particle, where it varies in space or time.
@@ -779,6 +827,7 @@ impl<const D: usize> Simulation<D> {
                 &self.materials,
                 self.body_force.as_ref().map(|(_, f)| &f[..]),
             ),
+            &*self.comm,
         );
         self.sample_probes();
     }
@@ -796,6 +845,7 @@ impl<const D: usize> Simulation<D> {
                     q
                 });
                 let (_, v) = ps.hat_mean(x, r, |p| ps.v[p]);
+                let (m, [q, v]) = global_means(&*self.comm, m, [q, v]);
                 let out = &mut self.probes.values[k * (D + 1)..(k + 1) * (D + 1)];
                 out[0] = if m > 0.0 { q[0] } else { 0.0 };
                 for d in 0..D {
@@ -837,6 +887,7 @@ impl<const D: usize> Simulation<D> {
                 .zip(ps.material.par_iter())
                 .map(|(v, &m)| v.norm() + mats[m as usize].wave_speed(explicit))
                 .reduce(|| 0.0, f64::max);
+        let speed = self.comm.max_scalar(speed);
         // a moving wall or body sets the speed of the flow it drives from the first step
         let speed = speed.max(self.boundary.max_wall_speed());
         let h = self.grid.geo.h;
@@ -898,6 +949,7 @@ impl<const D: usize> Simulation<D> {
                 (2.0 * dev.norm_squared()).sqrt()
             })
             .reduce(|| 0.0, f64::max);
+        let gamma = self.comm.max_scalar(gamma);
         if gamma > 0.0 {
             cfl / gamma
         } else {
@@ -913,8 +965,17 @@ impl<const D: usize> Simulation<D> {
             .map_or(0, |p| p.last.stats.iterations)
     }
 
-    /// Stops the run if a particle left the grid or has a non-finite position or velocity.
+    /// Stops the run if a particle left the grid or has a non-finite position or velocity
+    /// (on any rank; every rank stops with the message of the first rank that found one).
     pub fn check_particles(&self) -> Result<(), Error> {
+        match self.comm.agree(self.particle_fault()) {
+            Some(message) => Err(Error::BlowUp(message)),
+            None => Ok(()),
+        }
+    }
+
+    /// What [`Simulation::check_particles`] finds wrong with this rank's particles.
+    fn particle_fault(&self) -> Option<String> {
         let geo = &self.grid.geo;
         let bad = self
             .particles
@@ -924,7 +985,7 @@ impl<const D: usize> Simulation<D> {
             .position_first(|(x, v)| {
                 !(geo.contains(x) && x.iter().chain(v.iter()).all(|c| c.is_finite()))
             });
-        let Some(p) = bad else { return Ok(()) };
+        let p = bad?;
         let x = self.particles.x[p];
         let v = self.particles.v[p];
         let fmt = |a: &Vector<D>| {
@@ -952,7 +1013,8 @@ impl<const D: usize> Simulation<D> {
             "likely causes: a time step above the stability limit, an \"open\" face material can \
              flow through, or a body pushed out by its initial velocity",
         );
-        if let Some(dt) = self.policy.dt {
+        // (the limit is a collective: not where only this rank has found the particle)
+        if let Some(dt) = self.policy.dt.filter(|_| !self.comm.is_distributed()) {
             let limit = match self.stepper.scheme() {
                 Scheme::Explicit => "h / max(|v| + c)",
                 Scheme::Projection => "h / max |v|",
@@ -963,29 +1025,33 @@ impl<const D: usize> Simulation<D> {
                 self.stable_dt(1.0)
             );
         }
-        Err(Error::BlowUp(format!(
+        Some(format!(
             "run stopped at step {}, t = {:.6} s: {what}. {cause}",
             self.steps, self.time
-        )))
+        ))
     }
 
-    /// Total kinetic energy sum m v^2 / 2, summed in a fixed order.
+    /// Total kinetic energy sum m v^2 / 2, summed in a fixed order (over every rank).
     pub fn kinetic_energy(&self) -> f64 {
-        self.particles
+        let e = self
+            .particles
             .v
             .iter()
             .zip(&self.particles.mass)
             .map(|(v, m)| 0.5 * m * v.norm_squared())
-            .sum()
+            .sum();
+        self.comm.sum_scalar(e)
     }
 
-    /// Largest particle speed.
+    /// Largest particle speed (over every rank).
     pub fn max_speed(&self) -> f64 {
-        self.particles
+        let v = self
+            .particles
             .v
             .par_iter()
             .map(|v| v.norm())
-            .reduce(|| 0.0, f64::max)
+            .reduce(|| 0.0, f64::max);
+        self.comm.max_scalar(v)
     }
 }
 
@@ -993,6 +1059,33 @@ impl<const D: usize> Simulation<D> {
 /// the projection's predictor divides a node's internal force by that share instead of by
 /// the node's own mass ([`Grid::predict`]).
 pub(crate) const LIGHT_NODE: f64 = 0.1;
+
+/// Means from a rank's weight sum `m` and its means `q` over its particles (as
+/// [`Particles::hat_mean`] gives them), over every rank's particles: the mass-weighted sums
+/// added up, then divided.
+fn global_means<const D: usize, const K: usize>(
+    comm: &dyn Comm,
+    m: f64,
+    q: [Vector<D>; K],
+) -> (f64, [Vector<D>; K]) {
+    if !comm.is_distributed() {
+        return (m, q);
+    }
+    let mut sums: Vec<f64> = std::iter::once(m)
+        .chain(q.iter().flat_map(|q| q.iter().map(move |c| c * m)))
+        .collect();
+    comm.sum(&mut sums);
+    let m = sums[0];
+    let means = std::array::from_fn(|k| {
+        let s = Vector::<D>::from_fn(|d, _| sums[1 + k * D + d]);
+        if m > 0.0 {
+            s / m
+        } else {
+            s
+        }
+    });
+    (m, means)
+}
 
 /// The least density m_p / V0_p of the particles.
 pub(crate) fn least_density<const D: usize>(ps: &Particles<D>) -> f64 {

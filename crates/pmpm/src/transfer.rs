@@ -5,6 +5,7 @@
 //! and the buffers are summed node by node in a fixed order. No float atomics, so a given
 //! thread count gives bitwise the same result on every run. The buffers are reused every step.
 
+use crate::comm::Comm;
 use crate::grid::{Grid, GridGeometry, Vector};
 use crate::material::MaterialParams;
 use crate::pages::store;
@@ -376,9 +377,10 @@ pub fn particles_to_grid<const D: usize>(
     scratch: &mut P2gScratch<D>,
     s: &TransferSettings<D>,
     forces: (&[MaterialParams], Option<&[Vector<D>]>),
+    comm: &dyn Comm,
 ) {
     crate::with_shape!(s.shape, S => scatter_p2g::<D, S>(ps, grid, scratch, s, forces));
-    gather_p2g(grid, &scratch.bands, s.mass_epsilon);
+    gather_p2g(grid, &scratch.bands, s.mass_epsilon, comm);
 }
 
 /// The scatter of [`particles_to_grid`] into the per-thread buffers, for shape function `S`.
@@ -430,7 +432,12 @@ fn scatter_p2g<const D: usize, const S: u8>(
 }
 
 /// The ordered sum of the per-thread bands of [`particles_to_grid`], then v_i and p_i.
-fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bands: &[Band<NodeSums<D>>], eps: f64) {
+fn gather_p2g<const D: usize>(
+    grid: &mut Grid<D>,
+    bands: &[Band<NodeSums<D>>],
+    eps: f64,
+    comm: &dyn Comm,
+) {
     let geo = &grid.geo;
     (
         grid.mass.par_iter_mut(),
@@ -464,6 +471,16 @@ fn gather_p2g<const D: usize>(grid: &mut Grid<D>, bands: &[Band<NodeSums<D>>], e
         geo.fold(&mut grid.body);
         geo.fold(&mut grid.pressure);
     }
+    // every rank's particles on every rank's copy of the grid, before the sums are divided
+    if comm.is_distributed() {
+        comm.sum_all(&mut [
+            &mut grid.mass,
+            bytemuck::cast_slice_mut(&mut grid.momentum),
+            bytemuck::cast_slice_mut(&mut grid.force),
+            bytemuck::cast_slice_mut(&mut grid.body),
+            &mut grid.pressure,
+        ]);
+    }
     (
         grid.mass.par_iter(),
         grid.momentum.par_iter(),
@@ -493,6 +510,7 @@ pub fn remap_velocity<const D: usize>(
     grid: &mut Grid<D>,
     scratch: &mut P2gScratch<D>,
     s: &TransferSettings<D>,
+    comm: &dyn Comm,
 ) {
     crate::with_shape!(s.shape, S => scatter_remap::<D, S>(ps, grid, scratch, s));
     let bands = &scratch.bands;
@@ -510,6 +528,9 @@ pub fn remap_velocity<const D: usize>(
         });
     if geo.has_periodic() {
         geo.fold(&mut grid.velocity_new);
+    }
+    if comm.is_distributed() {
+        comm.sum_vectors(&mut grid.velocity_new);
     }
     grid.velocity_new
         .par_iter_mut()
@@ -806,7 +827,14 @@ mod tests {
                 let mut scratch = P2gScratch::new(3);
                 let m_p: f64 = ps.mass.iter().sum();
                 let mom_p: Vector<D> = ps.v.iter().zip(&ps.mass).map(|(v, m)| v * *m).sum();
-                particles_to_grid(&ps, &mut grid, &mut scratch, &s, (&[], None));
+                particles_to_grid(
+                    &ps,
+                    &mut grid,
+                    &mut scratch,
+                    &s,
+                    (&[], None),
+                    &crate::comm::Serial,
+                );
                 let m_g: f64 = grid.mass.iter().sum();
                 let mom_g: Vector<D> = grid.momentum.iter().sum();
                 assert!((m_g - m_p).abs() < 1e-12 * m_p, "{shape:?} mass");
@@ -890,7 +918,14 @@ mod tests {
             );
         }
         let mut scratch = P2gScratch::new(2);
-        particles_to_grid(&ps, &mut grid, &mut scratch, &s, (&[], None));
+        particles_to_grid(
+            &ps,
+            &mut grid,
+            &mut scratch,
+            &s,
+            (&[], None),
+            &crate::comm::Serial,
+        );
         for f in 0..geo.node_count() {
             if grid.mass[f] > 0.0 {
                 let xi = geo.node_position(&geo.multi(f));
@@ -996,7 +1031,14 @@ mod tests {
                 let mut ps = lattice();
                 let v0 = ps.v.clone();
                 let mut grid = Grid::new(geo.clone());
-                particles_to_grid(&ps, &mut grid, &mut P2gScratch::new(2), &s, (&[], None));
+                particles_to_grid(
+                    &ps,
+                    &mut grid,
+                    &mut P2gScratch::new(2),
+                    &s,
+                    (&[], None),
+                    &crate::comm::Serial,
+                );
                 grid.velocity_new.clone_from(&grid.velocity);
                 let mut adv = vec![Vector::<2>::zeros(); ps.len()];
                 grid_to_particles(&mut ps, &grid, &s, &mut adv);
@@ -1030,8 +1072,22 @@ mod tests {
         let mut g1 = Grid::new(geo.clone());
         let mut g2 = Grid::new(geo.clone());
         let mut scratch = P2gScratch::new(4);
-        particles_to_grid(&ps, &mut g1, &mut scratch, &s, (&[], None));
-        particles_to_grid(&ps, &mut g2, &mut scratch, &s, (&[], None));
+        particles_to_grid(
+            &ps,
+            &mut g1,
+            &mut scratch,
+            &s,
+            (&[], None),
+            &crate::comm::Serial,
+        );
+        particles_to_grid(
+            &ps,
+            &mut g2,
+            &mut scratch,
+            &s,
+            (&[], None),
+            &crate::comm::Serial,
+        );
         assert_eq!(g1.momentum, g2.momentum);
         assert_eq!(g1.force, g2.force);
     }

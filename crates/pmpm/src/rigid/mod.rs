@@ -229,6 +229,11 @@ pub struct RigidBodies<const D: usize> {
     stepped: Vec<Vector3<f64>>,
     contact_scratch: Vec<contact::Body>,
     contact_points: (contact::Points, contact::Points),
+    /// Scratch of [`RigidBodies::push_out`]: per body, the force and torque of the pushes.
+    push_force: Vec<Vector<D>>,
+    push_torque: Vec<Vector3<f64>>,
+    /// The ranks whose particles' pushes are added up ([`crate::comm`]).
+    pub comm: crate::comm::Ranks,
 }
 
 /// A quadrature point on a rigid body's face.
@@ -307,6 +312,9 @@ impl<const D: usize> RigidBodies<D> {
             stepped: Vec::new(),
             contact_scratch: Vec::new(),
             contact_points: Default::default(),
+            push_force: Vec::new(),
+            push_torque: Vec::new(),
+            comm: crate::comm::Ranks::default(),
         }
     }
 
@@ -993,15 +1001,46 @@ impl<const D: usize> RigidBodies<D> {
                     break;
                 }
             });
-        // the impulses summed in particle order: the same bits on any number of threads
+        // the impulses summed in particle order: the same bits on any number of threads; over
+        // several ranks each rank's sums apart, then added up
+        let distributed = self.comm.is_distributed();
+        let (mut force, mut torque) = if distributed {
+            let (mut f, mut t) = (
+                std::mem::take(&mut self.push_force),
+                std::mem::take(&mut self.push_torque),
+            );
+            f.clear();
+            f.resize(self.len(), Vector::<D>::zeros());
+            t.clear();
+            t.resize(self.len(), Vector3::zeros());
+            (f, t)
+        } else {
+            (
+                std::mem::take(&mut self.force),
+                std::mem::take(&mut self.torque),
+            )
+        };
         for ((&b, i), x) in hits.iter().zip(&impulses).zip(x.iter()) {
             if b != u32::MAX {
                 let b = b as usize;
-                self.force[b] += *i;
+                force[b] += *i;
                 if let Some((pose, _)) = &self.ends[b] {
-                    self.torque[b] += (to3(x) - pose.centre).cross(&to3(i));
+                    torque[b] += (to3(x) - pose.centre).cross(&to3(i));
                 }
             }
+        }
+        if distributed {
+            self.comm.sum_all(&mut [
+                bytemuck::cast_slice_mut(&mut force),
+                bytemuck::cast_slice_mut(&mut torque),
+            ]);
+            for b in 0..self.len() {
+                self.force[b] += force[b];
+                self.torque[b] += torque[b];
+            }
+            (self.push_force, self.push_torque) = (force, torque);
+        } else {
+            (self.force, self.torque) = (force, torque);
         }
         (self.hit, self.impulse) = (hits, impulses);
     }

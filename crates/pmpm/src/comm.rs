@@ -1,0 +1,323 @@
+//! The processes a run is spread over, and the collective operations its step needs.
+//!
+//! A run on one process has [`Serial`], whose operations do nothing. A run started under
+//! `mpirun` (the `mpi` feature) has `Mpi`: each rank holds a share of the particles and the
+//! whole grid, so every sum of particles onto the grid ends with [`Comm::sum`] before it is
+//! read, and every decision taken from the particles (the time step, a blow-up) with a
+//! reduction, so that the ranks take the same steps and stop together (docs/distributed.md).
+//!
+//! The reductions give every rank the same bits (reduced onto rank 0, then broadcast): the
+//! grid's work, done by every rank on its own copy, then stays the same on every rank without
+//! being exchanged.
+
+use std::sync::Arc;
+
+/// The collective operations over the ranks of a run; every rank calls each one in the same
+/// order (MPI's rule for collectives).
+pub trait Comm: Send + Sync {
+    /// This process's rank, from 0.
+    fn rank(&self) -> usize;
+    /// How many ranks the run has.
+    fn size(&self) -> usize;
+    /// Element-wise sums over the ranks, the same bits on every rank for a given rank count.
+    fn sum(&self, values: &mut [f64]);
+    /// [`Comm::sum`] of several arrays in one exchange.
+    fn sum_all(&self, arrays: &mut [&mut [f64]]) {
+        for a in arrays {
+            self.sum(a);
+        }
+    }
+    /// Element-wise maxima over the ranks.
+    fn max(&self, values: &mut [f64]);
+    /// Element-wise minima over the ranks.
+    fn min(&self, values: &mut [f64]);
+    /// Every rank's bytes on rank 0, in rank order; an empty list on the other ranks.
+    fn gather(&self, bytes: &[u8]) -> Vec<Vec<u8>>;
+    /// Rank 0's bytes on every rank (what the others passed in is replaced).
+    fn broadcast(&self, bytes: &mut Vec<u8>);
+}
+
+impl<'a> dyn Comm + 'a {
+    /// Whether this is rank 0, the rank that writes the run's files.
+    pub fn is_root(&self) -> bool {
+        self.rank() == 0
+    }
+
+    /// Whether the run has more than one rank.
+    pub fn is_distributed(&self) -> bool {
+        self.size() > 1
+    }
+
+    /// Whether `flag` holds on any rank.
+    pub fn any(&self, flag: bool) -> bool {
+        let mut v = [f64::from(u8::from(flag))];
+        self.max(&mut v);
+        v[0] > 0.0
+    }
+
+    /// The sum of `x` over the ranks.
+    pub fn sum_scalar(&self, x: f64) -> f64 {
+        let mut v = [x];
+        self.sum(&mut v);
+        v[0]
+    }
+
+    /// The largest `x` over the ranks.
+    pub fn max_scalar(&self, x: f64) -> f64 {
+        let mut v = [x];
+        self.max(&mut v);
+        v[0]
+    }
+
+    /// The first rank's `Some` (a fault one rank found in its particles, say) on every rank;
+    /// `None` where no rank has one.
+    pub fn agree(&self, found: Option<String>) -> Option<String> {
+        if !self.is_distributed() {
+            return found;
+        }
+        if !self.any(found.is_some()) {
+            return None;
+        }
+        let pieces = self.gather(found.unwrap_or_default().as_bytes());
+        let mut first = pieces
+            .into_iter()
+            .find(|p| !p.is_empty())
+            .unwrap_or_default();
+        self.broadcast(&mut first);
+        Some(String::from_utf8_lossy(&first).into_owned())
+    }
+
+    /// Element-wise sums of D-vectors over the ranks.
+    pub fn sum_vectors<const D: usize>(&self, values: &mut [crate::grid::Vector<D>]) {
+        self.sum(bytemuck::cast_slice_mut(values));
+    }
+}
+
+/// One process: every collective is the identity.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Serial;
+
+impl Comm for Serial {
+    fn rank(&self) -> usize {
+        0
+    }
+    fn size(&self) -> usize {
+        1
+    }
+    fn sum(&self, _: &mut [f64]) {}
+    fn max(&self, _: &mut [f64]) {}
+    fn min(&self, _: &mut [f64]) {}
+    fn gather(&self, bytes: &[u8]) -> Vec<Vec<u8>> {
+        vec![bytes.to_vec()]
+    }
+    fn broadcast(&self, _: &mut Vec<u8>) {}
+}
+
+/// The ranks a run is spread over, as the run's options carry them (shared, and one process by
+/// default).
+#[derive(Clone)]
+pub struct Ranks(pub Arc<dyn Comm>);
+
+impl Default for Ranks {
+    /// One process.
+    fn default() -> Self {
+        Self(serial())
+    }
+}
+
+impl std::ops::Deref for Ranks {
+    type Target = dyn Comm;
+    fn deref(&self) -> &Self::Target {
+        &*self.0
+    }
+}
+
+impl std::fmt::Debug for Ranks {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "rank {} of {}", self.0.rank(), self.0.size())
+    }
+}
+
+/// The one-process communicator, shared.
+pub fn serial() -> Arc<dyn Comm> {
+    Arc::new(Serial)
+}
+
+/// The range of `n` items that rank `rank` of `size` holds: an equal contiguous share, the
+/// first `n mod size` ranks one more.
+pub fn share(n: usize, rank: usize, size: usize) -> std::ops::Range<usize> {
+    let (base, extra) = (n / size, n % size);
+    let start = rank * base + rank.min(extra);
+    start..start + base + usize::from(rank < extra)
+}
+
+#[cfg(feature = "mpi")]
+pub use self::mpi_comm::Mpi;
+
+#[cfg(feature = "mpi")]
+mod mpi_comm {
+    use super::Comm;
+    use mpi::collective::SystemOperation;
+    use mpi::topology::SimpleCommunicator;
+    use mpi::traits::*;
+    use std::sync::{Mutex, MutexGuard};
+
+    /// The ranks of `MPI_COMM_WORLD` (MPICH through the `mpi` crate). MPI is started with
+    /// `MPI_THREAD_SERIALIZED`: only the thread that drives the step calls it (a worker of the
+    /// thread pool the run is installed on), never two threads at once, which is what makes
+    /// the `Send` and `Sync` below sound.
+    pub struct Mpi {
+        world: SimpleCommunicator,
+        /// The reductions' buffers (the values packed, the sums), kept from step to step: no
+        /// allocation in the step loop.
+        buffers: Mutex<(Vec<f64>, Vec<f64>)>,
+        // dropped last: finalises MPI
+        _universe: mpi::environment::Universe,
+    }
+
+    // SAFETY: MPI_THREAD_SERIALIZED; the communicator is only used by the one thread that runs
+    // the step loop, never concurrently (the step's parallel loops do not call it).
+    unsafe impl Send for Mpi {}
+    unsafe impl Sync for Mpi {}
+
+    impl Mpi {
+        /// Starts MPI; `None` where it was already started or cannot be.
+        pub fn init() -> Option<Self> {
+            let (universe, _) = mpi::initialize_with_threading(mpi::Threading::Serialized)?;
+            Some(Self {
+                world: universe.world(),
+                buffers: Mutex::new((Vec::new(), Vec::new())),
+                _universe: universe,
+            })
+        }
+
+        fn buffers(&self) -> MutexGuard<'_, (Vec<f64>, Vec<f64>)> {
+            self.buffers.lock().unwrap_or_else(|e| e.into_inner())
+        }
+
+        /// The arrays' element-wise `op` reduced onto rank 0 and broadcast from there, so that
+        /// every rank holds the same bits (an all-reduce may round differently on different
+        /// ranks); packed into one buffer, so that several arrays take one exchange.
+        fn reduce(&self, arrays: &mut [&mut [f64]], op: SystemOperation) {
+            let n: usize = arrays.iter().map(|a| a.len()).sum();
+            if self.size() == 1 || n == 0 {
+                return;
+            }
+            let mut guard = self.buffers();
+            let (packed, sums) = &mut *guard;
+            packed.clear();
+            for a in arrays.iter() {
+                packed.extend_from_slice(a);
+            }
+            let root = self.world.process_at_rank(0);
+            if self.rank() == 0 {
+                sums.resize(n, 0.0);
+                root.reduce_into_root(&packed[..], &mut sums[..], op);
+                std::mem::swap(packed, sums);
+            } else {
+                root.reduce_into(&packed[..], op);
+            }
+            root.broadcast_into(&mut packed[..]);
+            let mut at = 0;
+            for a in arrays.iter_mut() {
+                a.copy_from_slice(&packed[at..at + a.len()]);
+                at += a.len();
+            }
+        }
+    }
+
+    impl Comm for Mpi {
+        fn rank(&self) -> usize {
+            self.world.rank() as usize
+        }
+        fn size(&self) -> usize {
+            self.world.size() as usize
+        }
+        fn sum(&self, values: &mut [f64]) {
+            self.reduce(&mut [values], SystemOperation::sum());
+        }
+        fn sum_all(&self, arrays: &mut [&mut [f64]]) {
+            self.reduce(arrays, SystemOperation::sum());
+        }
+        fn max(&self, values: &mut [f64]) {
+            self.reduce(&mut [values], SystemOperation::max());
+        }
+        fn min(&self, values: &mut [f64]) {
+            self.reduce(&mut [values], SystemOperation::min());
+        }
+        fn gather(&self, bytes: &[u8]) -> Vec<Vec<u8>> {
+            let root = self.world.process_at_rank(0);
+            let n = bytes.len() as u64;
+            if self.rank() != 0 {
+                root.gather_into(&n);
+                root.gather_varcount_into(bytes);
+                return Vec::new();
+            }
+            let mut counts = vec![0u64; self.size()];
+            root.gather_into_root(&n, &mut counts[..]);
+            let counts: Vec<i32> = counts.iter().map(|&c| c as i32).collect();
+            let displs: Vec<i32> = counts
+                .iter()
+                .scan(0, |at, &c| {
+                    let d = *at;
+                    *at += c;
+                    Some(d)
+                })
+                .collect();
+            let mut all = vec![0u8; counts.iter().map(|&c| c as usize).sum()];
+            {
+                let mut partition =
+                    mpi::datatype::PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
+                root.gather_varcount_into_root(bytes, &mut partition);
+            }
+            let mut out = Vec::with_capacity(self.size());
+            let mut at = 0;
+            for &c in &counts {
+                out.push(all[at..at + c as usize].to_vec());
+                at += c as usize;
+            }
+            out
+        }
+        fn broadcast(&self, bytes: &mut Vec<u8>) {
+            let root = self.world.process_at_rank(0);
+            let mut n = bytes.len() as u64;
+            root.broadcast_into(&mut n);
+            bytes.resize(n as usize, 0);
+            root.broadcast_into(&mut bytes[..]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shares_cover_every_item_once_and_differ_by_at_most_one() {
+        for n in [0, 1, 5, 17, 100] {
+            for size in 1..6 {
+                let ranges: Vec<_> = (0..size).map(|r| share(n, r, size)).collect();
+                assert_eq!(ranges[0].start, 0);
+                assert_eq!(ranges[size - 1].end, n);
+                for w in ranges.windows(2) {
+                    assert_eq!(w[0].end, w[1].start);
+                }
+                let lens: Vec<_> = ranges.iter().map(|r| r.len()).collect();
+                let (lo, hi) = (lens.iter().min().unwrap(), lens.iter().max().unwrap());
+                assert!(hi - lo <= 1, "n {n} size {size}: {lens:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn one_process_reduces_to_itself() {
+        let c = serial();
+        let mut v = [1.0, -2.0];
+        c.sum(&mut v);
+        c.max(&mut v);
+        assert_eq!(v, [1.0, -2.0]);
+        assert!(c.any(true) && !c.any(false));
+        assert_eq!(c.gather(b"ab"), vec![b"ab".to_vec()]);
+        assert!(c.is_root() && !c.is_distributed());
+    }
+}
