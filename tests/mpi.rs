@@ -1,0 +1,270 @@
+//! Runs spread over MPI ranks (`mpirun -n N pmpm run DECK`), against the same deck on one
+//! process. Built only with the `mpi` feature (`cargo test --release --features mpi --test
+//! mpi`, after scripts/install-mpi.sh), and run by `.ci/run` where MPICH can be installed.
+//!
+//! The ranks add up the particles' sums in another order than one process does, so a run
+//! over ranks agrees with one process to round-off, not to the bit; the bounds below are a
+//! few hundred ulps of each field's scale, and what they measured is in docs/distributed.md.
+//! A given rank count repeats bit for bit, and so does a run resumed on the ranks that wrote
+//! its checkpoint.
+#![cfg(feature = "mpi")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// A fresh scratch directory under the target directory.
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("mpi-{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `pmpm --threads 1 ARGS` on `ranks` MPI ranks (0: one process, without mpirun).
+fn run_on(ranks: usize, args: &[&str]) -> Output {
+    let pmpm = env!("CARGO_BIN_EXE_pmpm");
+    let mut cmd = if ranks == 0 {
+        Command::new(pmpm)
+    } else {
+        let mut c = Command::new("mpirun");
+        c.args(["-n", &ranks.to_string(), pmpm]);
+        c
+    };
+    cmd.args(["--threads", "1"])
+        .args(args)
+        .current_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("examples"))
+        .output()
+        .expect("mpirun is on the PATH (scripts/install-mpi.sh)")
+}
+
+/// Runs `deck` into `dir/NAME-N` on `ranks` ranks and returns that directory; the run must
+/// succeed.
+fn run(ranks: usize, deck: &Path, dir: &Path, name: &str) -> PathBuf {
+    let out = dir.join(format!("{name}-{ranks}"));
+    let o = run_on(
+        ranks,
+        &[
+            &["run", deck.to_str().unwrap(), "-q", "--force", "-o"],
+            &[out.to_str().unwrap()][..],
+        ]
+        .concat(),
+    );
+    assert!(
+        o.status.success(),
+        "{ranks} ranks: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    out
+}
+
+/// An example deck with `end_time` and its output interval replaced, written into `dir`.
+fn deck(example: &str, end_time: f64, interval: f64, dir: &Path) -> PathBuf {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("examples/{example}.toml")),
+    )
+    .unwrap();
+    let text: Vec<String> = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("end_time") {
+                format!("end_time = {end_time}")
+            } else if l.starts_with("interval") {
+                format!("interval = {interval}")
+            } else {
+                l.to_string()
+            }
+        })
+        .collect();
+    let path = dir.join(format!("{example}-{end_time}.toml"));
+    std::fs::write(&path, text.join("\n")).unwrap();
+    path
+}
+
+/// A CSV file's header and rows of numbers.
+fn table(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path:?}: {e}"));
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let header = lines.next().unwrap().split(',').map(String::from).collect();
+    let rows = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    (header, rows)
+}
+
+/// The largest difference in each column of two tables of the same shape, over its scale
+/// (the largest magnitude in the column, at least `floor`).
+fn relative_differences(a: &Path, b: &Path, floor: f64) -> Vec<(String, f64)> {
+    let ((header, ra), (_, rb)) = (table(a), table(b));
+    assert_eq!(ra.len(), rb.len(), "{a:?} and {b:?}: row counts");
+    (0..header.len())
+        .map(|k| {
+            let scale = ra.iter().map(|r| r[k].abs()).fold(floor, f64::max);
+            let diff = ra
+                .iter()
+                .zip(&rb)
+                .map(|(x, y)| (x[k] - y[k]).abs())
+                .fold(0.0, f64::max);
+            (header[k].clone(), diff / scale)
+        })
+        .collect()
+}
+
+/// Asserts that every column of `file` in `a` and `b` agrees within `bound` of its scale,
+/// the columns named in `skip` aside.
+fn agree(a: &Path, b: &Path, file: &str, bound: f64, skip: &[&str]) {
+    agree_above(a, b, file, bound, skip, 1e-12);
+}
+
+/// [`agree`], a column's scale at least `floor` (a component that is round-off about 0).
+fn agree_above(a: &Path, b: &Path, file: &str, bound: f64, skip: &[&str], floor: f64) {
+    for (name, d) in relative_differences(&a.join(file), &b.join(file), floor) {
+        if !skip.contains(&name.as_str()) {
+            assert!(
+                d <= bound,
+                "{file}, {name}: differs by {d:.2e} of its scale (bound {bound:.0e})"
+            );
+        }
+    }
+}
+
+/// The last frame's CSV file name.
+fn last_frame(out: &Path) -> String {
+    let mut frames: Vec<String> = std::fs::read_dir(out.join("frames"))
+        .unwrap()
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| n.ends_with(".csv"))
+        .collect();
+    frames.sort();
+    format!("frames/{}", frames.last().unwrap())
+}
+
+#[test]
+fn the_explicit_dam_break_on_two_and_three_ranks_agrees_with_one_process() {
+    let dir = scratch("dam-break");
+    let deck = deck("dam_break_2d_explicit", 0.02, 0.01, &dir);
+    let one = run(0, &deck, &dir, "out");
+    for ranks in [2, 3] {
+        let many = run(ranks, &deck, &dir, "out");
+        let frame = last_frame(&one);
+        assert_eq!(frame, last_frame(&many));
+        // positions, velocities and pressures of every particle (in id order)
+        agree(&one, &many, &frame, 1e-9, &[]);
+        agree(&one, &many, "probes.csv", 1e-9, &[]);
+        agree(&one, &many, "series.csv", 1e-9, &["wall_seconds"]);
+    }
+}
+
+#[test]
+fn a_rank_count_repeats_bit_for_bit_and_resumes_bit_for_bit() {
+    let dir = scratch("repeat");
+    let short = deck("dam_break_2d_explicit", 0.01, 0.005, &dir);
+    let long = deck("dam_break_2d_explicit", 0.02, 0.005, &dir);
+    let a2 = run(2, &long, &dir, "first");
+    let b = run(2, &long, &dir, "second");
+    let frame = last_frame(&b);
+    for file in [frame.as_str(), "probes.csv"] {
+        assert_eq!(
+            std::fs::read(a2.join(file)).unwrap(),
+            std::fs::read(b.join(file)).unwrap(),
+            "{file}: two runs on 2 ranks differ"
+        );
+    }
+    // to 0.01 s, then resumed to 0.02 s: on the same ranks bit for bit, on 3 to round-off
+    let cut = run(2, &short, &dir, "cut");
+    let checkpoint = cut.join("checkpoint.bin");
+    let copy = dir.join("cut-copy");
+    std::fs::create_dir_all(&copy).unwrap();
+    for ranks in [2, 3] {
+        let _ = std::fs::remove_dir_all(&copy);
+        copy_dir(&cut, &copy);
+        let o = run_on(
+            ranks,
+            &[
+                "run",
+                long.to_str().unwrap(),
+                "-q",
+                "-o",
+                copy.to_str().unwrap(),
+                "--resume",
+                copy.join("checkpoint.bin").to_str().unwrap(),
+            ],
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        if ranks == 2 {
+            assert_eq!(
+                std::fs::read(copy.join(&frame)).unwrap(),
+                std::fs::read(b.join(&frame)).unwrap(),
+                "resumed on 2 ranks: the last frame differs from the run never stopped"
+            );
+        } else {
+            agree(&b, &copy, &frame, 1e-9, &[]);
+        }
+    }
+    assert!(checkpoint.exists());
+}
+
+/// Copies a run's directory (files and the frames folder).
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to.join("frames")).unwrap();
+    for sub in ["", "frames"] {
+        for e in std::fs::read_dir(from.join(sub)).unwrap() {
+            let e = e.unwrap();
+            if e.file_type().unwrap().is_file() {
+                std::fs::copy(e.path(), to.join(sub).join(e.file_name())).unwrap();
+            }
+        }
+    }
+}
+
+#[test]
+fn a_bingham_slump_with_nodal_averaging_agrees_on_two_ranks() {
+    let dir = scratch("bingham");
+    let deck = deck("bingham_slump_2d_explicit", 0.05, 0.025, &dir);
+    let one = run(0, &deck, &dir, "out");
+    let two = run(2, &deck, &dir, "out");
+    agree(&one, &two, &last_frame(&one), 1e-9, &[]);
+}
+
+#[test]
+fn a_deck_this_stage_cannot_spread_is_refused_with_its_key() {
+    let dir = scratch("refused");
+    let deck = deck("dam_break_2d", 0.01, 0.01, &dir);
+    let out = dir.join("out");
+    let o = run_on(
+        2,
+        &[
+            "run",
+            deck.to_str().unwrap(),
+            "-q",
+            "-o",
+            out.to_str().unwrap(),
+        ],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("simulation.scheme") && err.contains("not supported yet"),
+        "{err}"
+    );
+    // said once (by rank 0), and nothing written
+    assert_eq!(err.matches("error:").count(), 1, "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn the_3d_column_and_its_rigid_body_agree_on_two_ranks() {
+    let dir = scratch("column-3d");
+    // past t = 0.15 s, when the surge reaches the column
+    let deck = deck("dam_break_column_3d_explicit", 0.2, 0.1, &dir);
+    let one = run(0, &deck, &dir, "out");
+    let two = run(2, &deck, &dir, "out");
+    agree(&one, &two, &last_frame(&one), 1e-9, &[]);
+    // the force on the column (N; its spanwise part is round-off about 0 on both)
+    agree_above(&one, &two, "rigid_bodies.csv", 1e-9, &[], 1.0);
+    let (header, rows) = table(&two.join("rigid_bodies.csv"));
+    let fx = header.iter().position(|h| h == "column_fx").unwrap();
+    assert!(
+        rows.iter().any(|r| r[fx] > 1.0),
+        "the surge reached the column"
+    );
+}
