@@ -252,7 +252,8 @@ fn run_dim<const D: usize>(
 
 /// The run's output, opened on rank 0 ([`Writing::open`]; a resumed run reads its
 /// checkpoint into `sim` there); every rank learns whether it opened, and stops with rank
-/// 0's error where it did not. On one process, the frame of t = 0 is written here too.
+/// 0's error where it did not. A fresh run's frame of t = 0 is written here too, while rank 0
+/// still holds every particle (they are shared out after).
 #[allow(clippy::too_many_arguments)]
 fn open_on_root<const D: usize>(
     deck: &Deck,
