@@ -234,8 +234,24 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     // under mpirun (the `mpi` feature), one process of several: MPI is started here, before
     // the worker threads, and finalised as `ranks` goes out of scope at the end of main
-    let ranks = mpi_ranks();
+    let ranks = match mpi_ranks() {
+        Ok(ranks) => ranks,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
     let root = ranks.as_ref().is_none_or(|r| r.0.is_root());
+    if ranks.as_ref().is_some_and(|r| r.0.is_distributed())
+        && !matches!(cli.command, Command::Run { .. })
+    {
+        if root {
+            eprintln!(
+                "error: only `pmpm run` runs over MPI ranks; run the other commands without mpirun"
+            );
+        }
+        return ExitCode::from(2);
+    }
     if cli.threads == Some(0) {
         eprintln!("error: --threads must be at least 1");
         return ExitCode::from(2);
@@ -283,16 +299,18 @@ fn main() -> ExitCode {
 /// The MPI ranks of a run started under `mpirun` (None on one process, or without the `mpi`
 /// feature).
 #[cfg(feature = "mpi")]
-fn mpi_ranks() -> Option<pmpm::comm::Ranks> {
-    let mpi = pmpm::comm::Mpi::init()?;
-    Some(pmpm::comm::Ranks(std::sync::Arc::new(mpi)))
+fn mpi_ranks() -> Result<Option<pmpm::comm::Ranks>, String> {
+    let Some(mpi) = pmpm::comm::Mpi::init() else {
+        return Ok(None);
+    };
+    Ok(Some(pmpm::comm::Ranks(std::sync::Arc::new(mpi?))))
 }
 
 /// The MPI ranks of a run started under `mpirun` (None on one process, or without the `mpi`
 /// feature).
 #[cfg(not(feature = "mpi"))]
-fn mpi_ranks() -> Option<pmpm::comm::Ranks> {
-    None
+fn mpi_ranks() -> Result<Option<pmpm::comm::Ranks>, String> {
+    Ok(None)
 }
 
 /// The cores this process may use.

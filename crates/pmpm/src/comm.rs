@@ -181,14 +181,38 @@ mod mpi_comm {
     unsafe impl Sync for Mpi {}
 
     impl Mpi {
-        /// Starts MPI; `None` where it was already started or cannot be.
-        pub fn init() -> Option<Self> {
-            let (universe, _) = mpi::initialize_with_threading(mpi::Threading::Serialized)?;
-            Some(Self {
-                world: universe.world(),
+        /// Starts MPI; `None` where it was already started or cannot be, an error where the
+        /// library cannot take calls from the thread the run is installed on.
+        ///
+        /// Over several ranks a panic on one rank ends every rank (`MPI_Abort`, through the
+        /// panic hook), where the others would wait in their next collective for ever.
+        pub fn init() -> Option<Result<Self, String>> {
+            let (universe, provided) = mpi::initialize_with_threading(mpi::Threading::Serialized)?;
+            if provided < mpi::Threading::Serialized {
+                return Some(Err(format!(
+                    "this MPI library gives thread level {provided:?}; pmpm needs Serialized \
+                     (MPICH gives it)"
+                )));
+            }
+            let world = universe.world();
+            if world.size() > 1 {
+                let hook = std::panic::take_hook();
+                std::panic::set_hook(Box::new(move |info| {
+                    hook(info);
+                    SimpleCommunicator::world().abort(101);
+                }));
+            }
+            Some(Ok(Self {
+                world,
                 buffers: Mutex::new((Vec::new(), Vec::new())),
                 _universe: universe,
-            })
+            }))
+        }
+
+        /// Ends every rank of the run at once with exit status `code` (`MPI_Abort`): for a
+        /// rank that stops alone, which the others would otherwise wait for.
+        pub fn abort(&self, code: i32) -> ! {
+            self.world.abort(code)
         }
 
         fn buffers(&self) -> MutexGuard<'_, (Vec<f64>, Vec<f64>)> {

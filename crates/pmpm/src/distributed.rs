@@ -43,8 +43,8 @@ pub fn check<const D: usize>(sim: &Simulation<D>, size: usize) -> Result<(), Err
             key: key.to_string(),
             message: format!(
                 "{value} not supported yet in a run over {} MPI ranks (this stage runs the \
-                 explicit scheme without open boundaries, body-force fields, implicit viscosity \
-                 or the particles' packing; docs/distributed.md). Run it on one process (without mpirun), or change the key",
+                 explicit scheme without outflow faces, inflows, body-force fields, implicit \
+                 viscosity or the particles' packing; docs/distributed.md). Run it on one process (without mpirun), or change the key",
                 size
             ),
         });
@@ -74,6 +74,7 @@ pub fn distribute<const D: usize>(
     let range = comm::share(sim.particles.len(), comm.rank(), comm.size());
     let kept: Vec<u32> = (range.start as u32..range.end as u32).collect();
     sim.particles.keep(&kept);
+    sim.particles.shrink_to_fit();
     sim.fit_particle_arrays();
     sim.set_comm(comm);
     Ok(())
@@ -94,11 +95,29 @@ pub fn gathered<const D: usize>(
         return write(sim);
     }
     if !due {
-        let result = if comm.is_root() { write(sim) } else { Ok(()) };
+        // (rank 0 alone, on one process too: a collective there would wait for ever)
+        let result = if comm.is_root() {
+            sim.set_comm(comm::serial());
+            let result = write(sim);
+            sim.set_comm(comm.clone());
+            result
+        } else {
+            Ok(())
+        };
         return agree_on_root(&*comm, result);
     }
     let mine = postcard::to_stdvec(&sim.particles.flatten())
         .expect("the particles' flat form serialises: plain numbers and vectors");
+    // one gather moves at most 2 GiB (MPI's counts are 32-bit): refused on every rank alike
+    let total = comm.sum_scalar(mine.len() as f64);
+    if total > i32::MAX as f64 {
+        return Err(Error::Usage(format!(
+            "the particles are {:.1} GB in all, more than rank 0 can gather in one piece (2 GiB) \
+             to write a frame or a checkpoint in this stage of the distributed run \
+             (docs/distributed.md): run fewer particles over ranks, or on one process",
+            total / 1e9
+        )));
+    }
     let pieces = comm.gather(&mine);
     if comm.is_root() {
         let mut all = Particles::<D> {
@@ -122,21 +141,42 @@ pub fn gathered<const D: usize>(
     agree_on_root(&*comm, Ok(()))
 }
 
-/// Rank 0's `result` on every rank (the others pass `Ok`).
-fn agree_on_root(comm: &dyn Comm, result: Result<(), Error>) -> Result<(), Error> {
-    let mut failed = match &result {
-        Err(e) => e.to_string().into_bytes(),
-        Ok(()) => Vec::new(),
+/// Rank 0's `result` on every rank, with its exit status (what the others pass is not read:
+/// their errors are rank 0's, or they have none).
+pub(crate) fn agree_on_root(comm: &dyn Comm, result: Result<(), Error>) -> Result<(), Error> {
+    if !comm.is_distributed() {
+        return result;
+    }
+    let mut failed = match (&result, comm.is_root()) {
+        (Err(e), true) => error_bytes(e),
+        _ => Vec::new(),
     };
     comm.broadcast(&mut failed);
-    if comm.is_root() {
-        result
-    } else if failed.is_empty() {
-        Ok(())
-    } else {
-        Err(Error::Io {
-            path: "the run's output (written by rank 0)".to_string(),
-            source: std::io::Error::other(String::from_utf8_lossy(&failed).into_owned()),
-        })
+    if comm.is_root() || failed.is_empty() {
+        return if comm.is_root() { result } else { Ok(()) };
+    }
+    Err(error_from_bytes(&failed))
+}
+
+/// An error as another rank can rebuild it ([`error_from_bytes`]): its exit status, then its
+/// message.
+pub(crate) fn error_bytes(e: &Error) -> Vec<u8> {
+    let mut bytes = vec![e.exit_code()];
+    bytes.extend_from_slice(e.to_string().as_bytes());
+    bytes
+}
+
+/// The error of [`error_bytes`], of a kind with the same exit status (the other ranks do not
+/// print it: rank 0 speaks for the run).
+pub(crate) fn error_from_bytes(bytes: &[u8]) -> Error {
+    let message = String::from_utf8_lossy(&bytes[1..]).into_owned();
+    match bytes[0] {
+        1 => Error::Io {
+            path: "rank 0".to_string(),
+            source: std::io::Error::other(message),
+        },
+        3 => Error::BlowUp(message),
+        130 => Error::Interrupted(message),
+        _ => Error::Usage(message),
     }
 }

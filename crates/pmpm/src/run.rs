@@ -170,19 +170,26 @@ fn run_dim<const D: usize>(
     let (_lock, mut w) = open_on_root(deck, &mut sim, file, dir, opts, &clock, start, &*comm)?;
     let mut driver = match &opts.resume {
         Some(path) => {
-            if !comm.is_root() {
-                checkpoint::read(path, deck, &mut sim)?;
+            // the other ranks read it too (on several machines, from a shared file system):
+            // where one cannot, every rank stops with its message
+            let failed = (!comm.is_root())
+                .then(|| checkpoint::read(path, deck, &mut sim).err())
+                .flatten()
+                .map(|e| e.to_string());
+            if let Some(message) = comm.agree(failed) {
+                return Err(Error::Usage(message));
             }
             let next = w.as_ref().map_or(0.0, |w| w.driver.next_frame);
             Driver::resume(clock, comm.max_scalar(next))
         }
         None => Driver::new(clock),
     };
-    crate::distributed::distribute(&mut sim, comm.clone(), opts.resume.is_none())?;
     if let Some(w) = &mut w {
+        // (before the particles are shared out: the count is the run's)
         observer.started(&w.status(&sim, 0.0, 0.0));
         w.driver.next_frame = driver.next_frame;
     }
+    crate::distributed::distribute(&mut sim, comm.clone(), opts.resume.is_none())?;
     let mut last_dt = 0.0;
     sim.timers.lap(Phase::Other);
     let result = loop {
@@ -242,11 +249,12 @@ fn run_dim<const D: usize>(
         }
     };
     let summary = summary(&sim, &w, start, last_dt);
-    if let Some(w) = &mut w {
-        w.finish(result, file, dir, deck)?;
-    } else {
-        result?;
-    }
+    let finished = match &mut w {
+        Some(w) => w.finish(result, file, dir, deck),
+        None => result,
+    };
+    // rank 0's last flush decides for every rank (their step errors were rank 0's already)
+    crate::distributed::agree_on_root(&*comm, finished)?;
     Ok(summary)
 }
 
@@ -283,15 +291,15 @@ fn open_on_root<const D: usize>(
         return Ok((Some(lock), Some(w)));
     }
     let mut message = match &opened {
-        Ok(_) => Vec::new(),
-        Err(e) => e.to_string().into_bytes(),
+        Err(e) if comm.is_root() => crate::distributed::error_bytes(e),
+        _ => Vec::new(),
     };
     comm.broadcast(&mut message);
     match opened {
         Ok((lock, w)) => Ok((Some(lock), Some(w))),
         Err(e) if comm.is_root() => Err(e),
         Err(_) if message.is_empty() => Ok((None, None)),
-        Err(_) => Err(Error::Usage(String::from_utf8_lossy(&message).into_owned())),
+        Err(_) => Err(crate::distributed::error_from_bytes(&message)),
     }
 }
 

@@ -318,8 +318,7 @@ impl<const D: usize> Simulation<D> {
     /// The first setting of the explicit scheme that a run over several ranks does not
     /// support yet (the distributed module asks it), as the deck's key.
     pub(crate) fn unsupported_distributed(&self) -> Option<&'static str> {
-        let open =
-            (0..2 * D).any(|f| self.boundary.is_outflow(f)) || !self.boundary.inflows.is_empty();
+        let outflow = (0..2 * D).any(|f| self.boundary.is_outflow(f));
         [
             (
                 matches!(self.stepper, Stepper::Explicit(Some(_))),
@@ -330,7 +329,8 @@ impl<const D: usize> Simulation<D> {
                 "simulation.viscosity = \"implicit\"",
             ),
             (self.body_force.is_some(), "simulation.body_force"),
-            (open, "grid.boundary = \"open\" (or an inflow)"),
+            (outflow, "grid.boundary = \"outflow\""),
+            (!self.boundary.inflows.is_empty(), "inflows"),
         ]
         .into_iter()
         .find_map(|(set, key)| set.then_some(key))
