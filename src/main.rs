@@ -453,9 +453,10 @@ fn run_command(
     allow_large: bool,
     ranks: Option<pmpm::comm::Ranks>,
 ) -> Result<usize, Error> {
-    progress::catch_interrupts();
     // rank 0 speaks for a run over several ranks
-    let quiet = quiet || ranks.as_ref().is_some_and(|r| !r.0.is_root());
+    let root = ranks.as_ref().is_none_or(|r| r.0.is_root());
+    progress::catch_interrupts(root);
+    let quiet = quiet || !root;
     let d = run::load(deck)?;
     let file = deck.display().to_string();
     pmpm::limits::refuse_beyond_limits(&d, &file, allow_large)?;
@@ -504,7 +505,7 @@ fn bench_command(
     allow_large: bool,
 ) -> Result<usize, Error> {
     // Ctrl-C or SIGTERM ends the timed run at a step and removes the scratch folder
-    progress::catch_interrupts();
+    progress::catch_interrupts(true);
     let d = run::load(deck)?;
     pmpm::limits::refuse_beyond_limits(&d, &deck.display().to_string(), allow_large)?;
     let scratch = output.is_none();

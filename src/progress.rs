@@ -29,7 +29,10 @@ const FORCE_AFTER_SECONDS: f64 = 2.0;
 ///
 /// SIGXFSZ (a file-size limit, `ulimit -f`) is ignored too, so that a write past the limit
 /// fails with an error pmpm reports, naming the last good checkpoint, instead of killing it.
-pub fn catch_interrupts() {
+///
+/// `speak`: whether this process says so (over MPI ranks, rank 0 alone: mpirun hands the
+/// signal to every rank).
+pub fn catch_interrupts(speak: bool) {
     let flag = interrupt_flag();
     let first = std::sync::Mutex::new(None::<Instant>);
     let _ = ctrlc::set_handler(move || {
@@ -38,6 +41,9 @@ pub fn catch_interrupts() {
             None => {
                 *first = Some(Instant::now());
                 flag.store(true, Ordering::SeqCst);
+                if !speak {
+                    return;
+                }
                 eprintln!(
                     "\npmpm: interrupted: finishing this step, then writing a frame and a \
                      checkpoint (interrupt again after {FORCE_AFTER_SECONDS} s to stop at once)"
@@ -48,10 +54,12 @@ pub fn catch_interrupts() {
             Some(_) => {
                 // a step that does not end (a long solve): every file is whole at any
                 // instant, so stopping here loses only the work since the last checkpoint
-                eprintln!(
-                    "pmpm: interrupted again: stopping now; the run goes on from its last \
-                     checkpoint"
-                );
+                if speak {
+                    eprintln!(
+                        "pmpm: interrupted again: stopping now; the run goes on from its last \
+                         checkpoint"
+                    );
+                }
                 std::process::exit(130);
             }
         }
