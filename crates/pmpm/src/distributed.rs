@@ -19,15 +19,12 @@
 use crate::comm::{self, Comm};
 use crate::error::Error;
 use crate::particles::{FlatParticles, Particles};
-use crate::scheme::{Scheme, Simulation};
+use crate::scheme::Simulation;
 use std::sync::Arc;
 
 /// The first deck setting that this stage of the distributed run does not support, as the
 /// deck's key and what it is set to; `None` where the run can be spread over ranks.
 pub fn unsupported<const D: usize>(sim: &Simulation<D>) -> Option<&'static str> {
-    if sim.stepper.scheme() == Scheme::Projection {
-        return Some("simulation.scheme = \"projection\"");
-    }
     sim.unsupported_distributed()
 }
 
@@ -90,7 +87,7 @@ pub fn gathered<const D: usize>(
     due: bool,
     write: impl FnOnce(&mut Simulation<D>) -> Result<(), Error>,
 ) -> Result<(), Error> {
-    let comm = sim.comm.clone();
+    let comm = sim.comm.0.clone();
     if !comm.is_distributed() {
         return write(sim);
     }

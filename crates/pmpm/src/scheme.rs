@@ -207,7 +207,7 @@ pub struct Simulation<const D: usize> {
     pub timers: PhaseTimers,
     /// The ranks the run is spread over ([`crate::comm`]); one, [`crate::comm::Serial`],
     /// unless [`Simulation::set_comm`] gave it others.
-    pub comm: Arc<dyn Comm>,
+    pub comm: crate::comm::Ranks,
 }
 
 impl<const D: usize> Simulation<D> {
@@ -257,7 +257,7 @@ impl<const D: usize> Simulation<D> {
                 ..Ledger::default()
             },
             timers: PhaseTimers::default(),
-            comm: crate::comm::serial(),
+            comm: crate::comm::Ranks::default(),
         }
     }
 
@@ -312,14 +312,18 @@ impl<const D: usize> Simulation<D> {
             averaging.comm = crate::comm::Ranks(comm.clone());
         }
         self.boundary.rigid.comm = crate::comm::Ranks(comm.clone());
-        self.comm = comm;
+        self.comm = crate::comm::Ranks(comm);
     }
 
-    /// The first setting of the explicit scheme that a run over several ranks does not
+    /// The first setting that a run over several ranks does not
     /// support yet (the distributed module asks it), as the deck's key.
     pub(crate) fn unsupported_distributed(&self) -> Option<&'static str> {
         let outflow = (0..2 * D).any(|f| self.boundary.is_outflow(f));
         [
+            (
+                self.stepper.scheme() == Scheme::Projection,
+                "simulation.scheme = \"projection\"",
+            ),
             (
                 matches!(self.stepper, Stepper::Explicit(Some(_))),
                 "pressure.density_correction = \"particles\"",
@@ -1071,10 +1075,16 @@ fn global_means<const D: usize, const K: usize>(
     if !comm.is_distributed() {
         return (m, q);
     }
-    let mut sums: Vec<f64> = std::iter::once(m)
-        .chain(q.iter().flat_map(|q| q.iter().map(move |c| c * m)))
-        .collect();
-    comm.sum(&mut sums);
+    // on the stack: no allocation in the step (K D <= 6: a value and a velocity in 3D)
+    let mut all = [0.0; 1 + 2 * 3];
+    let sums = &mut all[..1 + K * D];
+    sums[0] = m;
+    for (k, q) in q.iter().enumerate() {
+        for d in 0..D {
+            sums[1 + k * D + d] = q[d] * m;
+        }
+    }
+    comm.sum(sums);
     let m = sums[0];
     let means = std::array::from_fn(|k| {
         let s = Vector::<D>::from_fn(|d, _| sums[1 + k * D + d]);
