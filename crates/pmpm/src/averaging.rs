@@ -301,7 +301,7 @@ impl<const D: usize> NodalAveraging<D> {
                 geo.fold(&mut self.average);
             }
             self.comm
-                .sum_all(&mut [&mut self.weight, &mut self.average]);
+                .add_nodes(&mut [&mut self.weight, &mut self.average]);
             self.average
                 .par_iter_mut()
                 .zip(self.weight.par_iter())

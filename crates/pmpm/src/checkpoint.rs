@@ -327,6 +327,10 @@ pub fn write<const D: usize>(
         if encoded.is_ok() {
             encoded = postcard::to_io(&driver.wall_seconds, &mut payload).map(|_| ());
         }
+        // and after it, for a run over ranks with the grid in slabs, where it is cut
+        if let (Ok(()), Some(d)) = (&encoded, &sim.decomposition) {
+            encoded = postcard::to_io(d, &mut payload).map(|_| ());
+        }
         if let Err(e) = encoded {
             return Err(payload.failed.take().unwrap_or_else(|| {
                 std::io::Error::other(format!("cannot encode the checkpoint: {e}"))
@@ -393,6 +397,7 @@ pub fn read<const D: usize>(
         flow,
         free,
         wall_seconds,
+        decomposition,
     } = trailer(path, deck, rest)?;
     check_free_bodies(path, sim, free.as_deref())?;
     check_deck(path, deck, &s)?;
@@ -400,6 +405,7 @@ pub fn read<const D: usize>(
     let flow = check_open_flow(path, open, flow)?;
     check_particles(path, open, sim, &s, flow.as_ref())?;
     let driver = restore(sim, s, flow, free);
+    sim.decomposition = decomposition;
     Ok(DriverState {
         wall_seconds,
         ..driver
@@ -429,6 +435,8 @@ struct Trailer {
     free: Option<Vec<crate::rigid::FreeState>>,
     /// The run's wall time so far (0 in a checkpoint without it).
     wall_seconds: f64,
+    /// Where a run over ranks cut the grid into slabs.
+    decomposition: Option<crate::slabs::Decomposition>,
 }
 
 /// Decodes the bytes after the state (`rest`): the ledger and the free bodies' state where
@@ -455,6 +463,12 @@ fn trailer(path: &Path, deck: &Deck, rest: &[u8]) -> Result<Trailer, Error> {
     } else {
         postcard::take_from_bytes::<f64>(rest).map_err(cannot)?
     };
+    let (decomposition, rest) = if rest.is_empty() {
+        (None, rest)
+    } else {
+        let (d, rest) = postcard::take_from_bytes(rest).map_err(cannot)?;
+        (Some(d), rest)
+    };
     if !(rest.is_empty() && wall_seconds.is_finite() && wall_seconds >= 0.0) {
         return Err(refuse(
             path,
@@ -465,6 +479,7 @@ fn trailer(path: &Path, deck: &Deck, rest: &[u8]) -> Result<Trailer, Error> {
         flow,
         free,
         wall_seconds,
+        decomposition,
     })
 }
 

@@ -1,14 +1,15 @@
 //! The processes a run is spread over, and the collective operations its step needs.
 //!
 //! A run on one process has [`Serial`], whose operations do nothing. A run started under
-//! `mpirun` (the `mpi` feature) has `Mpi`: each rank holds a share of the particles and the
-//! whole grid, so every sum of particles onto the grid ends with [`Comm::sum`] before it is
-//! read, and every decision taken from the particles (the time step, a blow-up) with a
-//! reduction, so that the ranks take the same steps and stop together (docs/distributed.md).
+//! `mpirun` (the `mpi` feature) has `Mpi`: each rank holds a share of the particles, so every
+//! sum of particles onto the grid ends with [`Comm::add_nodes`] before it is read (over the
+//! whole grid, or, with the grid cut into slabs, over the layers neighbours share), and every
+//! decision taken from the particles (the time step, a blow-up) with a reduction, so that the
+//! ranks take the same steps and stop together (docs/distributed.md).
 //!
 //! The reductions give every rank the same bits (reduced onto rank 0, then broadcast): the
-//! grid's work, done by every rank on its own copy, then stays the same on every rank without
-//! being exchanged.
+//! grid's work, done by every rank on its own nodes, then stays the same where ranks share
+//! nodes without being exchanged again.
 
 use std::sync::Arc;
 
@@ -35,6 +36,27 @@ pub trait Comm: Send + Sync {
     fn gather(&self, bytes: &[u8]) -> Vec<Vec<u8>>;
     /// Rank 0's bytes on every rank (what the others passed in is replaced).
     fn broadcast(&self, bytes: &mut Vec<u8>);
+    /// Sums of particles onto the grid's node arrays (each the grid's whole length, a node's
+    /// components together) over the ranks: after it every node this rank's particles reach
+    /// holds every rank's sum. Where each rank holds the whole grid that is [`Comm::sum_all`]
+    /// of the whole arrays; a grid cut into slabs (the `slabs` module) exchanges only the
+    /// layers of nodes that two ranks' particles share.
+    fn add_nodes(&self, arrays: &mut [&mut [f64]]) {
+        self.sum_all(arrays);
+    }
+    /// Sends `send` to rank `peer` and receives as many values from it into `recv` (both
+    /// ranks call it with each other as `peer`).
+    fn swap(&self, peer: usize, send: &[f64], recv: &mut [f64]);
+    /// Sends `send[at..at + counts[r]]` to each rank r (its pieces in rank order) and
+    /// receives what each rank sends this one into `recv`, in rank order, with their lengths
+    /// in `recv_counts`: an all-to-all of bytes.
+    fn exchange(
+        &self,
+        send: &[u8],
+        counts: &[usize],
+        recv: &mut Vec<u8>,
+        recv_counts: &mut Vec<usize>,
+    );
 }
 
 impl<'a> dyn Comm + 'a {
@@ -111,6 +133,15 @@ impl Comm for Serial {
         vec![bytes.to_vec()]
     }
     fn broadcast(&self, _: &mut Vec<u8>) {}
+    fn swap(&self, _: usize, send: &[f64], recv: &mut [f64]) {
+        recv.copy_from_slice(send);
+    }
+    fn exchange(&self, send: &[u8], _: &[usize], recv: &mut Vec<u8>, recv_counts: &mut Vec<usize>) {
+        recv.clear();
+        recv.extend_from_slice(send);
+        recv_counts.clear();
+        recv_counts.push(send.len());
+    }
 }
 
 /// The ranks a run is spread over, as the run's options carry them (shared, and one process by
@@ -308,6 +339,39 @@ mod mpi_comm {
             root.broadcast_into(&mut n);
             bytes.resize(n as usize, 0);
             root.broadcast_into(&mut bytes[..]);
+        }
+        fn swap(&self, peer: usize, send: &[f64], recv: &mut [f64]) {
+            let peer = self.world.process_at_rank(peer as i32);
+            mpi::point_to_point::send_receive_into(send, &peer, recv, &peer);
+        }
+        fn exchange(
+            &self,
+            send: &[u8],
+            counts: &[usize],
+            recv: &mut Vec<u8>,
+            recv_counts: &mut Vec<usize>,
+        ) {
+            let size = self.size();
+            let sizes: Vec<i32> = counts.iter().map(|&c| c as i32).collect();
+            let mut theirs = vec![0i32; size];
+            self.world.all_to_all_into(&sizes[..], &mut theirs[..]);
+            let displs = |c: &[i32]| -> Vec<i32> {
+                c.iter()
+                    .scan(0, |at, &c| {
+                        let d = *at;
+                        *at += c;
+                        Some(d)
+                    })
+                    .collect()
+            };
+            let (send_at, recv_at) = (displs(&sizes), displs(&theirs));
+            recv.resize(theirs.iter().map(|&c| c as usize).sum(), 0);
+            let out = mpi::datatype::Partition::new(send, &sizes[..], &send_at[..]);
+            let mut into =
+                mpi::datatype::PartitionMut::new(&mut recv[..], &theirs[..], &recv_at[..]);
+            self.world.all_to_all_varcount_into(&out, &mut into);
+            recv_counts.clear();
+            recv_counts.extend(theirs.iter().map(|&c| c as usize));
         }
     }
 }

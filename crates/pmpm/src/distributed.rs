@@ -1,15 +1,13 @@
 //! A run spread over ranks (MPI processes): the particles shared out, and gathered again on
 //! rank 0 for what the run writes (docs/distributed.md).
 //!
-//! This first stage keeps the whole grid on every rank. Each rank holds an equal contiguous
-//! share of the particles in cell order (a row-major space-filling curve, weighted by
-//! particles) and moves only those; every sum of particles onto the grid is added up over the
-//! ranks ([`crate::comm::Comm::sum`]) before it is read, and every rank then does the grid's
-//! work on its own copy, with the same bits. The particles' transfers, the constitutive update
-//! and the moves, the bulk of the explicit scheme's step, are divided among the ranks; the grid
-//! and its memory are not yet (a decomposition of the grid by blocks is the next stage), nor
-//! is the projection's pressure solve (its stages read the particles in ways this stage does
-//! not yet add up over ranks, and are refused: [`unsupported`]).
+//! The grid is cut into slabs, one a rank ([`crate::slabs`]): each rank holds the particles of
+//! its slab and the nodes they reach, and neighbours swap the node layers they share after
+//! every sum of particles onto the grid. Where the grid is too short for as many slabs, every
+//! rank holds the whole grid instead and every such sum is added up over all of it
+//! ([`crate::comm::Comm::sum`]); each rank then holds an equal contiguous share of the
+//! particles in cell order. The projection's pressure solve is not spread yet (its stages read
+//! the particles in ways not yet added up over ranks, and are refused: [`unsupported`]).
 //!
 //! For the output, rank 0 gathers every rank's particles, in rank order, and for that moment
 //! is the run on one process ([`gathered`]): frames, series rows, gauges and checkpoints are
@@ -20,6 +18,7 @@ use crate::comm::{self, Comm};
 use crate::error::Error;
 use crate::particles::{FlatParticles, Particles};
 use crate::scheme::Simulation;
+use crate::slabs::{Counts, Decomposition};
 use std::sync::Arc;
 
 /// The first deck setting that this stage of the distributed run does not support, as the
@@ -50,17 +49,19 @@ pub fn check<const D: usize>(sim: &Simulation<D>, size: usize) -> Result<(), Err
 }
 
 /// Shares the particles of `sim` out among `comm`'s ranks and makes `sim` a rank of a
-/// distributed run ([`check`] first). A `fresh` run's particles are put in cell order first,
-/// so that each rank's share is a compact piece of the material; a resumed run's are shared
-/// in the order its checkpoint holds them (rank 0's, then rank 1's, ...), so that on the
-/// same number of ranks each rank takes back the particles it had, in their order, and the
-/// run goes on bit for bit.
+/// distributed run ([`check`] first): each rank keeps the particles of its slab
+/// ([`slabs_for`]), or without slabs an equal contiguous share in cell order. A `fresh`
+/// run's particles are put in cell order first; a resumed run's are kept in the order its
+/// checkpoint holds them (rank 0's, then rank 1's, ...), so that on the same number of ranks,
+/// cut where the checkpoint says, each rank takes back the particles it had, in their order,
+/// and the run goes on bit for bit.
 pub fn distribute<const D: usize>(
     sim: &mut Simulation<D>,
     comm: Arc<dyn Comm>,
     fresh: bool,
 ) -> Result<(), Error> {
     if !comm.is_distributed() {
+        sim.decomposition = None;
         sim.set_comm(comm);
         return Ok(());
     }
@@ -68,13 +69,44 @@ pub fn distribute<const D: usize>(
     if fresh {
         sim.sort_particles();
     }
-    let range = comm::share(sim.particles.len(), comm.rank(), comm.size());
-    let kept: Vec<u32> = (range.start as u32..range.end as u32).collect();
+    let (rank, size) = (comm.rank(), comm.size());
+    let kept: Vec<u32> = match slabs_for(sim, size) {
+        Some(d) => {
+            let geo = &sim.grid.geo;
+            let kept = (0..sim.particles.len())
+                .filter(|&p| d.owner_of(geo, &sim.particles.x[p]) == rank)
+                .map(|p| p as u32)
+                .collect();
+            sim.cut_into_slabs(comm, d);
+            kept
+        }
+        None => {
+            let range = comm::share(sim.particles.len(), rank, size);
+            sim.decomposition = None;
+            sim.set_comm(comm);
+            (range.start as u32..range.end as u32).collect()
+        }
+    };
     sim.particles.keep(&kept);
     sim.particles.shrink_to_fit();
     sim.fit_particle_arrays();
-    sim.set_comm(comm);
     Ok(())
+}
+
+/// How the grid of `sim` is cut over `size` ranks: the checkpoint's cuts where it was cut
+/// for as many ranks (so that each rank takes back its particles, in their order), else the
+/// best cut of its particles ([`Decomposition::plan`]); `None` where the grid is too short
+/// along every axis that is not periodic for `size` slabs (every rank then holds the whole
+/// grid).
+fn slabs_for<const D: usize>(sim: &Simulation<D>, size: usize) -> Option<Decomposition> {
+    let geo = &sim.grid.geo;
+    if let Some(d) = sim.decomposition.as_ref().filter(|d| d.fits(geo, size)) {
+        return Some(d.clone());
+    }
+    let mut counts = Counts::default();
+    // (every rank holds every particle here: counted on one)
+    counts.of(&comm::Serial, geo, &sim.particles.x);
+    Decomposition::plan(geo, &counts, size)
 }
 
 /// Runs `write` on rank 0, and where it reads the particles (`due`) with every rank's

@@ -95,6 +95,7 @@ pub mod run;
 pub mod scheme;
 pub mod seed;
 pub mod shape;
+pub mod slabs;
 pub mod timing;
 pub(crate) mod transfer;
 pub(crate) mod viscosity;

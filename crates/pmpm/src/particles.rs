@@ -170,6 +170,14 @@ macro_rules! particle_fields {
                 $(keep(&mut self.$name, kept);)+
             }
 
+            /// A copy of the particles at the places `at`, in that order.
+            pub fn pick(&self, at: &[u32]) -> Self {
+                Self {
+                    $($name: pick(&self.$name, at),)+
+                    stored: self.stored,
+                }
+            }
+
             fn append_fields(&mut self, other: &mut Self) {
                 $(self.$name.append(&mut other.$name);)+
             }
@@ -382,6 +390,14 @@ pub fn keep<T: Copy>(field: &mut Vec<T>, kept: &[u32]) {
         field[k] = field[i as usize];
     }
     field.truncate(kept.len());
+}
+
+/// `field[at[k]]` for every k (empty where the field is: one the run does not store).
+fn pick<T: Copy>(field: &[T], at: &[u32]) -> Vec<T> {
+    if field.is_empty() {
+        return Vec::new();
+    }
+    at.iter().map(|&i| field[i as usize]).collect()
 }
 
 /// `field[k] = old field[order[k]]` in place (`order` a permutation of the indices).

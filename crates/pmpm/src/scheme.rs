@@ -208,6 +208,19 @@ pub struct Simulation<const D: usize> {
     /// The ranks the run is spread over ([`crate::comm`]); one, [`crate::comm::Serial`],
     /// unless [`Simulation::set_comm`] gave it others.
     pub comm: crate::comm::Ranks,
+    /// Where the grid is cut into slabs over the ranks ([`crate::slabs`]), kept in the
+    /// checkpoint; `None` on one process, or where every rank holds the whole grid.
+    pub decomposition: Option<crate::slabs::Decomposition>,
+    /// The slabs' work between steps: the ranks without the slabs' exchange, the particles'
+    /// counts per layer and the migration's buffers.
+    slabs: Option<SlabWork>,
+}
+
+/// What a run cut into slabs keeps from step to step ([`crate::slabs`]).
+struct SlabWork {
+    world: Arc<dyn Comm>,
+    counts: crate::slabs::Counts,
+    migration: crate::slabs::Migration,
 }
 
 impl<const D: usize> Simulation<D> {
@@ -258,6 +271,8 @@ impl<const D: usize> Simulation<D> {
             },
             timers: PhaseTimers::default(),
             comm: crate::comm::Ranks::default(),
+            decomposition: None,
+            slabs: None,
         }
     }
 
@@ -270,6 +285,8 @@ impl<const D: usize> Simulation<D> {
         if interval > 0 && self.steps % interval as u64 == 0 {
             self.sort_particles();
         }
+        // 0b. over ranks, the slabs cut again where the particles' shares drifted apart
+        self.rebalance();
         self.timers.lap(Phase::Sort);
         // 1. particles -> grid: mass, momentum, internal and body forces (and probe samples)
         self.particles_to_grid();
@@ -289,6 +306,8 @@ impl<const D: usize> Simulation<D> {
         self.solve_viscosity(dt)?;
         // 4. grid -> particles (PIC / FLIP / APIC) and move
         self.grid_to_particles(dt)?;
+        // 4b. over ranks, the particles the move took into another rank's slab go to it
+        self.migrate();
         self.timers.lap(Phase::G2p);
         // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme)
         self.update_materials(dt);
@@ -313,6 +332,56 @@ impl<const D: usize> Simulation<D> {
         }
         self.boundary.rigid.comm = crate::comm::Ranks(comm.clone());
         self.comm = crate::comm::Ranks(comm);
+    }
+
+    /// Makes this simulation a rank of `world`'s with the grid cut into slabs as `d` says
+    /// ([`crate::slabs`]): its sums onto the nodes are exchanged with its neighbours, and its
+    /// particles are those of its slab from the next migration on.
+    pub fn cut_into_slabs(&mut self, world: Arc<dyn Comm>, d: crate::slabs::Decomposition) {
+        let sliced = crate::slabs::Sliced::new(world.clone(), &self.grid.geo, &d);
+        let rank = world.rank();
+        self.boundary.rigid.owned_layers = Some((d.axis, d.cuts[rank]..d.cuts[rank + 1]));
+        self.decomposition = Some(d);
+        match &mut self.slabs {
+            Some(s) => s.world = world,
+            None => {
+                self.slabs = Some(SlabWork {
+                    world,
+                    counts: Default::default(),
+                    migration: Default::default(),
+                })
+            }
+        }
+        self.set_comm(Arc::new(sliced));
+    }
+
+    /// Step 4b: the particles outside this rank's slab sent to the ranks whose slabs hold them.
+    pub fn migrate(&mut self) {
+        let (Some(d), Some(s)) = (&self.decomposition, &mut self.slabs) else {
+            return;
+        };
+        if s.migration
+            .run(&*self.comm, &self.grid.geo, d, &mut self.particles)
+        {
+            self.fit_particle_arrays();
+        }
+    }
+
+    /// Step 0b: every [`crate::slabs::REBALANCE_EVERY`] steps, new cuts where the largest
+    /// share of the particles drifted above the mean ([`crate::slabs::Decomposition::rebalanced`]).
+    fn rebalance(&mut self) {
+        if self.steps % crate::slabs::REBALANCE_EVERY != 0 {
+            return;
+        }
+        let (Some(d), Some(s)) = (&self.decomposition, &mut self.slabs) else {
+            return;
+        };
+        s.counts.of(&*self.comm, &self.grid.geo, &self.particles.x);
+        if let Some(new) = d.rebalanced(&self.grid.geo, &s.counts) {
+            let world = s.world.clone();
+            self.cut_into_slabs(world, new);
+            self.migrate();
+        }
     }
 
     /// The first setting that a run over several ranks does not
@@ -877,6 +946,31 @@ impl<const D: usize> Simulation<D> {
                 out.fill(0.0);
             }
         }
+        self.share_probes();
+    }
+
+    /// Over ranks with the grid in slabs, each probe as the rank that holds its slab sampled
+    /// it (the nodes about it are whole there), and rank 0's means of the particles (the same
+    /// on every rank), on every rank.
+    fn share_probes(&mut self) {
+        let Some(d) = self
+            .decomposition
+            .as_ref()
+            .filter(|_| self.comm.is_distributed())
+        else {
+            return;
+        };
+        let (rank, geo) = (self.comm.rank(), &self.grid.geo);
+        for (k, x) in self.probes.positions.iter().enumerate() {
+            let mine = match self.probes.radius[k] {
+                Some(_) => rank == 0,
+                None => d.owner_of(geo, x) == rank,
+            };
+            if !mine {
+                self.probes.values[k * (D + 1)..(k + 1) * (D + 1)].fill(0.0);
+            }
+        }
+        self.comm.sum(&mut self.probes.values);
     }
 
     /// Largest stable step now: cfl h / max(|v| + c), with c the sound speed (explicit) or a

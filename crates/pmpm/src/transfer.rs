@@ -473,7 +473,7 @@ fn gather_p2g<const D: usize>(
     }
     // every rank's particles on every rank's copy of the grid, before the sums are divided
     if comm.is_distributed() {
-        comm.sum_all(&mut [
+        comm.add_nodes(&mut [
             &mut grid.mass,
             bytemuck::cast_slice_mut(&mut grid.momentum),
             bytemuck::cast_slice_mut(&mut grid.force),
@@ -530,7 +530,7 @@ pub fn remap_velocity<const D: usize>(
         geo.fold(&mut grid.velocity_new);
     }
     if comm.is_distributed() {
-        comm.sum_vectors(&mut grid.velocity_new);
+        comm.add_nodes(&mut [bytemuck::cast_slice_mut(&mut grid.velocity_new)]);
     }
     grid.velocity_new
         .par_iter_mut()

@@ -234,6 +234,10 @@ pub struct RigidBodies<const D: usize> {
     push_torque: Vec<Vector3<f64>>,
     /// The ranks whose particles' pushes are added up ([`crate::comm`]).
     pub comm: crate::comm::Ranks,
+    /// Over ranks with the grid in slabs ([`crate::slabs`]): the axis and the node layers
+    /// this rank owns, whose nodes alone it adds to the bodies' sums over nodes (the ranks'
+    /// sums then added up). `None` where each rank holds the whole grid.
+    pub owned_layers: Option<(usize, std::ops::Range<usize>)>,
 }
 
 /// A quadrature point on a rigid body's face.
@@ -315,6 +319,7 @@ impl<const D: usize> RigidBodies<D> {
             push_force: Vec::new(),
             push_torque: Vec::new(),
             comm: crate::comm::Ranks::default(),
+            owned_layers: None,
         }
     }
 
@@ -1218,6 +1223,9 @@ impl<const D: usize> RigidBodies<D> {
         self.free_momentum.fill(Vector::<D>::zeros());
         self.free_torque.fill(Vector3::zeros());
         for &(i, b, h) in &self.nodes {
+            if !self.owns(i, &grid.geo) {
+                continue;
+            }
             let p = masked(grid.velocity[i] * grid.mass[i] + grid.force[i] * dt, h);
             self.free_momentum[b] += p;
             if self.shaped[b].is_some() {
@@ -1225,6 +1233,22 @@ impl<const D: usize> RigidBodies<D> {
                 self.free_torque[b] += m;
             }
         }
+        if self.owned_layers.is_some() {
+            self.comm.sum_all(&mut [
+                bytemuck::cast_slice_mut(&mut self.free_momentum),
+                bytemuck::cast_slice_mut(&mut self.free_torque),
+            ]);
+        }
+    }
+
+    /// Whether this rank adds node `i` to the bodies' sums over nodes: every node on one
+    /// process, the nodes of its own layers over ranks with the grid in slabs (the sums of
+    /// particles there are whole on it: [`crate::slabs`]).
+    #[inline]
+    fn owns(&self, i: usize, geo: &GridGeometry<D>) -> bool {
+        self.owned_layers
+            .as_ref()
+            .is_none_or(|(axis, layers)| layers.contains(&geo.multi(i)[*axis]))
     }
 
     /// The arm from shaped body `b`'s reference point to node `i`.
@@ -1348,17 +1372,51 @@ impl<const D: usize> RigidBodies<D> {
         }
     }
 
+    /// The start of [`RigidBodies::measure`]'s sums over nodes: minus the momentum the
+    /// bodies' nodes held before the step, on one process; over slabs nothing (each rank's
+    /// nodes are summed apart and added up first, [`RigidBodies::add_up_node_sums`]).
+    fn start_node_sums(&mut self, sliced: bool) {
+        for (b, f) in self.force.iter_mut().enumerate() {
+            *f = if sliced {
+                Vector::<D>::zeros()
+            } else {
+                -self.free_momentum[b]
+            };
+        }
+        for (b, m) in self.torque.iter_mut().enumerate() {
+            *m = if sliced {
+                Vector3::zeros()
+            } else {
+                -self.free_torque[b]
+            };
+        }
+    }
+
+    /// Over slabs: the ranks' sums over their own nodes added up, then the momentum before
+    /// the step taken off.
+    fn add_up_node_sums(&mut self) {
+        self.comm.sum_all(&mut [
+            bytemuck::cast_slice_mut(&mut self.force),
+            bytemuck::cast_slice_mut(&mut self.torque),
+        ]);
+        for (b, f) in self.force.iter_mut().enumerate() {
+            *f -= self.free_momentum[b];
+        }
+        for (b, m) in self.torque.iter_mut().enumerate() {
+            *m -= self.free_torque[b];
+        }
+    }
+
     /// Before the last wall conditions of the step: the force on each body. With the
     /// projection the pressure's force on the bodies' nodes is added in the weak form (see
     /// [`PressureForce`]).
     fn measure(&mut self, grid: &Grid<D>, dt: f64, pressure: PressureForce<'_, D>) {
-        for (b, f) in self.force.iter_mut().enumerate() {
-            *f = -self.free_momentum[b];
-        }
-        for (b, m) in self.torque.iter_mut().enumerate() {
-            *m = -self.free_torque[b];
-        }
+        let sliced = self.owned_layers.is_some();
+        self.start_node_sums(sliced);
         for (k, &(i, b, h)) in self.nodes.iter().enumerate() {
+            if !self.owns(i, &grid.geo) {
+                continue;
+            }
             // with cut cells the value the node holds (a ghost value on a face's normal), which
             // the projection's last pass has set
             let set = if self.cut && self.shaped[b].is_none() {
@@ -1372,6 +1430,9 @@ impl<const D: usize> RigidBodies<D> {
                 let m = self.arm(b, i, &grid.geo).cross(&to3(&p));
                 self.torque[b] += m;
             }
+        }
+        if sliced {
+            self.add_up_node_sums();
         }
         for f in &mut self.force {
             *f /= -dt;

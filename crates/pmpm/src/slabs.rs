@@ -1,0 +1,505 @@
+//! The grid cut into slabs, one a rank, for a run spread over ranks (docs/distributed.md).
+//!
+//! Along one axis the grid's cell layers are cut into as many slabs as the run has ranks,
+//! weighted by particles (a one-dimensional recursive bisection). Each rank holds the
+//! particles whose cells lie in its slab, and its node arrays hold values only where its own
+//! particles reach ([`crate::pages`] keeps the rest uncommitted, so a rank's grid memory
+//! follows its slab). A particle in padded cell layer c reaches node layers c - 1 to c + 2
+//! along each axis (every shape function's stencil, [`crate::shape`]), so the nodes that two
+//! ranks' particles share are the three layers about each cut: after a sum of particles onto
+//! the grid each pair of neighbours swaps those layers and adds ([`Sliced`]), and every node a
+//! rank's particles reach then holds the whole sum. The grid's work is node by node, so each
+//! rank then does it on its own nodes, and the nodes they share come out the same bits on
+//! both (a + b and b + a round alike).
+//!
+//! The exchange is exact only while no node is reached by three ranks, so a slab is at least
+//! [`MIN_WIDTH`] layers wide. After the move each particle goes to the rank of the slab it is
+//! in now ([`Migration`]), and every [`REBALANCE_EVERY`] steps the ranks cut again where the
+//! largest share has drifted more than a tenth above the mean and new cuts would lower it by
+//! a twentieth of the mean ([`Decomposition::rebalanced`]).
+//!
+//! Written by hand: the exchange is the distributed run's heart and follows pmpm's node
+//! numbering and its per-thread bands of sums; a general partitioner (ParMETIS, Zoltan) would
+//! cut a graph pmpm does not hold.
+
+use crate::comm::Comm;
+use crate::grid::GridGeometry;
+use crate::particles::{FlatParticles, Particles};
+use crate::shape::PAD;
+use serde::{Deserialize, Serialize};
+use std::sync::{Arc, Mutex};
+
+/// Node layers below a particle's cell layer that its stencil reaches.
+const BELOW: usize = 1;
+/// Node layers above a particle's cell layer that its stencil reaches.
+const ABOVE: usize = 2;
+/// The fewest cell layers a slab may have: fewer, and a node could be reached by three ranks.
+pub const MIN_WIDTH: usize = BELOW + ABOVE;
+/// Steps between the checks of the ranks' balance.
+pub const REBALANCE_EVERY: u64 = 10;
+/// The drift of the largest share above the mean that a check lets pass.
+pub const DRIFT: f64 = 0.1;
+
+/// Where the grid is cut: the axis, and the padded cell layers each rank holds (rank r holds
+/// layers `cuts[r]..cuts[r + 1]`; the first and last slabs hold the ghost layers too).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Decomposition {
+    /// The axis the slabs are cut along.
+    pub axis: usize,
+    /// The slabs' bounds, one more than the ranks.
+    pub cuts: Vec<usize>,
+}
+
+impl Decomposition {
+    /// How many ranks it is cut for.
+    pub fn ranks(&self) -> usize {
+        self.cuts.len() - 1
+    }
+
+    /// Whether these are cuts of `geo` for `ranks` ranks (a checkpoint's, read back).
+    pub fn fits<const D: usize>(&self, geo: &GridGeometry<D>, ranks: usize) -> bool {
+        self.axis < D
+            && !geo.periodic[self.axis]
+            && self.cuts.len() == ranks + 1
+            && self.cuts.first() == Some(&0)
+            && self.cuts.last() == Some(&geo.nodes[self.axis])
+            && self.cuts.windows(2).all(|w| w[1] >= w[0] + MIN_WIDTH)
+    }
+
+    /// The rank whose slab holds padded cell layer `layer`.
+    #[inline]
+    pub fn owner(&self, layer: usize) -> usize {
+        let r = self.cuts.partition_point(|&c| c <= layer);
+        r.clamp(1, self.ranks()) - 1
+    }
+
+    /// The rank whose slab holds the point `x`.
+    #[inline]
+    pub fn owner_of<const D: usize>(
+        &self,
+        geo: &GridGeometry<D>,
+        x: &crate::grid::Vector<D>,
+    ) -> usize {
+        self.owner(layer_of(geo, self.axis, x))
+    }
+
+    /// The best cut of the particles counted in `counts` (per axis, per padded cell layer)
+    /// for `ranks` ranks: along the axis, not periodic, whose largest share is least (the
+    /// lower axis where two tie); `None` where no axis has room for `ranks` slabs.
+    pub fn plan<const D: usize>(
+        geo: &GridGeometry<D>,
+        counts: &Counts,
+        ranks: usize,
+    ) -> Option<Self> {
+        (0..D)
+            .filter(|&a| !geo.periodic[a])
+            .filter_map(|axis| {
+                let cuts = cut(counts.axis(axis), ranks)?;
+                let d = Self { axis, cuts };
+                Some((d.largest_share(counts), d))
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, d)| d)
+    }
+
+    /// The new cuts where the largest share of `counts` has drifted more than [`DRIFT`]
+    /// above the mean and new cuts lower it by half as much: along the same axis where they can,
+    /// else the best cut ([`Decomposition::plan`]); `None` where these cuts stay.
+    pub fn rebalanced<const D: usize>(
+        &self,
+        geo: &GridGeometry<D>,
+        counts: &Counts,
+    ) -> Option<Self> {
+        let now = self.largest_share(counts);
+        let mean = counts.total() / self.ranks() as f64;
+        if now <= (1.0 + DRIFT) * mean {
+            return None;
+        }
+        let better = |d: &Self| d.largest_share(counts) <= now - 0.5 * DRIFT * mean;
+        // the same axis where it is cut well enough (fewer particles move), else the best
+        let along = cut(counts.axis(self.axis), self.ranks()).map(|cuts| Self {
+            axis: self.axis,
+            cuts,
+        });
+        along
+            .filter(better)
+            .or_else(|| Self::plan(geo, counts, self.ranks()).filter(better))
+    }
+
+    /// The most particles one slab holds.
+    fn largest_share(&self, counts: &Counts) -> f64 {
+        let c = counts.axis(self.axis);
+        self.cuts
+            .windows(2)
+            .map(|w| c[w[0]..w[1]].iter().sum::<f64>())
+            .fold(0.0, f64::max)
+    }
+
+    /// The nodes (flat) that rank `rank` shares with its lower and its upper neighbour: the
+    /// node layers c - 1 to c + 1 about each of its cuts c (empty at the grid's ends).
+    pub fn shared_nodes<const D: usize>(
+        &self,
+        geo: &GridGeometry<D>,
+        rank: usize,
+    ) -> [Vec<u32>; 2] {
+        let layers = |cut: usize| cut - BELOW..cut + ABOVE;
+        let nodes_in = |range: std::ops::Range<usize>| -> Vec<u32> {
+            (0..geo.node_count())
+                .filter(|&f| range.contains(&geo.multi(f)[self.axis]))
+                .map(|f| f as u32)
+                .collect()
+        };
+        let lower = (rank > 0).then(|| nodes_in(layers(self.cuts[rank])));
+        let upper = (rank + 1 < self.ranks()).then(|| nodes_in(layers(self.cuts[rank + 1])));
+        [lower.unwrap_or_default(), upper.unwrap_or_default()]
+    }
+}
+
+/// The cuts of `counts` (particles per layer) into `ranks` slabs of at least [`MIN_WIDTH`]
+/// layers, each cut at the layer boundary where the running count comes nearest its share of
+/// the total; `None` where the layers are too few.
+fn cut(counts: &[f64], ranks: usize) -> Option<Vec<usize>> {
+    let n = counts.len();
+    if n < ranks * MIN_WIDTH {
+        return None;
+    }
+    let total: f64 = counts.iter().sum();
+    let mut cuts = vec![0; ranks + 1];
+    cuts[ranks] = n;
+    let (mut layer, mut running) = (0, 0.0);
+    for r in 1..ranks {
+        let target = total * r as f64 / ranks as f64;
+        while layer < n && running < target {
+            running += counts[layer];
+            layer += 1;
+        }
+        // the nearer of the layers about the share's end
+        if layer > 0 && target - (running - counts[layer - 1]) < running - target {
+            layer -= 1;
+            running -= counts[layer];
+        }
+        let (least, most) = (cuts[r - 1] + MIN_WIDTH, n - (ranks - r) * MIN_WIDTH);
+        cuts[r] = layer.clamp(least, most);
+    }
+    Some(cuts)
+}
+
+/// The padded cell layer of `x` along `axis`, as [`GridGeometry::cell_of`] clamps it.
+#[inline]
+fn layer_of<const D: usize>(
+    geo: &GridGeometry<D>,
+    axis: usize,
+    x: &crate::grid::Vector<D>,
+) -> usize {
+    let c = ((x[axis] - geo.origin[axis]) / geo.h).floor() + PAD as f64;
+    (c.max(0.0) as usize).min(geo.nodes[axis] - 2)
+}
+
+/// Particles per padded cell layer along every axis, one after the other.
+#[derive(Debug, Clone, Default)]
+pub struct Counts {
+    values: Vec<f64>,
+    starts: Vec<usize>,
+}
+
+impl Counts {
+    /// The counts of the particles at `x`, summed over `comm`'s ranks.
+    pub fn of<const D: usize>(
+        &mut self,
+        comm: &dyn Comm,
+        geo: &GridGeometry<D>,
+        x: &[crate::grid::Vector<D>],
+    ) {
+        self.starts.clear();
+        let mut at = 0;
+        for d in 0..D {
+            self.starts.push(at);
+            at += geo.nodes[d];
+        }
+        self.starts.push(at);
+        self.values.clear();
+        self.values.resize(at, 0.0);
+        for x in x {
+            for d in 0..D {
+                self.values[self.starts[d] + layer_of(geo, d, x)] += 1.0;
+            }
+        }
+        comm.sum(&mut self.values);
+    }
+
+    fn axis(&self, d: usize) -> &[f64] {
+        &self.values[self.starts[d]..self.starts[d + 1]]
+    }
+
+    fn total(&self) -> f64 {
+        self.axis(0).iter().sum()
+    }
+}
+
+/// The ranks of a run whose grid is cut into slabs: every collective is `world`'s, and the
+/// sums onto the nodes ([`Comm::add_nodes`]) swap only the layers each pair of neighbours
+/// shares.
+pub struct Sliced {
+    world: Arc<dyn Comm>,
+    /// The nodes shared with the lower and the upper neighbour.
+    shared: [Vec<u32>; 2],
+    nodes: usize,
+    /// The swap's buffers (out, in), kept from step to step.
+    buffers: Mutex<(Vec<f64>, Vec<f64>)>,
+}
+
+impl Sliced {
+    /// `world`'s ranks with the grid `geo` cut as `d` says.
+    pub fn new<const D: usize>(
+        world: Arc<dyn Comm>,
+        geo: &GridGeometry<D>,
+        d: &Decomposition,
+    ) -> Self {
+        Self {
+            shared: d.shared_nodes(geo, world.rank()),
+            world,
+            nodes: geo.node_count(),
+            buffers: Mutex::new((Vec::new(), Vec::new())),
+        }
+    }
+}
+
+impl Comm for Sliced {
+    fn rank(&self) -> usize {
+        self.world.rank()
+    }
+    fn size(&self) -> usize {
+        self.world.size()
+    }
+    fn sum(&self, values: &mut [f64]) {
+        self.world.sum(values)
+    }
+    fn sum_all(&self, arrays: &mut [&mut [f64]]) {
+        self.world.sum_all(arrays)
+    }
+    fn max(&self, values: &mut [f64]) {
+        self.world.max(values)
+    }
+    fn min(&self, values: &mut [f64]) {
+        self.world.min(values)
+    }
+    fn gather(&self, bytes: &[u8]) -> Vec<Vec<u8>> {
+        self.world.gather(bytes)
+    }
+    fn broadcast(&self, bytes: &mut Vec<u8>) {
+        self.world.broadcast(bytes)
+    }
+    fn swap(&self, peer: usize, send: &[f64], recv: &mut [f64]) {
+        self.world.swap(peer, send, recv)
+    }
+    fn exchange(
+        &self,
+        send: &[u8],
+        counts: &[usize],
+        recv: &mut Vec<u8>,
+        recv_counts: &mut Vec<usize>,
+    ) {
+        self.world.exchange(send, counts, recv, recv_counts)
+    }
+
+    /// Two rounds of swaps, so that no rank waits on a chain: first the pairs (0, 1), (2, 3),
+    /// ..., then (1, 2), (3, 4), ...; each rank adds its neighbour's sums to its own on the
+    /// layers they share.
+    fn add_nodes(&self, arrays: &mut [&mut [f64]]) {
+        let (rank, size) = (self.rank(), self.size());
+        let mut guard = self.buffers.lock().unwrap_or_else(|e| e.into_inner());
+        let (out, into) = &mut *guard;
+        for round in 0..2 {
+            // the upper neighbour in the even ranks' first round and the odd ranks' second
+            let upper = (rank % 2 == 0) == (round == 0);
+            let Some(peer) = (if upper {
+                rank.checked_add(1).filter(|&p| p < size)
+            } else {
+                rank.checked_sub(1)
+            }) else {
+                continue;
+            };
+            let shared = &self.shared[usize::from(upper)];
+            out.clear();
+            for a in arrays.iter() {
+                let k = a.len() / self.nodes;
+                for &i in shared {
+                    out.extend_from_slice(&a[i as usize * k..(i as usize + 1) * k]);
+                }
+            }
+            into.resize(out.len(), 0.0);
+            self.world.swap(peer, out, into);
+            let mut at = 0;
+            for a in arrays.iter_mut() {
+                let k = a.len() / self.nodes;
+                for &i in shared {
+                    for v in &mut a[i as usize * k..(i as usize + 1) * k] {
+                        let theirs = into[at];
+                        if theirs != 0.0 {
+                            *v += theirs;
+                        }
+                        at += 1;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The particles that left a rank's slab, sent to the ranks that hold them now; its buffers
+/// are kept from step to step.
+#[derive(Debug, Default)]
+pub struct Migration {
+    staying: Vec<u32>,
+    leaving: Vec<Vec<u32>>,
+    send: Vec<u8>,
+    counts: Vec<usize>,
+    recv: Vec<u8>,
+    recv_counts: Vec<usize>,
+}
+
+impl Migration {
+    /// Sends every particle of `ps` outside this rank's slab of `d` to the rank whose slab
+    /// holds it, and takes in those the others send: the particles that stay keep their order,
+    /// and those that arrive follow in the senders' rank order (a fixed order for a given rank
+    /// count). Whether any particle moved, on any rank.
+    pub fn run<const D: usize>(
+        &mut self,
+        comm: &dyn Comm,
+        geo: &GridGeometry<D>,
+        d: &Decomposition,
+        ps: &mut Particles<D>,
+    ) -> bool {
+        let (rank, size) = (comm.rank(), comm.size());
+        self.staying.clear();
+        self.leaving.resize(size, Vec::new());
+        for l in &mut self.leaving {
+            l.clear();
+        }
+        for (p, x) in ps.x.iter().enumerate() {
+            match d.owner_of(geo, x) {
+                r if r == rank => self.staying.push(p as u32),
+                r => self.leaving[r].push(p as u32),
+            }
+        }
+        let moving = ps.len() - self.staying.len();
+        if !comm.any(moving > 0) {
+            return false;
+        }
+        self.send.clear();
+        self.counts.clear();
+        for l in &self.leaving {
+            let before = self.send.len();
+            if !l.is_empty() {
+                let flat = ps.pick(l).flatten();
+                self.send
+                    .extend(postcard::to_stdvec(&flat).expect("plain numbers serialise"));
+            }
+            self.counts.push(self.send.len() - before);
+        }
+        comm.exchange(
+            &self.send,
+            &self.counts,
+            &mut self.recv,
+            &mut self.recv_counts,
+        );
+        if moving > 0 {
+            ps.keep(&self.staying);
+        }
+        let mut at = 0;
+        for &n in &self.recv_counts {
+            if n > 0 {
+                let flat: FlatParticles<D> = postcard::from_bytes(&self.recv[at..at + n])
+                    .expect("the bytes of particles, as a rank of this run wrote them");
+                let mut more = Particles::unflatten(&flat);
+                more.stored = ps.stored;
+                ps.append(&mut more);
+            }
+            at += n;
+        }
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Vector;
+
+    #[test]
+    fn cuts_share_the_particles_and_keep_the_least_width() {
+        // particles in layers 10..30 of 50
+        let mut counts = vec![0.0; 50];
+        for c in &mut counts[10..30] {
+            *c = 5.0;
+        }
+        let cuts = cut(&counts, 4).unwrap();
+        assert_eq!(cuts, vec![0, 15, 20, 25, 50]);
+        // all the particles in two layers: each slab still MIN_WIDTH wide
+        let mut narrow = vec![0.0; 20];
+        narrow[3] = 10.0;
+        narrow[4] = 10.0;
+        let cuts = cut(&narrow, 3).unwrap();
+        assert!(
+            cuts.windows(2).all(|w| w[1] - w[0] >= MIN_WIDTH),
+            "{cuts:?}"
+        );
+        assert!(cut(&narrow, 7).is_none());
+    }
+
+    #[test]
+    fn the_owner_of_a_layer_is_the_slab_that_holds_it() {
+        let d = Decomposition {
+            axis: 0,
+            cuts: vec![0, 5, 9, 14],
+        };
+        let owners: Vec<usize> = (0..14).map(|l| d.owner(l)).collect();
+        assert_eq!(owners, [0, 0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 2]);
+    }
+
+    #[test]
+    fn the_plan_cuts_the_long_way_and_rebalances_only_past_the_drift() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 0.1, [40, 10]);
+        let x: Vec<Vector<2>> = (0..400)
+            .map(|k| Vector::<2>::new(0.05 + 0.1 * (k % 40) as f64, 0.05 + 0.1 * (k / 40) as f64))
+            .collect();
+        let mut counts = Counts::default();
+        counts.of(&*crate::comm::serial(), &geo, &x);
+        let d = Decomposition::plan(&geo, &counts, 4).unwrap();
+        assert_eq!(d.axis, 0);
+        assert_eq!(d.largest_share(&counts), 100.0);
+        assert!(d.rebalanced(&geo, &counts).is_none());
+        // everything moved into the first quarter: cut again
+        let x: Vec<Vector<2>> = x
+            .iter()
+            .map(|x| Vector::<2>::new(x[0] / 4.0, x[1]))
+            .collect();
+        counts.of(&*crate::comm::serial(), &geo, &x);
+        let again = d.rebalanced(&geo, &counts).unwrap();
+        assert!(again.largest_share(&counts) < 0.9 * d.largest_share(&counts));
+    }
+
+    #[test]
+    fn every_stencil_node_lies_within_the_reach_of_its_cell() {
+        use crate::shape::{ShapeFunction, Stencil};
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [8, 8]);
+        for shape in [
+            ShapeFunction::Linear,
+            ShapeFunction::Gimp,
+            ShapeFunction::Bspline2,
+            ShapeFunction::Bspline3,
+        ] {
+            for k in 0..200 {
+                let x = Vector::<2>::new(0.01 + k as f64 * 0.0399, 3.3);
+                let c = layer_of(&geo, 0, &x);
+                let st = Stencil::<2>::new(shape, &geo.to_cells(&x), geo.h, 0.5);
+                st.for_each(|nw| {
+                    assert!(
+                        nw.node[0] + BELOW >= c && nw.node[0] <= c + ABOVE,
+                        "{shape:?} at {x:?}"
+                    );
+                });
+            }
+        }
+    }
+}
