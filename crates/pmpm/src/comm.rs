@@ -47,6 +47,10 @@ pub trait Comm: Send + Sync {
     /// Sends `send` to rank `peer` and receives as many values from it into `recv` (both
     /// ranks call it with each other as `peer`).
     fn swap(&self, peer: usize, send: &[f64], recv: &mut [f64]);
+    /// Sends `bytes` to rank `to`, which takes them with [`Comm::receive_bytes`].
+    fn send_bytes(&self, to: usize, bytes: &[u8]);
+    /// The bytes rank `from` sends this one with [`Comm::send_bytes`].
+    fn receive_bytes(&self, from: usize) -> Vec<u8>;
     /// Sends `send[at..at + counts[r]]` to each rank r (its pieces in rank order) and
     /// receives what each rank sends this one into `recv`, in rank order, with their lengths
     /// in `recv_counts`: an all-to-all of bytes.
@@ -135,6 +139,11 @@ impl Comm for Serial {
     fn broadcast(&self, _: &mut Vec<u8>) {}
     fn swap(&self, _: usize, send: &[f64], recv: &mut [f64]) {
         recv.copy_from_slice(send);
+    }
+    // (one process has no other rank to send to or receive from)
+    fn send_bytes(&self, _: usize, _: &[u8]) {}
+    fn receive_bytes(&self, _: usize) -> Vec<u8> {
+        Vec::new()
     }
     fn exchange(&self, send: &[u8], _: &[usize], recv: &mut Vec<u8>, recv_counts: &mut Vec<usize>) {
         recv.clear();
@@ -339,6 +348,15 @@ mod mpi_comm {
             root.broadcast_into(&mut n);
             bytes.resize(n as usize, 0);
             root.broadcast_into(&mut bytes[..]);
+        }
+        fn send_bytes(&self, to: usize, bytes: &[u8]) {
+            self.world.process_at_rank(to as i32).send(bytes);
+        }
+        fn receive_bytes(&self, from: usize) -> Vec<u8> {
+            self.world
+                .process_at_rank(from as i32)
+                .receive_vec::<u8>()
+                .0
         }
         fn swap(&self, peer: usize, send: &[f64], recv: &mut [f64]) {
             let peer = self.world.process_at_rank(peer as i32);

@@ -50,7 +50,7 @@ pub fn check<const D: usize>(sim: &Simulation<D>, size: usize) -> Result<(), Err
 
 /// Shares the particles of `sim` out among `comm`'s ranks and makes `sim` a rank of a
 /// distributed run ([`check`] first): each rank keeps the particles of its slab
-/// ([`slabs_for`]), or without slabs an equal contiguous share in cell order. A `fresh`
+/// (`slabs_for`), or without slabs an equal contiguous share in cell order. A `fresh`
 /// run's particles are put in cell order first; a resumed run's are kept in the order its
 /// checkpoint holds them (rank 0's, then rank 1's, ...), so that on the same number of ranks,
 /// cut where the checkpoint says, each rank takes back the particles it had, in their order,
@@ -112,6 +112,8 @@ fn slabs_for<const D: usize>(sim: &Simulation<D>, size: usize) -> Option<Decompo
 /// Runs `write` on rank 0, and where it reads the particles (`due`) with every rank's
 /// particles in `sim` (in rank order) and the run on one process ([`comm::Serial`]), then
 /// gives rank 0 its own particles and the ranks back; on the other ranks `write` is not run.
+/// Each rank sends its particles to rank 0 in one message, and rank 0 appends them to its
+/// own one rank at a time, so that beside every particle it holds one rank's bytes at most.
 /// Every rank calls it at the same point of the run, with the same `due`. Rank 0's result is
 /// every rank's: a write that failed there stops them all.
 pub fn gathered<const D: usize>(
@@ -135,39 +137,47 @@ pub fn gathered<const D: usize>(
         };
         return agree_on_root(&*comm, result);
     }
-    let mine = postcard::to_stdvec(&sim.particles.flatten())
-        .expect("the particles' flat form serialises: plain numbers and vectors");
-    // one gather moves at most 2 GiB (MPI's counts are 32-bit): refused on every rank alike
-    let total = comm.sum_scalar(mine.len() as f64);
-    if total > i32::MAX as f64 {
+    // one message carries at most 2 GiB (MPI's counts are 32-bit): refused on every rank alike
+    let mine = (!comm.is_root()).then(|| {
+        postcard::to_stdvec(&sim.particles.flat_view())
+            .expect("the particles' flat form serialises: plain numbers and vectors")
+    });
+    let own = sim.particles.len();
+    let total = comm.sum_scalar(own as f64) as usize;
+    let largest = comm.max_scalar(mine.as_ref().map_or(0, Vec::len) as f64);
+    if largest > i32::MAX as f64 {
         return Err(Error::Usage(format!(
-            "the particles are {:.1} GB in all, more than rank 0 can gather in one piece (2 GiB) \
+            "a rank's particles are {:.1} GB, more than it can send rank 0 in one piece (2 GiB) \
              to write a frame or a checkpoint in this stage of the distributed run \
-             (docs/distributed.md): run fewer particles over ranks, or on one process",
-            total / 1e9
+             (docs/distributed.md): run them over more ranks",
+            largest / 1e9
         )));
     }
-    let pieces = comm.gather(&mine);
-    if comm.is_root() {
-        let mut all = Particles::<D> {
-            stored: sim.particles.stored,
-            ..Particles::default()
-        };
-        for piece in &pieces {
-            let flat: FlatParticles<D> = postcard::from_bytes(piece)
-                .expect("the bytes of a rank's particles, as that rank wrote them");
-            let mut piece = Particles::unflatten(&flat);
-            piece.stored = all.stored;
-            all.append(&mut piece);
-        }
-        let own = std::mem::replace(&mut sim.particles, all);
-        sim.set_comm(comm::serial());
-        let result = write(sim);
-        sim.set_comm(comm.clone());
-        sim.particles = own;
-        return agree_on_root(&*comm, result);
+    if let Some(mine) = mine {
+        comm.send_bytes(0, &mine);
+        return agree_on_root(&*comm, Ok(()));
     }
-    agree_on_root(&*comm, Ok(()))
+    // rank 0: its own particles first, then each rank's as it arrives (one rank's bytes held
+    // at a time), into arrays sized once for all of them
+    sim.particles.reserve(total - own);
+    for rank in 1..comm.size() {
+        let bytes = comm.receive_bytes(rank);
+        let flat: FlatParticles<D> = postcard::from_bytes(&bytes)
+            .expect("the bytes of a rank's particles, as that rank wrote them");
+        drop(bytes);
+        let mut piece = Particles::unflatten(&flat);
+        drop(flat);
+        piece.stored = sim.particles.stored;
+        sim.particles.append(&mut piece);
+    }
+    sim.set_comm(comm::serial());
+    let result = write(sim);
+    sim.set_comm(comm.clone());
+    // the writers read the particles and keep their order: rank 0's own are the first
+    debug_assert_eq!(sim.particles.len(), total, "the writers keep the particles");
+    sim.particles.truncate(own);
+    sim.particles.shrink_to_fit();
+    agree_on_root(&*comm, result)
 }
 
 /// Rank 0's `result` on every rank, with its exit status (what the others pass is not read:

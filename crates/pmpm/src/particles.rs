@@ -178,6 +178,18 @@ macro_rules! particle_fields {
                 }
             }
 
+            /// Keeps the first `n` particles.
+            pub fn truncate(&mut self, n: usize) {
+                $(self.$name.truncate(n);)+
+            }
+
+            /// Room for `extra` more particles in every array the run stores.
+            pub fn reserve(&mut self, extra: usize) {
+                $(if !self.$name.is_empty() {
+                    self.$name.reserve_exact(extra);
+                })+
+            }
+
             fn append_fields(&mut self, other: &mut Self) {
                 $(self.$name.append(&mut other.$name);)+
             }

@@ -292,6 +292,12 @@ impl Comm for Sliced {
     fn swap(&self, peer: usize, send: &[f64], recv: &mut [f64]) {
         self.world.swap(peer, send, recv)
     }
+    fn send_bytes(&self, to: usize, bytes: &[u8]) {
+        self.world.send_bytes(to, bytes)
+    }
+    fn receive_bytes(&self, from: usize) -> Vec<u8> {
+        self.world.receive_bytes(from)
+    }
     fn exchange(
         &self,
         send: &[u8],
