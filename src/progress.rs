@@ -104,6 +104,16 @@ impl Progress {
 }
 
 impl Observer for Progress {
+    fn spread(&mut self, how: &str) {
+        if self.quiet {
+            return;
+        }
+        match &self.bar {
+            Some(bar) => bar.println(format!("pmpm: {how}")),
+            None => eprintln!("pmpm: {how}"),
+        }
+    }
+
     fn started(&mut self, s: &Status) {
         use std::io::IsTerminal;
         if !self.quiet {

@@ -109,6 +109,42 @@ fn slabs_for<const D: usize>(sim: &Simulation<D>, size: usize) -> Option<Decompo
     Decomposition::plan(geo, &counts, size)
 }
 
+/// How `sim`'s run is spread over its ranks, in words (for the line a run starts with);
+/// `None` on one process.
+pub fn describe<const D: usize>(sim: &Simulation<D>) -> Option<String> {
+    let ranks = sim.comm.size();
+    if ranks < 2 {
+        return None;
+    }
+    Some(match &sim.decomposition {
+        Some(d) => {
+            let geo = &sim.grid.geo;
+            let at: Vec<String> = d.cuts[1..ranks]
+                .iter()
+                .map(|&c| {
+                    let x = geo.origin[d.axis] + (c as f64 - crate::shape::PAD as f64) * geo.h;
+                    format!("{x:.4}")
+                })
+                .collect();
+            format!(
+                "over {ranks} MPI ranks: the grid in slabs along {}, cut at {} = {} m \
+                 (cut again as the particles move)",
+                AXES[d.axis],
+                AXES[d.axis],
+                at.join(", ")
+            )
+        }
+        None => format!(
+            "over {ranks} MPI ranks: the whole grid on each (it has fewer than {} cell layers a \
+             rank along every axis that is not periodic)",
+            crate::slabs::MIN_WIDTH
+        ),
+    })
+}
+
+/// The axes' names.
+const AXES: [&str; 3] = ["x", "y", "z"];
+
 /// Runs `write` on rank 0, and where it reads the particles (`due`) with every rank's
 /// particles in `sim` (in rank order) and the run on one process ([`comm::Serial`]), then
 /// gives rank 0 its own particles and the ranks back; on the other ranks `write` is not run.

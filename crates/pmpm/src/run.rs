@@ -63,6 +63,9 @@ pub struct Status {
 pub trait Observer {
     /// Once, before the first step.
     fn started(&mut self, _status: &Status) {}
+    /// Once, after [`Observer::started`], for a run over MPI ranks: how it is spread over
+    /// them, in words.
+    fn spread(&mut self, _how: &str) {}
     /// After every step.
     fn stepped(&mut self, _status: &Status) {}
     /// After every frame written after a step.
@@ -184,12 +187,16 @@ fn run_dim<const D: usize>(
         }
         None => Driver::new(clock),
     };
-    if let Some(w) = &mut w {
-        // (before the particles are shared out: the count is the run's)
-        observer.started(&w.status(&sim, 0.0, 0.0));
+    // (before the particles are shared out: the count is the run's)
+    let started = w.as_ref().map(|w| w.status(&sim, 0.0, 0.0));
+    crate::distributed::distribute(&mut sim, comm.clone(), opts.resume.is_none())?;
+    if let (Some(w), Some(status)) = (&mut w, started) {
+        observer.started(&status);
+        if let Some(how) = crate::distributed::describe(&sim) {
+            observer.spread(&how);
+        }
         w.driver.next_frame = driver.next_frame;
     }
-    crate::distributed::distribute(&mut sim, comm.clone(), opts.resume.is_none())?;
     let mut last_dt = 0.0;
     sim.timers.lap(Phase::Other);
     let result = loop {
