@@ -183,19 +183,7 @@ fn a_rank_count_repeats_bit_for_bit_and_resumes_bit_for_bit() {
     for ranks in [2, 3] {
         let _ = std::fs::remove_dir_all(&copy);
         copy_dir(&cut, &copy);
-        let o = run_on(
-            ranks,
-            &[
-                "run",
-                long.to_str().unwrap(),
-                "-q",
-                "-o",
-                copy.to_str().unwrap(),
-                "--resume",
-                copy.join("checkpoint.bin").to_str().unwrap(),
-            ],
-        );
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        resume(ranks, &long, &copy);
         if ranks == 2 {
             assert_eq!(
                 std::fs::read(copy.join(&frame)).unwrap(),
@@ -223,23 +211,28 @@ fn particles_that_cross_into_another_slab_and_new_cuts_keep_the_agreement() {
     // stopped at 0.06 s, after the new cuts, and resumed on 2 ranks: bit for bit
     let short = deck_named("dam_break_2d_explicit", 0.06, 0.02, &dir, "short");
     let cut = run(2, &short, &dir, "cut");
+    resume(2, &deck, &cut);
+    assert!(
+        std::fs::read(cut.join(&frame)).unwrap() == std::fs::read(two.join(&frame)).unwrap(),
+        "resumed on 2 ranks after new cuts: the last frame differs from the run never stopped"
+    );
+}
+
+/// Resumes the run in `out` from its checkpoint with `deck` on `ranks` ranks; it must succeed.
+fn resume(ranks: usize, deck: &Path, out: &Path) {
     let o = run_on(
-        2,
+        ranks,
         &[
             "run",
             deck.to_str().unwrap(),
             "-q",
             "-o",
-            cut.to_str().unwrap(),
+            out.to_str().unwrap(),
             "--resume",
-            cut.join("checkpoint.bin").to_str().unwrap(),
+            out.join("checkpoint.bin").to_str().unwrap(),
         ],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(
-        std::fs::read(cut.join(&frame)).unwrap() == std::fs::read(two.join(&frame)).unwrap(),
-        "resumed on 2 ranks after new cuts: the last frame differs from the run never stopped"
-    );
 }
 
 /// Copies a run's directory (files and the frames folder).
