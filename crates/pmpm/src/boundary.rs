@@ -354,6 +354,15 @@ impl<const D: usize> Boundary<D> {
         }
     }
 
+    /// The fastest node on a wall face (m/s) in `v`: the scale of what counts as round-off in
+    /// [`Boundary::settle_contacts`].
+    pub fn face_speed(&self, v: &[Vector<D>]) -> f64 {
+        self.face_node
+            .iter()
+            .map(|&j| v[j].norm())
+            .fold(0.0, f64::max)
+    }
+
     /// Decides which face nodes the walls hold this step, from the node velocities `v` (v^n,
     /// then v* of the step, before any condition holds them) and, under the projection, the
     /// last solve's node pressure. A wall's contact is a complementarity condition
@@ -372,9 +381,12 @@ impl<const D: usize> Boundary<D> {
     /// its weight on the side walls) is held exactly as before; water under a lid (v* = g dt
     /// away from it, the lid's tension in the last solve) falls from it as free water. Without `pressure` (the explicit scheme, whose v*
     /// carries the stress already) the velocity alone decides. Inflow patches always hold.
+    ///
+    /// `speed` is the fastest face node's ([`Boundary::face_speed`], over every rank).
     pub fn settle_contacts(
         &mut self,
         v: &[Vector<D>],
+        speed: f64,
         pressure: Option<&[f64]>,
         leaving: Option<Leaving>,
     ) {
@@ -386,11 +398,6 @@ impl<const D: usize> Boundary<D> {
         // a node leaves its wall only by more than round-off: the transfers leave 1e-12 of the
         // flow's speed on a wall node's normal, and a channel or a filled box released by it
         // grew a cross flow
-        let speed = self
-            .face_node
-            .iter()
-            .map(|&j| v[j].norm())
-            .fold(0.0, f64::max);
         let floor = SEPARATION_FLOOR * speed;
         for (k, &(_, f)) in self.nodes.iter().enumerate() {
             let wall = self.faces[f].0;

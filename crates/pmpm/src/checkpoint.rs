@@ -472,7 +472,8 @@ fn trailer(path: &Path, deck: &Deck, rest: &[u8]) -> Result<Trailer, Error> {
     if !(rest.is_empty() && wall_seconds.is_finite() && wall_seconds >= 0.0) {
         return Err(refuse(
             path,
-            "it holds state of open boundaries or free rigid bodies the deck has none for",
+            "it holds state of open boundaries or free rigid bodies the deck has none for, or is \
+             damaged after its sections (it may come from a newer pmpm)",
         ));
     }
     Ok(Trailer {

@@ -286,7 +286,7 @@ impl<const D: usize> Simulation<D> {
             self.sort_particles();
         }
         // 0b. over ranks, the slabs cut again where the particles' shares drifted apart
-        self.rebalance();
+        self.rebalance()?;
         self.timers.lap(Phase::Sort);
         // 1. particles -> grid: mass, momentum, internal and body forces (and probe samples)
         self.particles_to_grid();
@@ -307,7 +307,7 @@ impl<const D: usize> Simulation<D> {
         // 4. grid -> particles (PIC / FLIP / APIC) and move
         self.grid_to_particles(dt)?;
         // 4b. over ranks, the particles the move took into another rank's slab go to it
-        self.migrate();
+        self.migrate()?;
         self.timers.lap(Phase::G2p);
         // 5. strain rate, deviatoric stress, F, J (and p = K (1 - J) for the explicit scheme)
         self.update_materials(dt);
@@ -356,32 +356,36 @@ impl<const D: usize> Simulation<D> {
     }
 
     /// Step 4b: the particles outside this rank's slab sent to the ranks whose slabs hold them.
-    pub fn migrate(&mut self) {
+    pub fn migrate(&mut self) -> Result<(), Error> {
         let (Some(d), Some(s)) = (&self.decomposition, &mut self.slabs) else {
-            return;
+            return Ok(());
         };
-        if s.migration
+        let moved = s
+            .migration
             .run(&*self.comm, &self.grid.geo, d, &mut self.particles)
-        {
+            .map_err(|why| Error::Usage(format!("run stopped at step {}: {why}", self.steps)))?;
+        if moved {
             self.fit_particle_arrays();
         }
+        Ok(())
     }
 
     /// Step 0b: every [`crate::slabs::REBALANCE_EVERY`] steps, new cuts where the largest
     /// share of the particles drifted above the mean ([`crate::slabs::Decomposition::rebalanced`]).
-    fn rebalance(&mut self) {
+    fn rebalance(&mut self) -> Result<(), Error> {
         if self.steps % crate::slabs::REBALANCE_EVERY != 0 {
-            return;
+            return Ok(());
         }
         let (Some(d), Some(s)) = (&self.decomposition, &mut self.slabs) else {
-            return;
+            return Ok(());
         };
         s.counts.of(&*self.comm, &self.grid.geo, &self.particles.x);
         if let Some(new) = d.rebalanced(&self.grid.geo, &s.counts) {
             let world = s.world.clone();
             self.cut_into_slabs(world, new);
-            self.migrate();
+            self.migrate()?;
         }
+        Ok(())
     }
 
     /// The first setting that a run over several ranks does not
@@ -475,10 +479,14 @@ impl<const D: usize> Simulation<D> {
             };
             (&self.grid.velocity, Some(leaving))
         };
+        // (over ranks the fastest on any: a node no particle of a rank reaches reads 0 there)
+        let speed = self.comm.max_scalar(self.boundary.face_speed(v));
         match &self.stepper {
-            Stepper::Explicit(_) => self.boundary.settle_contacts(v, None, None),
+            Stepper::Explicit(_) => self.boundary.settle_contacts(v, speed, None, None),
             Stepper::Projection(p) => match p.wall_pressure(self.grid.geo.node_count()) {
-                Some(pressure) => self.boundary.settle_contacts(v, Some(pressure), leaving),
+                Some(pressure) => self
+                    .boundary
+                    .settle_contacts(v, speed, Some(pressure), leaving),
                 None => self.boundary.hold_all(),
             },
         }

@@ -1233,7 +1233,7 @@ impl<const D: usize> RigidBodies<D> {
                 self.free_torque[b] += m;
             }
         }
-        if self.owned_layers.is_some() {
+        if self.sliced() {
             self.comm.sum_all(&mut [
                 bytemuck::cast_slice_mut(&mut self.free_momentum),
                 bytemuck::cast_slice_mut(&mut self.free_torque),
@@ -1246,9 +1246,18 @@ impl<const D: usize> RigidBodies<D> {
     /// particles there are whole on it: [`crate::slabs`]).
     #[inline]
     fn owns(&self, i: usize, geo: &GridGeometry<D>) -> bool {
-        self.owned_layers
-            .as_ref()
-            .is_none_or(|(axis, layers)| layers.contains(&geo.multi(i)[*axis]))
+        match &self.owned_layers {
+            Some((axis, layers)) if self.comm.is_distributed() => {
+                layers.contains(&geo.multi(i)[*axis])
+            }
+            _ => true,
+        }
+    }
+
+    /// Whether this is a rank of a run with the grid in slabs (not rank 0 writing on its own,
+    /// with every particle, between steps).
+    fn sliced(&self) -> bool {
+        self.owned_layers.is_some() && self.comm.is_distributed()
     }
 
     /// The arm from shaped body `b`'s reference point to node `i`.
@@ -1411,7 +1420,7 @@ impl<const D: usize> RigidBodies<D> {
     /// projection the pressure's force on the bodies' nodes is added in the weak form (see
     /// [`PressureForce`]).
     fn measure(&mut self, grid: &Grid<D>, dt: f64, pressure: PressureForce<'_, D>) {
-        let sliced = self.owned_layers.is_some();
+        let sliced = self.sliced();
         self.start_node_sums(sliced);
         for (k, &(i, b, h)) in self.nodes.iter().enumerate() {
             if !self.owns(i, &grid.geo) {
