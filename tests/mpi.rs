@@ -199,8 +199,8 @@ fn a_rank_count_repeats_bit_for_bit_and_resumes_bit_for_bit() {
 
 #[test]
 fn particles_that_cross_into_another_slab_and_new_cuts_keep_the_agreement() {
-    // to 0.1 s the front moves 0.1 m: thousands of particles cross the first cut and the
-    // ranks cut again (the first time at step 730 of 1,393, as measured)
+    // to 0.1 s the column falls and the front moves 0.1 m: particles cross the first cut and
+    // the ranks cut again (at steps 510, 750, 950 and 1,140 of 1,393, as measured)
     let dir = scratch("slabs");
     let deck = deck("dam_break_2d_explicit", 0.1, 0.02, &dir);
     let one = run(0, &deck, &dir, "out");

@@ -3,8 +3,9 @@
 //! Along one axis the grid's cell layers are cut into as many slabs as the run has ranks,
 //! weighted by particles (a one-dimensional recursive bisection). Each rank holds the
 //! particles whose cells lie in its slab, and its node arrays hold values only where its own
-//! particles reach ([`crate::pages`] keeps the rest uncommitted, so a rank's grid memory
-//! follows its slab). A particle in padded cell layer c reaches node layers c - 1 to c + 2
+//! particles reach ([`crate::pages`] keeps the rest uncommitted: cut along the last axis, the
+//! slowest of the node numbering, a rank's grid memory follows its slab; cut along another,
+//! a slab touches a short run of every row, and so most pages). A particle in padded cell layer c reaches node layers c - 1 to c + 2
 //! along each axis (every shape function's stencil, [`crate::shape`]), so the nodes that two
 //! ranks' particles share are the three layers about each cut: after a sum of particles onto
 //! the grid each pair of neighbours swaps those layers and adds ([`Sliced`]), and every node a
@@ -84,21 +85,29 @@ impl Decomposition {
     }
 
     /// The best cut of the particles counted in `counts` (per axis, per padded cell layer)
-    /// for `ranks` ranks: along the axis, not periodic, whose largest share is least (the
-    /// lower axis where two tie); `None` where no axis has room for `ranks` slabs.
+    /// for `ranks` ranks: along the last axis, not periodic, whose largest share is within
+    /// half of [`DRIFT`] of the mean of the least; `None` where no axis has room for `ranks`
+    /// slabs.
     pub fn plan<const D: usize>(
         geo: &GridGeometry<D>,
         counts: &Counts,
         ranks: usize,
     ) -> Option<Self> {
-        (0..D)
+        let cuts: Vec<(f64, Self)> = (0..D)
             .filter(|&a| !geo.periodic[a])
             .filter_map(|axis| {
                 let cuts = cut(counts.axis(axis), ranks)?;
                 let d = Self { axis, cuts };
                 Some((d.largest_share(counts), d))
             })
-            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .collect();
+        let least = cuts.iter().map(|c| c.0).fold(f64::INFINITY, f64::min);
+        // the last axis where it shares nearly as well: a slab across the slowest axis of the
+        // node numbering is one run of memory, and only its pages are committed
+        let mean = counts.total() / ranks as f64;
+        cuts.into_iter()
+            .rev()
+            .find(|c| c.0 <= least + 0.5 * DRIFT * mean)
             .map(|(_, d)| d)
     }
 
@@ -368,14 +377,15 @@ impl Migration {
     /// Sends every particle of `ps` outside this rank's slab of `d` to the rank whose slab
     /// holds it, and takes in those the others send: the particles that stay keep their order,
     /// and those that arrive follow in the senders' rank order (a fixed order for a given rank
-    /// count). Whether any particle moved, on any rank.
+    /// count). Whether any particle moved, on any rank; an error (on every rank alike) where
+    /// one exchange cannot carry them.
     pub fn run<const D: usize>(
         &mut self,
         comm: &dyn Comm,
         geo: &GridGeometry<D>,
         d: &Decomposition,
         ps: &mut Particles<D>,
-    ) -> bool {
+    ) -> Result<bool, String> {
         let (rank, size) = (comm.rank(), comm.size());
         self.staying.clear();
         self.leaving.resize(size, Vec::new());
@@ -390,7 +400,7 @@ impl Migration {
         }
         let moving = ps.len() - self.staying.len();
         if !comm.any(moving > 0) {
-            return false;
+            return Ok(false);
         }
         self.send.clear();
         self.counts.clear();
@@ -402,6 +412,17 @@ impl Migration {
                     .extend(postcard::to_stdvec(&flat).expect("plain numbers serialise"));
             }
             self.counts.push(self.send.len() - before);
+        }
+        // MPI's counts are 32-bit: what a rank sends and receives in one step stays under
+        // 2 GiB (each rank sends at most `largest`, and receives from every other at most that)
+        let largest = comm.max_scalar(self.send.len() as f64);
+        if largest * (size - 1) as f64 > i32::MAX as f64 {
+            return Err(format!(
+                "the particles that crossed between ranks in one step are up to {:.1} GB a \
+                 rank, more than one exchange carries (2 GiB): run over more ranks, or with a \
+                 smaller step",
+                largest / 1e9
+            ));
         }
         comm.exchange(
             &self.send,
@@ -423,7 +444,7 @@ impl Migration {
             }
             at += n;
         }
-        true
+        Ok(true)
     }
 }
 
@@ -464,7 +485,7 @@ mod tests {
     }
 
     #[test]
-    fn the_plan_cuts_the_long_way_and_rebalances_only_past_the_drift() {
+    fn the_plan_cuts_where_it_shares_best_and_rebalances_only_past_the_drift() {
         let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 0.1, [40, 10]);
         let x: Vec<Vector<2>> = (0..400)
             .map(|k| Vector::<2>::new(0.05 + 0.1 * (k % 40) as f64, 0.05 + 0.1 * (k / 40) as f64))
@@ -483,6 +504,13 @@ mod tests {
         counts.of(&*crate::comm::serial(), &geo, &x);
         let again = d.rebalanced(&geo, &counts).unwrap();
         assert!(again.largest_share(&counts) < 0.9 * d.largest_share(&counts));
+        // shared as well along both axes: the last one, the slowest of the node numbering
+        let square = GridGeometry::<2>::new(Vector::<2>::zeros(), 0.1, [20, 20]);
+        let x: Vec<Vector<2>> = (0..400)
+            .map(|k| Vector::<2>::new(0.05 + 0.1 * (k % 20) as f64, 0.05 + 0.1 * (k / 20) as f64))
+            .collect();
+        counts.of(&*crate::comm::serial(), &square, &x);
+        assert_eq!(Decomposition::plan(&square, &counts, 4).unwrap().axis, 1);
     }
 
     #[test]
