@@ -168,9 +168,12 @@ fn run_dim<const D: usize>(
     }
     let clock = crate::build::clock(deck);
     let launch = launcher(&*comm);
-    // rank 0 writes; the directory's lock is held to the run's end, after the output is closed:
-    // a second run on it is refused
-    let (_lock, mut w) = open_on_root(deck, &mut sim, file, dir, opts, &clock, start, &*comm)?;
+    // rank 0 writes, and a fresh run's frame of t = 0 now, while it still holds every particle
+    // (they are shared out after); the directory's lock is held to the run's end, after the
+    // output is closed: a second run on it is refused
+    let (_lock, mut w) = open_on_root(&*comm, || {
+        Writing::open(deck, &mut sim, file, dir, opts, &clock, start)
+    })?;
     let mut driver = match &opts.resume {
         Some(path) => {
             // the other ranks read it too (on several machines, from a shared file system):
@@ -265,31 +268,15 @@ fn run_dim<const D: usize>(
     Ok(summary)
 }
 
-/// The run's output, opened on rank 0 ([`Writing::open`]; a resumed run reads its
-/// checkpoint into `sim` there); every rank learns whether it opened, and stops with rank
-/// 0's error where it did not. A fresh run's frame of t = 0 is written here too, while rank 0
-/// still holds every particle (they are shared out after).
-#[allow(clippy::too_many_arguments)]
-fn open_on_root<const D: usize>(
-    deck: &Deck,
-    sim: &mut Simulation<D>,
-    file: &str,
-    dir: &Path,
-    opts: &RunOptions,
-    clock: &Clock,
-    start: Instant,
+/// The run's output, opened on rank 0 by `open` ([`Writing::open`]; a resumed run reads its
+/// checkpoint there); every rank learns whether it opened, and stops with rank 0's error
+/// where it did not.
+fn open_on_root(
     comm: &dyn crate::comm::Comm,
+    open: impl FnOnce() -> Result<(crate::output::DirectoryLock, Writing), Error>,
 ) -> Result<(Option<crate::output::DirectoryLock>, Option<Writing>), Error> {
     let opened = if comm.is_root() {
-        Writing::open(deck, sim, file, dir, opts, clock, start).and_then(|(lock, mut w)| {
-            w.launch = launcher(comm);
-            if opts.resume.is_none() {
-                w.out
-                    .first_frame(sim)
-                    .map_err(|e| write_failure_hint(e, None, ""))?;
-            }
-            Ok((lock, w))
-        })
+        open()
     } else {
         Err(Error::Usage(String::new()))
     };
@@ -435,8 +422,9 @@ impl RoomGuard {
 }
 
 impl Writing {
-    /// Opens the run's output (a resumed run reads its checkpoint into `sim`) and sets the
-    /// clocks of frames and checkpoints from the deck's `clock`; the run began at `start`.
+    /// Opens the run's output (a resumed run reads its checkpoint into `sim`; a fresh run's
+    /// frame of t = 0 is written) and sets the clocks of frames and checkpoints from the
+    /// deck's `clock`; the run began at `start`.
     /// Returns the directory's lock first: bound in that order, the output is closed before
     /// the lock is released.
     fn open<const D: usize>(
@@ -456,7 +444,7 @@ impl Writing {
         let (out, driver, lock) =
             open_output(deck, sim, file, dir, opts, checkpoint_interval, eps)?;
         let wall_before = driver.wall_seconds;
-        let w = Writing {
+        let mut w = Writing {
             out,
             driver,
             checkpoint_path,
@@ -469,8 +457,16 @@ impl Writing {
             // a resumed run's last good state is the checkpoint it started from
             last_checkpoint: opts.resume.as_ref().map(|_| sim.time),
             room: RoomGuard::of(deck, sim),
-            launch: String::new(),
+            launch: opts
+                .ranks
+                .as_ref()
+                .map_or_else(String::new, |r| launcher(&**r)),
         };
+        if opts.resume.is_none() {
+            w.out
+                .first_frame(sim)
+                .map_err(|e| write_failure_hint(e, None, ""))?;
+        }
         Ok((lock, w))
     }
 

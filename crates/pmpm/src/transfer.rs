@@ -772,6 +772,16 @@ fn g2p_usl<const D: usize, const S: u8>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// P2G of `ps` with the settings' gravity and no stress, on one process.
+    fn p2g<const D: usize>(
+        ps: &Particles<D>,
+        grid: &mut Grid<D>,
+        scratch: &mut P2gScratch<D>,
+        s: &TransferSettings<D>,
+    ) {
+        particles_to_grid(ps, grid, scratch, s, (&[], None), &crate::comm::Serial);
+    }
     use crate::shape::PAD;
 
     fn settings<const D: usize>(shape: ShapeFunction, transfer: Transfer) -> TransferSettings<D> {
@@ -827,14 +837,7 @@ mod tests {
                 let mut scratch = P2gScratch::new(3);
                 let m_p: f64 = ps.mass.iter().sum();
                 let mom_p: Vector<D> = ps.v.iter().zip(&ps.mass).map(|(v, m)| v * *m).sum();
-                particles_to_grid(
-                    &ps,
-                    &mut grid,
-                    &mut scratch,
-                    &s,
-                    (&[], None),
-                    &crate::comm::Serial,
-                );
+                p2g(&ps, &mut grid, &mut scratch, &s);
                 let m_g: f64 = grid.mass.iter().sum();
                 let mom_g: Vector<D> = grid.momentum.iter().sum();
                 assert!((m_g - m_p).abs() < 1e-12 * m_p, "{shape:?} mass");
@@ -918,14 +921,7 @@ mod tests {
             );
         }
         let mut scratch = P2gScratch::new(2);
-        particles_to_grid(
-            &ps,
-            &mut grid,
-            &mut scratch,
-            &s,
-            (&[], None),
-            &crate::comm::Serial,
-        );
+        p2g(&ps, &mut grid, &mut scratch, &s);
         for f in 0..geo.node_count() {
             if grid.mass[f] > 0.0 {
                 let xi = geo.node_position(&geo.multi(f));
@@ -1031,14 +1027,7 @@ mod tests {
                 let mut ps = lattice();
                 let v0 = ps.v.clone();
                 let mut grid = Grid::new(geo.clone());
-                particles_to_grid(
-                    &ps,
-                    &mut grid,
-                    &mut P2gScratch::new(2),
-                    &s,
-                    (&[], None),
-                    &crate::comm::Serial,
-                );
+                p2g(&ps, &mut grid, &mut P2gScratch::new(2), &s);
                 grid.velocity_new.clone_from(&grid.velocity);
                 let mut adv = vec![Vector::<2>::zeros(); ps.len()];
                 grid_to_particles(&mut ps, &grid, &s, &mut adv);
@@ -1072,22 +1061,8 @@ mod tests {
         let mut g1 = Grid::new(geo.clone());
         let mut g2 = Grid::new(geo.clone());
         let mut scratch = P2gScratch::new(4);
-        particles_to_grid(
-            &ps,
-            &mut g1,
-            &mut scratch,
-            &s,
-            (&[], None),
-            &crate::comm::Serial,
-        );
-        particles_to_grid(
-            &ps,
-            &mut g2,
-            &mut scratch,
-            &s,
-            (&[], None),
-            &crate::comm::Serial,
-        );
+        p2g(&ps, &mut g1, &mut scratch, &s);
+        p2g(&ps, &mut g2, &mut scratch, &s);
         assert_eq!(g1.momentum, g2.momentum);
         assert_eq!(g1.force, g2.force);
     }
