@@ -100,7 +100,13 @@ fn table(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
 /// The largest difference in each column of two tables of the same shape, over its scale
 /// (the largest magnitude in the column, at least `floor`).
 fn relative_differences(a: &Path, b: &Path, floor: f64) -> Vec<(String, f64)> {
-    let ((header, ra), (_, rb)) = (table(a), table(b));
+    let ((header, mut ra), (_, mut rb)) = (table(a), table(b));
+    // a frame's rows by id (over ranks, each rank's rows in id order, rank after rank)
+    if let Some(id) = header.iter().position(|h| h == "id") {
+        for rows in [&mut ra, &mut rb] {
+            rows.sort_by(|x, y| x[id].total_cmp(&y[id]));
+        }
+    }
     assert_eq!(ra.len(), rb.len(), "{a:?} and {b:?}: row counts");
     (0..header.len())
         .map(|k| {
@@ -153,7 +159,7 @@ fn the_explicit_dam_break_on_two_and_three_ranks_agrees_with_one_process() {
         let many = run(ranks, &deck, &dir, "out");
         let frame = last_frame(&one);
         assert_eq!(frame, last_frame(&many));
-        // positions, velocities and pressures of every particle (in id order)
+        // positions, velocities and pressures of every particle (by id)
         agree(&one, &many, &frame, 1e-9, &[]);
         agree(&one, &many, "probes.csv", 1e-9, &[]);
         agree(&one, &many, "series.csv", 1e-9, &["wall_seconds"]);
@@ -215,6 +221,82 @@ fn particles_that_cross_into_another_slab_and_new_cuts_keep_the_agreement() {
     assert!(
         std::fs::read(cut.join(&frame)).unwrap() == std::fs::read(two.join(&frame)).unwrap(),
         "resumed on 2 ranks after new cuts: the last frame differs from the run never stopped"
+    );
+}
+
+#[test]
+fn frames_and_checkpoints_are_a_file_a_rank_and_a_lost_piece_is_named() {
+    let dir = scratch("pieces");
+    let short = deck("dam_break_2d_explicit", 0.01, 0.005, &dir);
+    let long = deck("dam_break_2d_explicit", 0.02, 0.005, &dir);
+    let two = run(2, &long, &dir, "whole");
+    // the last frame: a .pvtu naming each rank's .vtu piece, which hold every particle of
+    // the CSV frame; particles.pvd names the .pvtu
+    let pvtu = std::fs::read_to_string(two.join("frames/particles_000004.pvtu")).unwrap();
+    let mut points = 0;
+    for rank in 0..2 {
+        let piece = format!("particles_000004_{rank:04}.vtu");
+        assert!(
+            pvtu.contains(&format!("<Piece Source=\"{piece}\"/>")),
+            "{pvtu}"
+        );
+        let bytes = std::fs::read(two.join("frames").join(&piece)).unwrap();
+        let text = String::from_utf8_lossy(&bytes);
+        let at = text.find("NumberOfPoints=\"").unwrap() + 16;
+        let digits: String = text[at..]
+            .chars()
+            .take_while(char::is_ascii_digit)
+            .collect();
+        points += digits.parse::<usize>().unwrap();
+    }
+    let (_, rows) = table(&two.join("frames/particles_000004.csv"));
+    assert_eq!(points, rows.len());
+    let pvd = std::fs::read_to_string(two.join("particles.pvd")).unwrap();
+    assert!(pvd.contains("frames/particles_000004.pvtu"), "{pvd}");
+    let cut = run(2, &short, &dir, "cut");
+    // checkpoints at 0.005 s and 0.01 s: the second one's piece of rank 1 is in the set 0
+    // (the first one's, in the set 1, is left until the next one is whole)
+    let piece = cut.join("checkpoint.bin.0.rank0001");
+    assert!(piece.exists() && cut.join("checkpoint.bin.1.rank0001").exists());
+    // resumed on one process from a checkpoint of two ranks: every piece read
+    let copy = dir.join("one");
+    copy_dir(&cut, &copy);
+    resume(0, &long, &copy);
+    let frame = last_frame(&two);
+    agree(&two, &copy, &frame, 1e-9, &[]);
+    // without the piece of rank 1 the resume stops before it touches the directory (here
+    // its frames after the checkpoint's, from the longer run), and names the file
+    let copy = dir.join("lost");
+    copy_dir(&two, &copy);
+    for name in [
+        "checkpoint.bin",
+        "checkpoint.bin.1.rank0001",
+        "checkpoint.bin.0.rank0001",
+    ] {
+        std::fs::copy(cut.join(name), copy.join(name)).unwrap();
+    }
+    std::fs::remove_file(copy.join("checkpoint.bin.0.rank0001")).unwrap();
+    let before = std::fs::read(copy.join("series.csv")).unwrap();
+    let frames = std::fs::read_dir(copy.join("frames")).unwrap().count();
+    let o = run_on(
+        2,
+        &[
+            "run",
+            long.to_str().unwrap(),
+            "-q",
+            "-o",
+            copy.to_str().unwrap(),
+            "--resume",
+            copy.join("checkpoint.bin").to_str().unwrap(),
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("checkpoint.bin.0.rank0001"), "{err}");
+    assert_eq!(std::fs::read(copy.join("series.csv")).unwrap(), before);
+    assert_eq!(
+        std::fs::read_dir(copy.join("frames")).unwrap().count(),
+        frames
     );
 }
 

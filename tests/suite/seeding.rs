@@ -228,3 +228,40 @@ interval = 0.05
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// A rank of a distributed run builds only its part of the particles: two parts (here the
+/// particles left and right of x = 0.5 m) hold between them every particle of the whole
+/// seeding, each with the id, place, mass, volume and hydrostatic pressure it has there: the
+/// pressure is taken from the top of the whole body, not of the part.
+#[test]
+fn parts_of_the_seeding_are_the_whole_seeding_shared_out() {
+    let text = tank(
+        "[2.0, 1.0]",
+        r#"
+[[bodies]]
+material = "water"
+shape = { type = "polygon", vertices = [[0.0, 0.0], [1.2, 0.0], [0.0, 0.8]] }
+particles_per_cell = 2
+stress = "hydrostatic"
+"#,
+    );
+    let d = common::deck(&text);
+    let geo = pmpm::build::grid_geometry::<2>(&d);
+    let whole = pmpm::build::particles::<2>(&d, &geo).unwrap();
+    let left = pmpm::build::part::<2>(&d, &geo, &mut |_, x| x[0] < 0.5).unwrap();
+    let right = pmpm::build::part::<2>(&d, &geo, &mut |_, x| x[0] >= 0.5).unwrap();
+    assert!(!left.x.is_empty() && !right.x.is_empty());
+    assert_eq!(left.len() + right.len(), whole.len());
+    // the right part's top is 0.33 m below the body's: its own would lower p by rho g 0.33 m
+    for part in [&left, &right] {
+        for p in 0..part.len() {
+            let w = part.id[p] as usize;
+            assert_eq!(whole.id[w] as usize, w);
+            assert_eq!(part.x[p], whole.x[w]);
+            assert_eq!(part.mass[p], whole.mass[w]);
+            assert_eq!(part.volume0[p], whole.volume0[w]);
+            assert_eq!(part.pressure[p], whole.pressure[w]);
+        }
+    }
+    assert!(whole.pressure.iter().any(|&p| p > 0.0));
+}

@@ -21,14 +21,26 @@ use crate::wall_law::{WallFriction, WallLaw};
 impl<const D: usize> Simulation<D> {
     /// Sets up particles, grid and every part of the step from a validated deck.
     pub fn new(deck: &Deck) -> Result<Self, Error> {
+        Self::new_part(deck, &crate::comm::Serial, &mut |_, _| true)
+    }
+
+    /// [`Simulation::new`] for one rank of `comm`'s: only the particles `keep` takes (given
+    /// each one's id and place) are built, and what the setup reads of the particles (a body
+    /// left empty, a value that is not finite, the lightest particle) is found over every
+    /// rank's. Every rank calls it, with the same deck.
+    pub fn new_part(
+        deck: &Deck,
+        comm: &dyn crate::comm::Comm,
+        keep: &mut dyn FnMut(u32, &Vector<D>) -> bool,
+    ) -> Result<Self, Error> {
         let geo = grid_geometry::<D>(deck);
         let h = geo.h;
-        let particles = particles(deck, &geo)?;
+        let particles = part(deck, &geo, keep)?;
         let solids = (0..deck.bodies.len())
             .map(|b| deck.body_solid(b))
             .collect::<Result<Vec<_>, _>>()?;
         if let Some(b) = (0..deck.bodies.len())
-            .find(|&b| !particles.x.iter().any(|x| solids[b].contains(x.as_slice())))
+            .find(|&b| !comm.any(particles.x.iter().any(|x| solids[b].contains(x.as_slice()))))
         {
             let spacing = h / deck.bodies[b].particles_per_cell as f64;
             return Err(DeckError {
@@ -46,12 +58,16 @@ impl<const D: usize> Simulation<D> {
             .gravity
             .compile()
             .expect("validated expressions");
-        if let Some(why) = not_finite(&particles, deck, &solids, |x| gravity.eval(x, 0.0)) {
+        let why = not_finite(&particles, deck, &solids, |x| gravity.eval(x, 0.0));
+        if let Some(why) = agree_on_first(comm, why) {
             return Err(why.into());
         }
         let materials: Vec<MaterialParams> =
             deck.materials.iter().map(MaterialDeck::params).collect();
-        let min_mass = particles.mass.iter().copied().fold(f64::INFINITY, f64::min);
+        let min_mass = least(
+            comm,
+            particles.mass.iter().copied().fold(f64::INFINITY, f64::min),
+        );
         let implicit_viscosity =
             deck.simulation.viscosity == Some(crate::viscosity::ViscosityTreatment::Implicit);
         let settings = TransferSettings {
@@ -70,7 +86,7 @@ impl<const D: usize> Simulation<D> {
             // and a solid's stress is real up to its edge
             mass_floor: match (deck.simulation.scheme, deck.pressure.unknowns) {
                 (Scheme::Projection, PressureUnknowns::Nodes) => {
-                    LIGHT_NODE * least_density(&particles) * geo.h.powi(D as i32)
+                    LIGHT_NODE * least(comm, least_density(&particles)) * geo.h.powi(D as i32)
                 }
                 _ => 0.0,
             },
@@ -122,7 +138,11 @@ impl<const D: usize> Simulation<D> {
                 )
             }),
         };
-        Ok(Self::from_parts(parts))
+        let mut sim = Self::from_parts(parts);
+        sim.seeded = comm.sum_scalar(sim.particles.len() as f64) as usize;
+        sim.ledger.mass0 = comm.sum_scalar(sim.ledger.mass0);
+        sim.ledger.next_id = sim.seeded as u32;
+        Ok(sim)
     }
 }
 
@@ -434,17 +454,56 @@ pub fn particles<const D: usize>(
     seeded(deck, geo).map(|(ps, _)| ps)
 }
 
+/// [`particles`], only those `keep` takes (given each one's id and place).
+pub fn part<const D: usize>(
+    deck: &Deck,
+    geo: &GridGeometry<D>,
+    keep: &mut dyn FnMut(u32, &Vector<D>) -> bool,
+) -> Result<Particles<D>, DeckError> {
+    seeded_part(deck, geo, keep).map(|(ps, _)| ps)
+}
+
+/// The least `x` over `comm`'s ranks.
+fn least(comm: &dyn crate::comm::Comm, x: f64) -> f64 {
+    -comm.max_scalar(-x)
+}
+
+/// The first rank's deck error on every rank (its key and message); `None` where no rank
+/// has one.
+fn agree_on_first(comm: &dyn crate::comm::Comm, found: Option<DeckError>) -> Option<DeckError> {
+    if !comm.is_distributed() {
+        return found;
+    }
+    let said = comm.agree(found.map(|e| format!("{}\n{}", e.key, e.message)))?;
+    let (key, message) = said.split_once('\n').unwrap_or(("", &said));
+    Some(DeckError {
+        file: String::new(),
+        key: key.to_string(),
+        line_col: None,
+        message: message.to_string(),
+    })
+}
+
 /// The particles, and what each body's lattice holds against its shape (`check` reports it).
 pub fn seeded<const D: usize>(
     deck: &Deck,
     geo: &GridGeometry<D>,
+) -> Result<(Particles<D>, Vec<Seeding>), DeckError> {
+    seeded_part(deck, geo, &mut |_, _| true)
+}
+
+/// [`seeded`], only the particles `keep` takes.
+fn seeded_part<const D: usize>(
+    deck: &Deck,
+    geo: &GridGeometry<D>,
+    keep: &mut dyn FnMut(u32, &Vector<D>) -> bool,
 ) -> Result<(Particles<D>, Vec<Seeding>), DeckError> {
     // no material starts inside a rigid body: a body of water drawn around an obstacle, or
     // under a floating box, fills only the room the rigid bodies leave (`check` counts what
     // they take)
     let mut rigid = rigid_bodies::<D>(deck);
     rigid.set_time(0.0, geo);
-    crate::seed::fill(deck, geo, &rigid)
+    crate::seed::fill(deck, geo, &rigid, keep)
 }
 
 /// The first expression field that is not a finite number where the run reads it at t = 0: a

@@ -6,6 +6,11 @@
 //! temporary name and renamed, so a run killed while writing leaves the previous checkpoint
 //! whole. A resumed run must use the same deck, except for the keys a user may change on resume
 //! ([`RESUMABLE_KEYS`]); anything else is refused with the first key that differs.
+//!
+//! A run over MPI ranks writes one such file a rank, each with the rank's own particles
+//! ([`Pieces`]): the other ranks' pieces first, beside the checkpoint, then rank 0's file,
+//! which names them and is the one a resume is given. The pieces alternate between two sets
+//! of names, so that a run killed while writing them leaves the checkpoint before whole.
 
 use crate::deck::Deck;
 use crate::error::Error;
@@ -18,6 +23,8 @@ use std::io::{Seek, SeekFrom, Write};
 use std::path::Path;
 
 const MAGIC: &[u8; 8] = b"PMPMCKPT";
+/// What stands before the [`Pieces`] in rank 0's file of a run over ranks.
+const PIECES_TAG: &[u8; 6] = b"PIECES";
 const FORMAT: u32 = 1;
 
 /// Deck keys that may differ between the run that wrote a checkpoint and the run that resumes
@@ -52,6 +59,58 @@ pub struct DriverState {
     /// other sections, so that a checkpoint without it still reads: 0 then).
     #[serde(skip)]
     pub wall_seconds: f64,
+}
+
+impl DriverState {
+    /// The state of a driver that has written nothing (in the pieces of the ranks that do
+    /// not write: a resume reads rank 0's).
+    pub fn none() -> Self {
+        Self {
+            next_frame: 0.0,
+            next_checkpoint: 0.0,
+            frames: 0,
+            pvd: Vec::new(),
+            iterations: (0, 0),
+            wall_seconds: 0.0,
+        }
+    }
+}
+
+/// The pieces of a checkpoint of a run over ranks, named in rank 0's file (after the cut of
+/// the grid): each rank's particles in a file of its own ([`piece_path`]).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct Pieces {
+    /// The checkpoints the run has written over ranks, this one counted: its pieces' names
+    /// alternate with it.
+    pub generation: u64,
+    /// The particles each rank holds (rank 0's in its own file).
+    pub counts: Vec<u64>,
+}
+
+/// The file of rank `rank`'s piece (rank 1 and above) of the checkpoint at `path` of
+/// generation `generation`.
+pub fn piece_path(path: &Path, generation: u64, rank: usize) -> std::path::PathBuf {
+    let name = path.file_name().map_or_else(
+        || "checkpoint.bin".into(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    path.with_file_name(piece_name(&name, generation, rank))
+}
+
+/// [`piece_path`]'s file name, beside a checkpoint named `name`.
+fn piece_name(name: &str, generation: u64, rank: usize) -> String {
+    format!("{name}.{}.rank{rank:04}", generation % 2)
+}
+
+/// Whether `name` is a piece of a checkpoint named `checkpoint.bin` ([`piece_path`]).
+pub fn is_piece(name: &str) -> bool {
+    let Some(rest) = name.strip_prefix("checkpoint.bin.") else {
+        return false;
+    };
+    let Some((set, rank)) = rest.split_once(".rank") else {
+        return false;
+    };
+    matches!(set, "0" | "1") && rank.len() == 4 && rank.bytes().all(|b| b.is_ascii_digit())
 }
 
 /// The payload.
@@ -279,11 +338,14 @@ impl<W: Write> Write for Checksummed<W> {
 /// The payload is streamed to the file from the simulation's own arrays, and the header's
 /// checksum and length are filled in after it: a checkpoint costs no copy of the state in
 /// memory (a copy would double the peak memory of a large run).
+/// `pieces`: where rank 0 of a run over ranks writes its file, the other ranks' pieces (they
+/// write theirs with `None`).
 pub fn write<const D: usize>(
     path: &Path,
     deck: &Deck,
     sim: &Simulation<D>,
     driver: &DriverState,
+    pieces: Option<&Pieces>,
 ) -> Result<(), Error> {
     let projection = sim.stepper.projection();
     let state = StateView {
@@ -330,6 +392,14 @@ pub fn write<const D: usize>(
         // and after it, for a run over ranks with the grid in slabs, where it is cut
         if let (Ok(()), Some(d)) = (&encoded, &sim.decomposition) {
             encoded = postcard::to_io(d, &mut payload).map(|_| ());
+        }
+        // and after that, in rank 0's file of a run over ranks, the other ranks' pieces
+        // (behind a tag: a cut's first byte is its axis, 0 to 2)
+        if let (Ok(()), Some(p)) = (&encoded, pieces) {
+            encoded = payload
+                .write_all(PIECES_TAG)
+                .map_err(|_| postcard::Error::SerializeBufferFull)
+                .and_then(|_| postcard::to_io(p, &mut payload).map(|_| ()));
         }
         if let Err(e) = encoded {
             return Err(payload.failed.take().unwrap_or_else(|| {
@@ -383,14 +453,21 @@ fn refuse(path: &Path, why: impl std::fmt::Display) -> Error {
     ))
 }
 
-/// Reads a checkpoint into `sim` (set up from the same deck) and returns the driver's state.
-/// A file that is not a checkpoint, is damaged, or was written by another deck, another
-/// dimension or another particle count is refused with a message that says which.
+/// Reads a checkpoint into `sim` (set up from the same deck) for rank `rank` of `ranks`, and
+/// returns the driver's state and whether `sim` now holds the rank's own particles. A file
+/// that is not a checkpoint, is damaged, or was written by another deck, another dimension
+/// or another particle count is refused with a message that says which.
+///
+/// A checkpoint of a run over as many ranks gives each rank its own piece, in its order (so
+/// that the run goes on bit for bit); any other gives every rank every particle, rank 0's
+/// first (the run shares them out again).
 pub fn read<const D: usize>(
     path: &Path,
     deck: &Deck,
     sim: &mut Simulation<D>,
-) -> Result<DriverState, Error> {
+    rank: usize,
+    ranks: usize,
+) -> Result<(DriverState, Resumed), Error> {
     let bytes = read_bytes(path)?;
     let (s, rest) = decode::<D>(&bytes).map_err(|why| refuse(path, why))?;
     let Trailer {
@@ -398,18 +475,156 @@ pub fn read<const D: usize>(
         free,
         wall_seconds,
         decomposition,
+        pieces,
     } = trailer(path, deck, rest)?;
     check_free_bodies(path, sim, free.as_deref())?;
     check_deck(path, deck, &s)?;
     let open = deck.has_open_flow();
     let flow = check_open_flow(path, open, flow)?;
-    check_particles(path, open, sim, &s, flow.as_ref())?;
+    if let (Some(p), 0) = (&pieces, rank) {
+        // rank 0 reads first, alone, before the directory is cut back to the checkpoint:
+        // every piece is there, whole, or nothing is touched
+        for r in 1..p.counts.len() {
+            whole_piece(path, &piece_path(path, p.generation, r), r)?;
+        }
+    }
+    let (s, own) = match &pieces {
+        None => (s, false),
+        Some(p) if p.counts.len() == ranks => (own_piece(path, p, s, rank)?, true),
+        Some(p) => (every_piece(path, p, s)?, false),
+    };
+    let expected = match (&pieces, own) {
+        (Some(p), true) => Some(p.counts[rank] as usize),
+        _ => None,
+    };
+    check_particles(path, open, sim, &s, flow.as_ref(), expected)?;
     let driver = restore(sim, s, flow, free);
     sim.decomposition = decomposition;
-    Ok(DriverState {
-        wall_seconds,
-        ..driver
-    })
+    let resumed = Resumed {
+        own,
+        generation: pieces.map_or(0, |p| p.generation),
+    };
+    Ok((
+        DriverState {
+            wall_seconds,
+            ..driver
+        },
+        resumed,
+    ))
+}
+
+/// What a rank resumed from ([`read`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Resumed {
+    /// Whether the rank holds its own particles (a checkpoint of a run over as many ranks),
+    /// not every particle.
+    pub own: bool,
+    /// The checkpoint's generation ([`Pieces::generation`]; 0 for one of one process).
+    pub generation: u64,
+}
+
+/// Refuses the checkpoint at `path` where rank `rank`'s piece `at` is missing or is not as
+/// long as its header says (its checksum is checked where that rank reads it).
+fn whole_piece(path: &Path, at: &Path, rank: usize) -> Result<(), Error> {
+    use std::io::Read;
+    let lost = |why: String| {
+        refuse(
+            path,
+            format!("its piece of rank {rank}, {}, {why}", at.display()),
+        )
+    };
+    let mut head = [0u8; 24];
+    let size = std::fs::File::open(at)
+        .and_then(|mut f| {
+            f.read_exact(&mut head)?;
+            f.metadata()
+        })
+        .map_err(|e| lost(format!("cannot be read ({e})")))?
+        .len();
+    let len = u64::from_le_bytes(head[16..24].try_into().expect("8 bytes"));
+    if &head[..8] != MAGIC || size != 24 + len {
+        return Err(lost("is not whole".into()));
+    }
+    Ok(())
+}
+
+/// Rank `rank`'s piece of the checkpoint at `path` whose rank 0 holds `first` and names the
+/// `pieces`: `first` itself on rank 0.
+fn own_piece<const D: usize>(
+    path: &Path,
+    pieces: &Pieces,
+    first: State<D>,
+    rank: usize,
+) -> Result<State<D>, Error> {
+    if rank == 0 {
+        return Ok(first);
+    }
+    let mut piece = read_piece(path, pieces, rank, &first)?;
+    piece.driver = first.driver;
+    Ok(piece)
+}
+
+/// Every rank's particles of the checkpoint at `path` whose rank 0 holds `first` and names
+/// the `pieces`, in rank order, with `first`'s state.
+fn every_piece<const D: usize>(
+    path: &Path,
+    pieces: &Pieces,
+    first: State<D>,
+) -> Result<State<D>, Error> {
+    let mut all = Particles::unflatten(&first.particles);
+    for rank in 1..pieces.counts.len() {
+        let piece = read_piece(path, pieces, rank, &first)?;
+        let mut more = Particles::unflatten(&piece.particles);
+        more.stored = all.stored;
+        all.append(&mut more);
+    }
+    let particles = postcard::from_bytes(
+        &postcard::to_stdvec(&all.flat_view()).expect("the particles' flat form serialises"),
+    )
+    .expect("the particles' flat form reads back");
+    Ok(State { particles, ..first })
+}
+
+/// The piece of rank `rank` of the checkpoint at `path` (whose rank 0 holds `first`),
+/// checked against it: the same run, step and dimension, the particles rank 0 counted, and
+/// none of the state a run over ranks does not keep (the projection's, a body force field's).
+fn read_piece<const D: usize>(
+    path: &Path,
+    pieces: &Pieces,
+    rank: usize,
+    first: &State<D>,
+) -> Result<State<D>, Error> {
+    let at = piece_path(path, pieces.generation, rank);
+    let bytes = read_bytes(&at)?;
+    let (piece, _) = decode::<D>(&bytes).map_err(|why| {
+        refuse(
+            path,
+            format!("its piece of rank {rank}, {}: {why}", at.display()),
+        )
+    })?;
+    let fits = piece.dimension == D
+        && piece.deck == first.deck
+        && piece.time.to_bits() == first.time.to_bits()
+        && piece.steps == first.steps
+        && piece.particles.id.len() as u64 == pieces.counts[rank]
+        && piece.body_force.is_empty()
+        && piece.node_pressure.is_empty()
+        && piece.volume_over_density.is_empty();
+    if !fits {
+        return Err(refuse(
+            path,
+            format!(
+                "its piece of rank {rank}, {}, is of another checkpoint (it is at step {}, \
+                 the checkpoint at {}; it holds {} particles, the checkpoint counts {})",
+                at.display(),
+                piece.steps,
+                first.steps,
+                piece.particles.id.len(),
+                pieces.counts[rank]
+            ),
+        ));
+    }
+    Ok(piece)
 }
 
 /// The bytes of the checkpoint file at `path`; a directory or a missing file is refused.
@@ -437,6 +652,8 @@ struct Trailer {
     wall_seconds: f64,
     /// Where a run over ranks cut the grid into slabs.
     decomposition: Option<crate::slabs::Decomposition>,
+    /// The other ranks' pieces, in rank 0's file of a run over ranks.
+    pieces: Option<Pieces>,
 }
 
 /// Decodes the bytes after the state (`rest`): the ledger and the free bodies' state where
@@ -463,11 +680,18 @@ fn trailer(path: &Path, deck: &Deck, rest: &[u8]) -> Result<Trailer, Error> {
     } else {
         postcard::take_from_bytes::<f64>(rest).map_err(cannot)?
     };
-    let (decomposition, rest) = if rest.is_empty() {
+    let (decomposition, rest) = if rest.is_empty() || rest.starts_with(PIECES_TAG) {
         (None, rest)
     } else {
         let (d, rest) = postcard::take_from_bytes(rest).map_err(cannot)?;
         (Some(d), rest)
+    };
+    let (pieces, rest) = match rest.strip_prefix(PIECES_TAG) {
+        Some(rest) => {
+            let (p, rest) = postcard::take_from_bytes::<Pieces>(rest).map_err(cannot)?;
+            (Some(p), rest)
+        }
+        None => (None, rest),
     };
     if !(rest.is_empty() && wall_seconds.is_finite() && wall_seconds >= 0.0) {
         return Err(refuse(
@@ -481,6 +705,7 @@ fn trailer(path: &Path, deck: &Deck, rest: &[u8]) -> Result<Trailer, Error> {
         free,
         wall_seconds,
         decomposition,
+        pieces,
     })
 }
 
@@ -566,12 +791,14 @@ fn check_particles<const D: usize>(
     sim: &Simulation<D>,
     s: &State<D>,
     flow: Option<&Ledger>,
+    piece: Option<usize>,
 ) -> Result<(), Error> {
-    // with open boundaries the count changes as material enters and leaves
-    let n = if open {
-        s.particles.id.len()
-    } else {
-        sim.particles.len()
+    // with open boundaries the count changes as material enters and leaves; a rank's piece
+    // holds what rank 0 counted for it
+    let n = match piece {
+        _ if open => s.particles.id.len(),
+        Some(n) => n,
+        None => sim.seeded,
     };
     if let Some(l) = flow {
         let finite = [l.mass0, l.mass_in, l.mass_out, l.volume_in, l.volume_out]
@@ -581,7 +808,8 @@ fn check_particles<const D: usize>(
             return Err(refuse(path, "its ledger of the open boundaries is damaged"));
         }
     }
-    let id_limit = flow.map_or(n, |f| f.next_id as usize);
+    // (a piece's ids are some of the run's)
+    let id_limit = flow.map_or(piece.map_or(n, |_| sim.seeded), |f| f.next_id as usize);
     if s.particles.id.len() != n {
         return Err(refuse(
             path,
@@ -686,12 +914,12 @@ fn consistent_driver<const D: usize>(s: &State<D>) -> Result<(), String> {
             d.pvd.len()
         ));
     }
-    // the frame list goes into particles.pvd as it is
+    // the frame list goes into particles.pvd as it is (.pvtu: a frame of a run over ranks)
     if let Some((_, name)) = d.pvd.iter().find(|(t, name)| {
         !t.is_finite()
             || !name
                 .strip_prefix("frames/particles_")
-                .and_then(|r| r.strip_suffix(".vtu"))
+                .and_then(|r| r.strip_suffix(".vtu").or_else(|| r.strip_suffix(".pvtu")))
                 .is_some_and(|k| k.len() == 6 && k.bytes().all(|c| c.is_ascii_digit()))
     }) {
         return Err(format!("its frame list names {name:?}"));
@@ -790,6 +1018,40 @@ mod tests {
     use super::*;
     use crate::deck::Deck;
 
+    /// The pieces' names alternate with the generation, and a run directory's cleaning knows
+    /// them, and only them.
+    #[test]
+    fn pieces_are_named_in_two_sets() {
+        let at = Path::new("out").join("checkpoint.bin");
+        let names: Vec<String> = [(1, 1), (2, 1), (3, 12)]
+            .iter()
+            .map(|&(g, r)| {
+                piece_path(&at, g, r)
+                    .file_name()
+                    .unwrap()
+                    .to_string_lossy()
+                    .into()
+            })
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "checkpoint.bin.1.rank0001",
+                "checkpoint.bin.0.rank0001",
+                "checkpoint.bin.1.rank0012"
+            ]
+        );
+        assert!(names.iter().all(|n| is_piece(n)));
+        for other in [
+            "checkpoint.bin",
+            "checkpoint.bin.2.rank0001",
+            "checkpoint.bin.0.rank1",
+            "x.0.rank0001",
+        ] {
+            assert!(!is_piece(other), "{other}");
+        }
+    }
+
     /// A small projection run's simulation and a driver state for it.
     fn small() -> (Simulation<2>, Deck, DriverState) {
         let src = r#"
@@ -830,9 +1092,9 @@ particles_per_cell = 2
         let dir = std::env::temp_dir().join(format!("pmpm-ck-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("checkpoint.bin");
-        write(&path, &deck, &sim, &driver).unwrap();
+        write(&path, &deck, &sim, &driver, None).unwrap();
         let good = decode::<2>(&std::fs::read(&path).unwrap()).unwrap().0;
-        if let Err(e) = read(&path, &deck, &mut sim) {
+        if let Err(e) = read(&path, &deck, &mut sim, 0, 1) {
             panic!("the good checkpoint: {e}");
         }
         type Tamper = fn(&mut State<2>);
@@ -861,7 +1123,7 @@ particles_per_cell = 2
             let bad_path = dir.join("bad.bin");
             std::fs::write(&bad_path, encode(&bad)).unwrap();
             let (mut fresh, _, _) = small();
-            match read(&bad_path, &deck, &mut fresh) {
+            match read(&bad_path, &deck, &mut fresh, 0, 1) {
                 Err(Error::Usage(m)) => assert!(m.contains(why), "{why}: {m}"),
                 other => panic!("{why}: {:?}", other.map(|_| ())),
             }
@@ -889,14 +1151,14 @@ particles_per_cell = 2
         let dir = std::env::temp_dir().join(format!("pmpm-ck-full-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("checkpoint.bin");
-        write(&path, &deck, &sim, &driver).unwrap();
+        write(&path, &deck, &sim, &driver, None).unwrap();
         let mut full = decode::<2>(&std::fs::read(&path).unwrap()).unwrap().0;
         let n = sim.particles.len();
         full.particles.deformation = [1.0, 0.0, 0.0, 1.0].repeat(n);
         full.particles.tau = vec![0.0; 4 * n];
         std::fs::write(&path, encode(&full)).unwrap();
         let (mut resumed, _, _) = small();
-        if let Err(e) = read(&path, &deck, &mut resumed) {
+        if let Err(e) = read(&path, &deck, &mut resumed, 0, 1) {
             panic!("the full checkpoint: {e}");
         }
         assert!(resumed.particles.deformation.is_empty() && resumed.particles.tau.is_empty());
@@ -904,7 +1166,7 @@ particles_per_cell = 2
         full.particles.tau.pop();
         std::fs::write(&path, encode(&full)).unwrap();
         let (mut fresh, _, _) = small();
-        match read(&path, &deck, &mut fresh) {
+        match read(&path, &deck, &mut fresh, 0, 1) {
             Err(Error::Usage(m)) => assert!(m.contains("particle field tau holds"), "{m}"),
             other => panic!("a short tau: {:?}", other.map(|_| ())),
         }
@@ -933,7 +1195,7 @@ particles_per_cell = 2
         let dir = std::env::temp_dir().join(format!("pmpm-ck-stream-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("checkpoint.bin");
-        write(&path, &deck, &sim, &driver).unwrap();
+        write(&path, &deck, &sim, &driver, None).unwrap();
         let bytes = std::fs::read(&path).unwrap();
         let state = decode::<2>(&bytes).unwrap().0;
         assert_eq!(encode(&state), bytes);

@@ -9,12 +9,14 @@
 //! particles in cell order. The projection's pressure solve is not spread yet (its stages read
 //! the particles in ways not yet added up over ranks, and are refused: [`unsupported`]).
 //!
-//! For the output, rank 0 gathers every rank's particles, in rank order, and for that moment
-//! is the run on one process ([`gathered`]): frames, series rows, gauges and checkpoints are
-//! those of one process, written by one writer, atomically. A checkpoint is one file, so a run
-//! resumes on any number of ranks.
+//! Each rank builds only its own particles ([`build`]), and writes them: its piece of a frame
+//! and of a checkpoint (`run`, [`crate::output::write_parts`], [`crate::checkpoint::Pieces`]).
+//! Rank 0 writes the rest, with figures summed over the ranks. Only a gauges' row and a frame
+//! of the grid's nodes still read every particle on rank 0, which for that moment is the run
+//! on one process ([`gathered`]).
 
 use crate::comm::{self, Comm};
+use crate::deck::Deck;
 use crate::error::Error;
 use crate::particles::{FlatParticles, Particles};
 use crate::scheme::Simulation;
@@ -48,17 +50,57 @@ pub fn check<const D: usize>(sim: &Simulation<D>, size: usize) -> Result<(), Err
     Ok(())
 }
 
-/// Shares the particles of `sim` out among `comm`'s ranks and makes `sim` a rank of a
-/// distributed run ([`check`] first): each rank keeps the particles of its slab
-/// (`slabs_for`), or without slabs an equal contiguous share in cell order. A `fresh`
-/// run's particles are put in cell order first; a resumed run's are kept in the order its
-/// checkpoint holds them (rank 0's, then rank 1's, ...), so that on the same number of ranks,
-/// cut where the checkpoint says, each rank takes back the particles it had, in their order,
-/// and the run goes on bit for bit.
+/// Builds this rank's part of the deck's simulation, and how the grid is cut: the cut is
+/// planned from the seeding's particles counted per cell layer (every rank counts them all
+/// without keeping them, the same counts on each), and each rank then builds only the
+/// particles of its slab ([`Simulation::new_part`]); where the grid is too short for the
+/// slabs (`None`), an equal share of the particles by id. No rank holds every particle. On
+/// one process, [`Simulation::new`].
+pub fn build<const D: usize>(
+    deck: &Deck,
+    comm: &dyn Comm,
+) -> Result<(Simulation<D>, Option<Decomposition>), Error> {
+    if !comm.is_distributed() {
+        return Ok((Simulation::new(deck)?, None));
+    }
+    let geo = crate::build::grid_geometry::<D>(deck);
+    let mut counts = Counts::default();
+    counts.reset(&geo);
+    crate::build::part(deck, &geo, &mut |_, x| {
+        counts.add(&geo, x);
+        false
+    })?;
+    let plan = Decomposition::plan(&geo, &counts, comm.size());
+    let rank = comm.rank();
+    let share = comm::share(counts.total() as usize, rank, comm.size());
+    let sim = Simulation::new_part(deck, comm, &mut |id, x| match &plan {
+        Some(d) => d.owner_of(&geo, x) == rank,
+        None => share.contains(&(id as usize)),
+    })?;
+    Ok((sim, plan))
+}
+
+/// Which particles a rank holds when the run is spread ([`distribute`]).
+pub enum Held {
+    /// Its own, as [`build`] built them, and the cut it built them for.
+    Fresh(Option<Decomposition>),
+    /// Its own, in the order of its piece of the checkpoint of a run over as many ranks, and
+    /// the cut the checkpoint holds.
+    Own(Option<Decomposition>),
+    /// Every particle of the run, as a checkpoint holds them (rank 0's, then rank 1's, ...).
+    Every,
+}
+
+/// Makes `sim` a rank of a distributed run over `comm` ([`check`] first), holding the
+/// particles of its slab. A fresh run's particles ([`Held::Fresh`]) are put in cell order; a
+/// rank resumed from its own piece ([`Held::Own`]) keeps its particles in their order, so
+/// that the run goes on bit for bit; of every particle ([`Held::Every`]: a checkpoint of
+/// another rank count) each rank keeps those of its slab (`slabs_for`), or without slabs an
+/// equal contiguous share.
 pub fn distribute<const D: usize>(
     sim: &mut Simulation<D>,
     comm: Arc<dyn Comm>,
-    fresh: bool,
+    held: Held,
 ) -> Result<(), Error> {
     if !comm.is_distributed() {
         sim.decomposition = None;
@@ -66,29 +108,40 @@ pub fn distribute<const D: usize>(
         return Ok(());
     }
     check(sim, comm.size())?;
-    if fresh {
-        sim.sort_particles();
-    }
-    let (rank, size) = (comm.rank(), comm.size());
-    let kept: Vec<u32> = match slabs_for(sim, size) {
-        Some(d) => {
-            let geo = &sim.grid.geo;
-            let kept = (0..sim.particles.len())
-                .filter(|&p| d.owner_of(geo, &sim.particles.x[p]) == rank)
-                .map(|p| p as u32)
-                .collect();
-            sim.cut_into_slabs(comm, d);
-            kept
+    let plan = match held {
+        Held::Fresh(plan) => {
+            sim.sort_particles();
+            plan
         }
-        None => {
-            let range = comm::share(sim.particles.len(), rank, size);
-            sim.decomposition = None;
-            sim.set_comm(comm);
-            (range.start as u32..range.end as u32).collect()
+        Held::Own(plan) => plan,
+        Held::Every => {
+            let plan = slabs_for(sim, comm.size());
+            let (rank, size) = (comm.rank(), comm.size());
+            let kept: Vec<u32> = match &plan {
+                Some(d) => {
+                    let geo = &sim.grid.geo;
+                    (0..sim.particles.len())
+                        .filter(|&p| d.owner_of(geo, &sim.particles.x[p]) == rank)
+                        .map(|p| p as u32)
+                        .collect()
+                }
+                None => {
+                    let range = comm::share(sim.particles.len(), rank, size);
+                    (range.start as u32..range.end as u32).collect()
+                }
+            };
+            sim.particles.keep(&kept);
+            sim.particles.shrink_to_fit();
+            plan
         }
     };
-    sim.particles.keep(&kept);
-    sim.particles.shrink_to_fit();
+    match plan {
+        Some(d) => sim.cut_into_slabs(comm, d),
+        None => {
+            sim.decomposition = None;
+            sim.set_comm(comm);
+        }
+    }
     sim.fit_particle_arrays();
     Ok(())
 }

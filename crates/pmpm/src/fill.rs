@@ -74,13 +74,63 @@ pub fn spacing(deck: &Deck) -> f64 {
 impl<const D: usize> FillLattice<D> {
     /// The fill figures of particles at `x` with rest volumes `volume0`.
     pub fn measure(&self, x: &[Vector<D>], volume0: &[f64]) -> FillFigures {
-        let fill = self.spread(x, volume0);
+        self.figures_of(&self.spread(x, volume0))
+    }
+
+    /// The figures of the nodes' `fill`.
+    fn figures_of(&self, fill: &FxHashMap<[i64; D], f64>) -> FillFigures {
         let mut interior: Vec<f64> = fill
             .iter()
-            .filter(|(node, f)| **f >= EDGE && self.inner(&fill, node))
+            .filter(|(node, f)| **f >= EDGE && self.inner(fill, node))
             .map(|(_, f)| *f)
             .collect();
         figures(&mut interior)
+    }
+
+    /// [`FillLattice::measure`] of the particles of every rank of `comm` (every rank calls
+    /// it; the figures are rank 0's): each rank spreads its own, and rank 0 adds up the
+    /// nodes' fill, one rank's nodes at a time (a node near a cut has fill from both sides).
+    pub fn measure_over(
+        &self,
+        comm: &dyn crate::comm::Comm,
+        x: &[Vector<D>],
+        volume0: &[f64],
+    ) -> FillFigures {
+        if !comm.is_distributed() {
+            return self.measure(x, volume0);
+        }
+        let mut fill = self.spread(x, volume0);
+        if !comm.is_root() {
+            // in node order, so that rank 0 adds them up the same way each time
+            let mut nodes: Vec<([i64; D], f64)> = fill.into_iter().collect();
+            nodes.sort_unstable_by_key(|e| e.0);
+            let bytes: Vec<u8> = nodes
+                .iter()
+                .flat_map(|(node, f)| {
+                    node.iter()
+                        .map(|i| i.to_le_bytes())
+                        .chain([f.to_le_bytes()])
+                })
+                .flatten()
+                .collect();
+            comm.send_bytes(0, &bytes);
+            return FillFigures {
+                p1: f64::NAN,
+                p99: f64::NAN,
+                within: f64::NAN,
+                nodes: 0,
+            };
+        }
+        for rank in 1..comm.size() {
+            let bytes = comm.receive_bytes(rank);
+            for entry in bytes.chunks_exact(8 * (D + 1)) {
+                let word =
+                    |k: usize| <[u8; 8]>::try_from(&entry[8 * k..8 * k + 8]).expect("8 bytes");
+                let node: [i64; D] = std::array::from_fn(|d| i64::from_le_bytes(word(d)));
+                *fill.entry(node).or_insert(0.0) += f64::from_le_bytes(word(D));
+            }
+        }
+        self.figures_of(&fill)
     }
 
     /// fill_i at every node some particle's hat reaches.

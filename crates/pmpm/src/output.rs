@@ -40,6 +40,159 @@ pub struct OutputWriter {
     fill_spacing: f64,
     /// Frames written so far.
     pub frames: usize,
+    /// The next frame's figures and particle files, where every rank of a run over ranks has
+    /// written its part of them ([`write_parts`]); `None` on one process.
+    pub parts: Option<Parts>,
+}
+
+/// What the ranks of a run over ranks have written of a frame before rank 0 writes the rest
+/// ([`write_parts`]).
+#[derive(Debug, Clone, Copy)]
+pub struct Parts {
+    /// The frame's figures, over every rank.
+    pub stats: FrameStats,
+    /// The ranks, each with its piece of the .vtu frame.
+    pub ranks: usize,
+}
+
+/// What series.csv reports of a frame's particles, over every rank.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameStats {
+    /// Kinetic energy (J; J/m in 2D).
+    pub kinetic: f64,
+    /// Largest particle speed.
+    pub max_speed: f64,
+    /// Particles.
+    pub count: usize,
+    /// Their mass.
+    pub mass: f64,
+    /// Interior fill ([`crate::fill`]; read on rank 0).
+    pub fill: crate::fill::FillFigures,
+}
+
+impl FrameStats {
+    /// The figures of `sim`'s particles, over its ranks (every rank calls it), the fill
+    /// measured on a lattice of `fill_spacing`.
+    pub fn of<const D: usize>(sim: &Simulation<D>, fill_spacing: f64) -> Self {
+        let comm = &*sim.comm.0;
+        let lattice = crate::fill::FillLattice {
+            origin: sim.grid.geo.origin,
+            spacing: fill_spacing,
+        };
+        let ps = &sim.particles;
+        Self {
+            kinetic: sim.kinetic_energy(),
+            max_speed: sim.max_speed(),
+            count: comm.sum_scalar(ps.len() as f64) as usize,
+            mass: comm.sum_scalar(ps.mass.iter().sum()),
+            fill: lattice.measure_over(comm, &ps.x, &ps.volume0),
+        }
+    }
+}
+
+/// Writes frame `n`'s particle files for a run over ranks, every rank its own particles
+/// (every rank calls it): the CSV file one rank after the other (`write_in_turn`), each
+/// rank's rows in id order, and each rank's piece of the .vtu frame, which rank 0's .pvtu
+/// names ([`OutputWriter::frame`]). Then the figures of the frame, for rank 0 to write.
+/// Every rank's result is the same: a write that failed on one rank fails on all.
+pub fn write_parts<const D: usize>(
+    dir: &Path,
+    deck: &Deck,
+    n: usize,
+    sim: &Simulation<D>,
+) -> Result<Parts, Error> {
+    let comm = &*sim.comm.0;
+    let formats = &deck.output.formats;
+    if formats.contains(&Format::Csv) {
+        let path = dir.join(format!("frames/particles_{n:06}.csv"));
+        let written = write_in_turn(comm, &path, |w| {
+            if comm.is_root() {
+                csv_header::<D>(w)?;
+            }
+            csv_rows(w, sim)
+        });
+        let failed = comm.agree(written.err().map(|e| e.to_string()));
+        if let Some(e) = failed {
+            return Err(Error::io(&path, std::io::Error::other(e)));
+        }
+    }
+    if formats.contains(&Format::Vtk) {
+        let path = dir.join(piece_name(n, comm.rank()));
+        let written = write_vtu(&path, sim).map_err(|e| format!("{}: {e}", path.display()));
+        if let Some(e) = comm.agree(written.err()) {
+            return Err(Error::Io {
+                path: "a piece of a frame".into(),
+                source: std::io::Error::other(e),
+            });
+        }
+    }
+    Ok(Parts {
+        stats: FrameStats::of(sim, crate::fill::spacing(deck)),
+        ranks: comm.size(),
+    })
+}
+
+/// Frame `n`'s piece of rank `rank` (under the run directory).
+fn piece_name(n: usize, rank: usize) -> String {
+    format!("frames/particles_{n:06}_{rank:04}.vtu")
+}
+
+/// Writes `path` whole or not at all ([`write_atomic`]), each rank of `comm` writing its part
+/// with `write` in turn, rank 0's first: rank 0 creates `<name>.partial`, each rank appends
+/// its part, syncs it to the disk and hands the turn on to the next, and rank 0 renames the
+/// file once the last rank has written (on several machines, the file system is shared).
+/// A rank whose part fails hands its error on in place of the turn: rank 0 then removes the
+/// file and returns the error. Every rank calls it.
+fn write_in_turn(
+    comm: &dyn crate::comm::Comm,
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+) -> std::io::Result<()> {
+    let (rank, size) = (comm.rank(), comm.size());
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial");
+    let tmp = path.with_file_name(name);
+    // the turn: empty, or the first error
+    let mut turn = if rank == 0 {
+        Vec::new()
+    } else {
+        comm.receive_bytes(rank - 1)
+    };
+    if turn.is_empty() || turn == [0] {
+        let opened = if rank == 0 {
+            File::create(&tmp)
+        } else {
+            std::fs::OpenOptions::new().append(true).open(&tmp)
+        };
+        let written = opened.and_then(|f| {
+            let mut w = BufWriter::new(f);
+            write(&mut w)?;
+            w.flush()?;
+            w.get_ref().sync_all()
+        });
+        turn = match written {
+            Ok(()) => vec![0],
+            Err(e) => [&[1u8][..], format!("rank {rank}: {e}").as_bytes()].concat(),
+        };
+    }
+    if size > 1 {
+        comm.send_bytes((rank + 1) % size, &turn);
+    }
+    if rank != 0 {
+        return Ok(());
+    }
+    let last = if size > 1 {
+        comm.receive_bytes(size - 1)
+    } else {
+        turn
+    };
+    if last != [0] {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(std::io::Error::other(
+            String::from_utf8_lossy(&last[1..]).into_owned(),
+        ));
+    }
+    std::fs::rename(&tmp, path)
 }
 
 /// The file that marks a directory as a pmpm run's, written when a run starts in it: pmpm writes
@@ -134,19 +287,29 @@ fn run_file(name: &str) -> bool {
             | "particles.pvd"
             | "grid.pvd"
             | "checkpoint.bin"
-    )
+    ) || crate::checkpoint::is_piece(name)
 }
 
 /// Whether `name`, a file in a run's `frames/`, is a frame pmpm writes; its number if so.
 fn frame_number(name: &str) -> Option<usize> {
     let name = name.strip_suffix(".partial").unwrap_or(name);
     let num = match name.strip_prefix("particles_") {
-        Some(rest) => rest
-            .strip_suffix(".csv")
-            .or_else(|| rest.strip_suffix(".vtu"))?,
+        Some(rest) => match rest.strip_suffix(".vtu") {
+            // a rank's piece of a frame of a run over ranks: NNNNNN_RRRR.vtu
+            Some(piece) => match piece.split_once('_') {
+                Some((num, rank)) if rank.len() == 4 && rank.parse::<u32>().is_ok() => num,
+                Some(_) => return None,
+                None => piece,
+            },
+            None => rest
+                .strip_suffix(".csv")
+                .or_else(|| rest.strip_suffix(".pvtu"))?,
+        },
         None => name.strip_prefix("grid_")?.strip_suffix(".vti")?,
     };
-    (num.len() == 6).then(|| num.parse().ok()).flatten()
+    (num.len() == 6 && num.bytes().all(|b| b.is_ascii_digit()))
+        .then(|| num.parse().ok())
+        .flatten()
 }
 
 /// The names in `dir` (empty when it does not exist).
@@ -515,6 +678,7 @@ impl OutputWriter {
             probes,
             rigid,
             frames,
+            parts: None,
         }
     }
 
@@ -642,6 +806,16 @@ impl OutputWriter {
         self.gauge_row_now(sim)
     }
 
+    /// Whether the run has gauges (gauges.csv).
+    pub fn has_gauges(&self) -> bool {
+        self.gauges.is_some()
+    }
+
+    /// Whether frames of the grid's nodes are written.
+    pub fn grid_frames(&self) -> bool {
+        self.grid
+    }
+
     /// Whether a step from `before` to `time` brings a row of gauge readings.
     pub fn gauge_due(&self, before: f64, time: f64) -> bool {
         if self.gauges.is_none() {
@@ -698,25 +872,36 @@ impl OutputWriter {
         Ok(())
     }
 
-    /// Writes frame `self.frames` of the particles and its series.csv row.
+    /// Writes frame `self.frames` of the particles and its series.csv row, and returns the
+    /// frame's figures. Where the ranks of a run over ranks have written their parts of it
+    /// ([`OutputWriter::parts`]), rank 0 writes the .pvtu that names the .vtu pieces, not the
+    /// particle files.
     pub fn frame<const D: usize>(
         &mut self,
         sim: &Simulation<D>,
         dt: f64,
         wall_seconds: f64,
-    ) -> Result<(), Error> {
+    ) -> Result<FrameStats, Error> {
         let n = self.frames;
-        if self.csv {
+        let parts = self.parts.take();
+        if self.csv && parts.is_none() {
             let path = self.dir.join(format!("frames/particles_{n:06}.csv"));
             write_csv(&path, sim).map_err(|e| Error::io(&path, e))?;
         }
+        let particles = match parts {
+            Some(_) => format!("frames/particles_{n:06}.pvtu"),
+            None => format!("frames/particles_{n:06}.vtu"),
+        };
         if self.vtk || self.grid {
-            self.pvd
-                .push((sim.time, format!("frames/particles_{n:06}.vtu")));
+            self.pvd.push((sim.time, particles.clone()));
         }
         if self.vtk {
-            let path = self.dir.join(format!("frames/particles_{n:06}.vtu"));
-            write_vtu(&path, sim).map_err(|e| Error::io(&path, e))?;
+            let path = self.dir.join(&particles);
+            match parts {
+                Some(p) => write_pvtu(&path, sim, n, p.ranks),
+                None => write_vtu(&path, sim),
+            }
+            .map_err(|e| Error::io(&path, e))?;
             let pvd = self.dir.join("particles.pvd");
             write_pvd(&pvd, &self.pvd).map_err(|e| Error::io(&pvd, e))?;
         }
@@ -726,31 +911,39 @@ impl OutputWriter {
             let grid: Vec<(f64, String)> = self
                 .pvd
                 .iter()
-                .map(|(t, f)| (*t, f.replace("particles_", "grid_").replace(".vtu", ".vti")))
+                .map(|(t, f)| {
+                    let f = f.replace("particles_", "grid_");
+                    (*t, f.replace(".pvtu", ".vti").replace(".vtu", ".vti"))
+                })
                 .collect();
             let pvd = self.dir.join("grid.pvd");
             write_pvd(&pvd, &grid).map_err(|e| Error::io(&pvd, e))?;
         }
+        let stats = match parts {
+            Some(p) => p.stats,
+            None => FrameStats::of(sim, self.fill_spacing),
+        };
         let series_path = self.dir.join("series.csv");
         write!(
             self.series,
             "{n},{:.9e},{},{dt:.6e},{:.9e},{:.9e},{},{wall_seconds:.3}",
             sim.time,
             sim.steps,
-            sim.kinetic_energy(),
-            sim.max_speed(),
+            stats.kinetic,
+            stats.max_speed,
             sim.pressure_iterations(),
         )
         .and_then(|_| {
             if !self.flow {
                 return Ok(());
             }
+            // (open boundaries run on one process: the ledger reads its particles)
             let l = &sim.ledger;
-            let mass: f64 = sim.particles.mass.iter().sum();
             write!(
                 self.series,
-                ",{},{mass:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.3e}",
-                sim.particles.len(),
+                ",{},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.3e}",
+                stats.count,
+                stats.mass,
                 l.mass_in,
                 l.mass_out,
                 l.volume_in,
@@ -759,11 +952,7 @@ impl OutputWriter {
             )
         })
         .and_then(|_| {
-            let lattice = crate::fill::FillLattice {
-                origin: sim.grid.geo.origin,
-                spacing: self.fill_spacing,
-            };
-            let f = lattice.measure(&sim.particles.x, &sim.particles.volume0);
+            let f = stats.fill;
             writeln!(
                 self.series,
                 ",{:.6},{:.6},{:.6},{}",
@@ -785,7 +974,7 @@ impl OutputWriter {
                 .map_err(|e| Error::io(self.dir.join("gauges.csv"), e))?;
         }
         self.frames += 1;
-        Ok(())
+        Ok(stats)
     }
 
     /// Flushes the time series (series.csv, probes.csv, rigid_bodies.csv) and has the system
@@ -840,12 +1029,23 @@ fn write_csv_to<const D: usize>(
     w: &mut BufWriter<File>,
     sim: &Simulation<D>,
 ) -> std::io::Result<()> {
-    let ps = &sim.particles;
+    csv_header::<D>(w)?;
+    csv_rows(w, sim)?;
+    w.flush()
+}
+
+/// The particle CSV file's header line.
+fn csv_header<const D: usize>(w: &mut BufWriter<File>) -> std::io::Result<()> {
     if D == 2 {
-        writeln!(w, "id,x,y,vx,vy,pressure,mass,volume,material")?;
+        writeln!(w, "id,x,y,vx,vy,pressure,mass,volume,material")
     } else {
-        writeln!(w, "id,x,y,z,vx,vy,vz,pressure,mass,volume,material")?;
+        writeln!(w, "id,x,y,z,vx,vy,vz,pressure,mass,volume,material")
     }
+}
+
+/// The particle CSV file's rows of `sim`'s particles, in id order.
+fn csv_rows<const D: usize>(w: &mut BufWriter<File>, sim: &Simulation<D>) -> std::io::Result<()> {
+    let ps = &sim.particles;
     // rows in id order, wherever the last sort put each particle
     for &p in &ps.places() {
         write!(w, "{}", ps.id[p])?;
@@ -861,7 +1061,7 @@ fn write_csv_to<const D: usize>(
             ps.material[p]
         )?;
     }
-    w.flush()
+    Ok(())
 }
 
 /// One appended data array: its XML description and its bytes.
@@ -904,6 +1104,48 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
         }
         w.write_all(b"\n  </AppendedData>\n</VTKFile>\n")
     })
+}
+
+/// The .pvtu of frame `n` of a run over `ranks` ranks: the arrays of the .vtu frame, and the
+/// pieces ([`piece_name`]) that hold them, each rank's particles (`sim` gives the arrays'
+/// names and types).
+fn write_pvtu<const D: usize>(
+    path: &Path,
+    sim: &Simulation<D>,
+    n: usize,
+    ranks: usize,
+) -> std::io::Result<()> {
+    let arrays = |list: &[Array]| {
+        list.iter()
+            .map(|a| {
+                format!(
+                    "      <PDataArray type=\"{}\" Name=\"{}\" NumberOfComponents=\"{}\"/>\n",
+                    a.vtk_type, a.name, a.components
+                )
+            })
+            .collect::<String>()
+    };
+    let mut xml = String::new();
+    xml += "<?xml version=\"1.0\"?>\n";
+    xml += "<VTKFile type=\"PUnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
+    xml += "  <PUnstructuredGrid GhostLevel=\"0\">\n";
+    xml += "    <PPointData Scalars=\"pressure\" Vectors=\"velocity\" Tensors=\"stress\">\n";
+    xml += &arrays(&vtu_point_data(sim, &[]));
+    xml += "    </PPointData>\n    <PPoints>\n";
+    xml += "      <PDataArray type=\"Float64\" NumberOfComponents=\"3\"/>\n";
+    xml += "    </PPoints>\n    <PCells>\n";
+    xml += &arrays(&vtu_cells(
+        &crate::particles::Particles::<D>::default(),
+        &[],
+    ));
+    xml += "    </PCells>\n";
+    for rank in 0..ranks {
+        let piece = piece_name(n, rank);
+        let file = piece.strip_prefix("frames/").unwrap_or(&piece);
+        xml += &format!("    <Piece Source=\"{file}\"/>\n");
+    }
+    xml += "  </PUnstructuredGrid>\n</VTKFile>\n";
+    write_atomic(path, |w| w.write_all(xml.as_bytes()))
 }
 
 /// A vector with 3 components, as ParaView wants points and vectors: 2D padded with z = 0.
@@ -1162,6 +1404,31 @@ fn write_pvd_to(w: &mut BufWriter<File>, frames: &[(f64, String)]) -> std::io::R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The frames a run writes, over ranks too, are known by their number (a resume removes
+    /// those from its checkpoint's on; `--force` removes them all), and nothing else is.
+    #[test]
+    fn frames_and_their_pieces_are_known_by_number() {
+        for (name, n) in [
+            ("particles_000012.csv", 12),
+            ("particles_000012.vtu", 12),
+            ("particles_000012.pvtu", 12),
+            ("particles_000012_0003.vtu", 12),
+            ("particles_000012.csv.partial", 12),
+            ("grid_000007.vti", 7),
+        ] {
+            assert_eq!(frame_number(name), Some(n), "{name}");
+        }
+        for name in [
+            "particles_000012_03.vtu",
+            "particles_000012_0003.csv",
+            "particles_12.vtu",
+            "particles_+00012.vtu",
+            "notes.txt",
+        ] {
+            assert_eq!(frame_number(name), None, "{name}");
+        }
+    }
 
     /// A write that fails half-way leaves the old file as it was and no `.partial` beside it;
     /// one that succeeds replaces it whole.

@@ -161,45 +161,9 @@ fn run_dim<const D: usize>(
         .ranks
         .as_ref()
         .map_or_else(crate::comm::serial, |r| r.0.clone());
-    let mut sim = Simulation::<D>::new(deck).map_err(|e| e.with_file(file))?;
-    if comm.is_distributed() {
-        // refused on every rank alike, before rank 0 takes the directory
-        crate::distributed::check(&sim, comm.size()).map_err(|e| e.with_file(file))?;
-    }
-    let clock = crate::build::clock(deck);
+    let (mut sim, _lock, mut w, mut driver, mut generation) =
+        begin::<D>(deck, file, dir, opts, observer, &comm, start)?;
     let launch = launcher(&*comm);
-    // rank 0 writes, and a fresh run's frame of t = 0 now, while it still holds every particle
-    // (they are shared out after); the directory's lock is held to the run's end, after the
-    // output is closed: a second run on it is refused
-    let (_lock, mut w) = open_on_root(&*comm, || {
-        Writing::open(deck, &mut sim, file, dir, opts, &clock, start)
-    })?;
-    let mut driver = match &opts.resume {
-        Some(path) => {
-            // the other ranks read it too (on several machines, from a shared file system):
-            // where one cannot, every rank stops with its message
-            let failed = (!comm.is_root())
-                .then(|| checkpoint::read(path, deck, &mut sim).err())
-                .flatten()
-                .map(|e| e.to_string());
-            if let Some(message) = comm.agree(failed) {
-                return Err(Error::Usage(message));
-            }
-            let next = w.as_ref().map_or(0.0, |w| w.driver.next_frame);
-            Driver::resume(clock, comm.max_scalar(next))
-        }
-        None => Driver::new(clock),
-    };
-    // (before the particles are shared out: the count is the run's)
-    let started = w.as_ref().map(|w| w.status(&sim, 0.0, 0.0));
-    crate::distributed::distribute(&mut sim, comm.clone(), opts.resume.is_none())?;
-    if let (Some(w), Some(status)) = (&mut w, started) {
-        observer.started(&status);
-        if let Some(how) = crate::distributed::describe(&sim) {
-            observer.spread(&how);
-        }
-        w.driver.next_frame = driver.next_frame;
-    }
     let mut last_dt = 0.0;
     sim.timers.lap(Phase::Other);
     let result = loop {
@@ -220,22 +184,30 @@ fn run_dim<const D: usize>(
             interrupted,
         });
         sim.timers.lap(Phase::Other);
-        // what the step brings to write, with every rank's particles on rank 0 where it reads
-        // them
-        let due = w.as_ref().is_some_and(|w| w.reads_particles(t0, &sim, end));
-        let due = comm.any(due);
-        let written = crate::distributed::gathered(&mut sim, due, |sim| match &mut w {
-            Some(w) => {
-                w.driver.next_frame = driver.next_frame;
-                w.count_iterations(sim);
-                w.step_rows(t0, sim, end.is_some())?;
-                match (end, &stepped) {
-                    (Some(end), Ok(step)) => w.after_step(deck, sim, step.dt, end, observer),
-                    _ => Ok(()),
+        // what the step brings to write: the ranks' parts of a frame first, then the rest on
+        // rank 0, with every rank's particles there where it reads them all
+        let due = Due::agreed(&*comm, w.as_ref().map(|w| w.due(t0, &sim, end)));
+        let parts = write_parts(deck, dir, &mut sim, &mut w, due);
+        let written = parts.and_then(|_| {
+            crate::distributed::gathered(&mut sim, due.whole, |sim| match &mut w {
+                Some(w) => {
+                    w.driver.next_frame = driver.next_frame;
+                    w.count_iterations(sim);
+                    w.step_rows(t0, sim, end.is_some())?;
+                    match (end, &stepped) {
+                        (Some(end), Ok(step)) => w.after_step(deck, sim, step.dt, end, observer),
+                        _ => Ok(()),
+                    }
                 }
-            }
-            None => Ok(()),
+                None => Ok(()),
+            })
         });
+        // the checkpoint rank 0 found due, written by every rank (its own piece)
+        let checkpoint = comm.any(w.as_mut().is_some_and(|w| w.take_checkpoint()));
+        let written = match written {
+            Ok(()) if checkpoint => write_checkpoint(deck, &mut sim, &mut w, dir, &mut generation),
+            written => written,
+        };
         if let Err(e) = written {
             break Err(e);
         }
@@ -266,6 +238,202 @@ fn run_dim<const D: usize>(
     // rank 0's last flush decides for every rank (their step errors were rank 0's already)
     crate::distributed::agree_on_root(&*comm, finished)?;
     Ok(summary)
+}
+
+/// What a step brings to write that reads the particles, as rank 0 finds it
+/// ([`Writing::due`]) and every rank learns it ([`Due::agreed`]).
+#[derive(Debug, Clone, Copy, Default)]
+struct Due {
+    /// The frame to write, by its number.
+    frame: Option<usize>,
+    /// The final state's probe row (a sum of the particles onto the grid first).
+    final_probe: bool,
+    /// Whether rank 0 reads every particle of a run over ranks: a gauges' row, or a frame of
+    /// the grid's nodes.
+    whole: bool,
+}
+
+impl Due {
+    /// Rank 0's `found` on every rank of `comm`.
+    fn agreed(comm: &dyn crate::comm::Comm, found: Option<Due>) -> Due {
+        if !comm.is_distributed() {
+            return found.unwrap_or_default();
+        }
+        let mut v = found.map_or([0.0; 3], |d| {
+            [
+                d.frame.map_or(0.0, |n| n as f64 + 1.0),
+                f64::from(u8::from(d.final_probe)),
+                f64::from(u8::from(d.whole)),
+            ]
+        });
+        comm.max(&mut v);
+        Due {
+            frame: (v[0] > 0.0).then(|| v[0] as usize - 1),
+            final_probe: v[1] > 0.0,
+            whole: v[2] > 0.0,
+        }
+    }
+}
+
+/// In a run over ranks, what every rank writes of what is `due` before rank 0 writes the
+/// rest (every rank calls it; on one process it does nothing): the sum onto the grid that
+/// the final probe row reads, and each rank's part of the frame's particle files and figures
+/// ([`crate::output::write_parts`]), handed to rank 0's output.
+fn write_parts<const D: usize>(
+    deck: &Deck,
+    dir: &Path,
+    sim: &mut Simulation<D>,
+    w: &mut Option<Writing>,
+    due: Due,
+) -> Result<(), Error> {
+    if !sim.comm.0.is_distributed() {
+        return Ok(());
+    }
+    // the final state's probe values, kept for rank 0's row after the step's (the step's
+    // values are put back: its row is written first)
+    let final_probes = due.final_probe.then(|| {
+        let step = sim.probes.values.clone();
+        sim.particles_to_grid();
+        std::mem::replace(&mut sim.probes.values, step)
+    });
+    let parts = match due.frame {
+        Some(n) => Some(crate::output::write_parts(dir, deck, n, sim)?),
+        None => None,
+    };
+    if let Some(w) = w {
+        w.out.parts = parts;
+        w.final_probes = final_probes;
+    }
+    Ok(())
+}
+
+/// Writes the checkpoint every rank of the run of `sim` has found due: on one process, the
+/// one file; over ranks, each rank but rank 0 its piece first, then (where all of them are
+/// written) rank 0 its file, which names them and makes them the checkpoint. `generation`
+/// counts the checkpoints written over ranks (their pieces' names alternate with it).
+fn write_checkpoint<const D: usize>(
+    deck: &Deck,
+    sim: &mut Simulation<D>,
+    w: &mut Option<Writing>,
+    dir: &Path,
+    generation: &mut u64,
+) -> Result<(), Error> {
+    let comm = sim.comm.0.clone();
+    if !comm.is_distributed() {
+        return w.as_mut().map_or(Ok(()), |w| w.checkpoint(deck, sim, None));
+    }
+    *generation += 1;
+    let rank = comm.rank();
+    let failed = (!comm.is_root())
+        .then(|| {
+            let piece = checkpoint::piece_path(&checkpoint_path(dir), *generation, rank);
+            checkpoint::write(&piece, deck, sim, &DriverState::none(), None).err()
+        })
+        .flatten()
+        .map(|e| e.to_string());
+    if let Some(message) = comm.agree(failed) {
+        return Err(Error::Io {
+            path: format!("rank {rank}'s piece of the checkpoint"),
+            source: std::io::Error::other(message),
+        });
+    }
+    let mut counts = vec![0.0; comm.size()];
+    counts[rank] = sim.particles.len() as f64;
+    comm.sum(&mut counts);
+    let pieces = checkpoint::Pieces {
+        generation: *generation,
+        counts: counts.iter().map(|&n| n as u64).collect(),
+    };
+    let written = w
+        .as_mut()
+        .map_or(Ok(()), |w| w.checkpoint(deck, sim, Some(&pieces)));
+    crate::distributed::agree_on_root(&*comm, written)
+}
+
+/// The run set up on this rank: its simulation (its own particles; a resumed run's from the
+/// checkpoint), and on rank 0 the directory's lock and the output, a fresh run's frame of
+/// t = 0 written; the driver's clock set to the next frame; the checkpoints' generation
+/// ([`checkpoint::Pieces`]).
+type Begun<const D: usize> = (
+    Simulation<D>,
+    Option<crate::output::DirectoryLock>,
+    Option<Writing>,
+    Driver,
+    u64,
+);
+
+/// Sets the run up on every rank of `comm` ([`Begun`]); the run began at `start`.
+fn begin<const D: usize>(
+    deck: &Deck,
+    file: &str,
+    dir: &Path,
+    opts: &RunOptions,
+    observer: &mut dyn Observer,
+    comm: &Arc<dyn crate::comm::Comm>,
+    start: Instant,
+) -> Result<Begun<D>, Error> {
+    let comm = comm.clone();
+    // each rank builds its own particles (on one process, every particle)
+    let (mut sim, plan) =
+        crate::distributed::build::<D>(deck, &*comm).map_err(|e| e.with_file(file))?;
+    if comm.is_distributed() {
+        // refused on every rank alike, before rank 0 takes the directory
+        crate::distributed::check(&sim, comm.size()).map_err(|e| e.with_file(file))?;
+    }
+    let clock = crate::build::clock(deck);
+    // rank 0 writes; the directory's lock is held to the run's end, after the output is
+    // closed: a second run on it is refused
+    let (lock, mut w) = open_on_root(&*comm, || {
+        Writing::open(deck, &mut sim, file, dir, opts, &clock, start)
+    })?;
+    let (driver, resumed) = match &opts.resume {
+        Some(path) => {
+            // the other ranks read it too (on several machines, from a shared file system),
+            // each its own piece where it has one: where one cannot, every rank stops with
+            // its message
+            let (rank, ranks) = (comm.rank(), comm.size());
+            let read = match &w {
+                Some(w) => Ok(w.resumed),
+                None => checkpoint::read(path, deck, &mut sim, rank, ranks).map(|(_, r)| r),
+            };
+            let failed = read.as_ref().err().map(|e| e.to_string());
+            if let Some(message) = comm.agree(failed) {
+                return Err(Error::Usage(message));
+            }
+            let next = w.as_ref().map_or(0.0, |w| w.driver.next_frame);
+            let resumed = read.expect("agreed: every rank read the checkpoint");
+            (Driver::resume(clock, comm.max_scalar(next)), resumed)
+        }
+        None => (Driver::new(clock), checkpoint::Resumed::default()),
+    };
+    let held = match (&opts.resume, resumed.own) {
+        (None, _) => crate::distributed::Held::Fresh(plan),
+        (Some(_), true) => crate::distributed::Held::Own(sim.decomposition.clone()),
+        (Some(_), false) => crate::distributed::Held::Every,
+    };
+    crate::distributed::distribute(&mut sim, comm.clone(), held)?;
+    if opts.resume.is_none() {
+        let due = Due::agreed(&*comm, w.as_ref().map(|w| w.first_due()));
+        write_parts(deck, dir, &mut sim, &mut w, due)?;
+        crate::distributed::gathered(&mut sim, due.whole, |sim| match &mut w {
+            Some(w) => w
+                .out
+                .first_frame(sim)
+                .map_err(|e| write_failure_hint(e, None, "")),
+            None => Ok(()),
+        })?;
+    }
+    let particles = comm.sum_scalar(sim.particles.len() as f64) as usize;
+    if let Some(w) = &mut w {
+        let mut status = w.status(&sim, 0.0, 0.0);
+        status.particles = particles;
+        observer.started(&status);
+        if let Some(how) = crate::distributed::describe(&sim) {
+            observer.spread(&how);
+        }
+        w.driver.next_frame = driver.next_frame;
+    }
+    Ok((sim, lock, w, driver, resumed.generation))
 }
 
 /// The run's output, opened on rank 0 by `open` ([`Writing::open`]; a resumed run reads its
@@ -374,6 +542,13 @@ struct Writing {
     room: Option<RoomGuard>,
     /// What starts the run (`mpirun -n N ` over N ranks), for the resume command.
     launch: String,
+    /// Whether the last step brought a checkpoint to write.
+    checkpoint_due: bool,
+    /// What a resumed run's rank 0 read from its checkpoint.
+    resumed: checkpoint::Resumed,
+    /// The final probe row's values, where every rank has summed the particles onto the
+    /// grid for it ([`write_parts`]).
+    final_probes: Option<Vec<f64>>,
 }
 
 /// Stops a run whose inflows have filled a closed grid ([`crate::deck::room`]): the
@@ -422,9 +597,10 @@ impl RoomGuard {
 }
 
 impl Writing {
-    /// Opens the run's output (a resumed run reads its checkpoint into `sim`; a fresh run's
-    /// frame of t = 0 is written) and sets the clocks of frames and checkpoints from the
-    /// deck's `clock`; the run began at `start`.
+    /// Opens the run's output (a resumed run reads its checkpoint into `sim`) and sets the
+    /// clocks of frames and checkpoints from the deck's `clock`; the run began at `start`. A
+    /// fresh run's frame of t = 0 is written after ([`OutputWriter::first_frame`]), once the
+    /// particles are shared out.
     /// Returns the directory's lock first: bound in that order, the output is closed before
     /// the lock is released.
     fn open<const D: usize>(
@@ -441,10 +617,10 @@ impl Writing {
         // small next to the frames
         let checkpoint_interval = deck.output.checkpoint_interval.unwrap_or(interval);
         let checkpoint_path = checkpoint_path(dir);
-        let (out, driver, lock) =
+        let (out, driver, lock, resumed) =
             open_output(deck, sim, file, dir, opts, checkpoint_interval, eps)?;
         let wall_before = driver.wall_seconds;
-        let mut w = Writing {
+        let w = Writing {
             out,
             driver,
             checkpoint_path,
@@ -461,12 +637,10 @@ impl Writing {
                 .ranks
                 .as_ref()
                 .map_or_else(String::new, |r| launcher(&**r)),
+            checkpoint_due: false,
+            resumed,
+            final_probes: None,
         };
-        if opts.resume.is_none() {
-            w.out
-                .first_frame(sim)
-                .map_err(|e| write_failure_hint(e, None, ""))?;
-        }
         Ok((lock, w))
     }
 
@@ -475,24 +649,28 @@ impl Writing {
         status(sim, self.end, self.start_steps, dt, self.out.frames, wall)
     }
 
-    /// Whether what a step from `t0` to `sim.time` brings to write reads the particles: a
-    /// frame, a gauges' row, the final probe row or a checkpoint (`end`: how the step ended,
-    /// `None` where it failed, and only the probes' row is written).
-    fn reads_particles<const D: usize>(
-        &self,
-        t0: f64,
-        sim: &Simulation<D>,
-        end: Option<StepEnd>,
-    ) -> bool {
-        let Some(end) = end else { return false };
-        let at_end = sim.time >= self.end - self.eps;
-        let checkpoint = sim.time >= self.driver.next_checkpoint - self.eps;
-        end.scheduled
-            || end.last
-            || end.interrupted
-            || at_end
-            || checkpoint
-            || self.out.gauge_due(t0, sim.time)
+    /// What a step from `t0` to `sim.time` brings to write that reads the particles (`end`:
+    /// how the step ended, `None` where it failed, and only the probes' row is written): a
+    /// frame, the final probe row, a gauges' row.
+    fn due<const D: usize>(&self, t0: f64, sim: &Simulation<D>, end: Option<StepEnd>) -> Due {
+        let Some(end) = end else {
+            return Due::default();
+        };
+        let frame = end.scheduled || end.last || end.interrupted;
+        Due {
+            frame: frame.then_some(self.out.frames),
+            final_probe: sim.time >= self.end - self.eps || end.last,
+            whole: self.out.gauge_due(t0, sim.time) || (frame && self.out.grid_frames()),
+        }
+    }
+
+    /// What a fresh run's frame of t = 0 reads ([`Writing::due`]).
+    fn first_due(&self) -> Due {
+        Due {
+            frame: Some(self.out.frames),
+            final_probe: false,
+            whole: self.out.has_gauges() || self.out.grid_frames(),
+        }
     }
 
     /// Adds the last step's pressure iterations to the run's totals.
@@ -544,14 +722,15 @@ impl Writing {
         let eps = self.eps;
         let at_end = sim.time >= self.end - eps;
         if scheduled || last || interrupted {
-            self.out.frame(
+            let stats = self.out.frame(
                 sim,
                 dt,
                 self.wall_before + self.start.elapsed().as_secs_f64(),
             )?;
             let wall = self.start.elapsed().as_secs_f64();
             let mut s = status(sim, self.end, self.start_steps, dt, self.out.frames, wall);
-            s.max_speed = sim.max_speed();
+            s.max_speed = stats.max_speed;
+            s.particles = stats.count;
             observer.frame_written(&s);
             if !(scheduled || last || at_end) {
                 self.out.uncount_frame();
@@ -559,26 +738,47 @@ impl Writing {
         }
         if at_end || last {
             // the final state's probe row, before the last checkpoint: a run killed after
-            // that checkpoint is complete
-            sim.particles_to_grid();
+            // that checkpoint is complete (over ranks, every rank summed onto the grid)
+            match self.final_probes.take() {
+                Some(values) => sim.probes.values = values,
+                None => sim.particles_to_grid(),
+            }
             self.out.probe_row(sim.time, sim)?;
         }
         let checkpoint_due = sim.time >= self.driver.next_checkpoint - eps;
-        if checkpoint_due || at_end || interrupted {
-            self.driver.next_checkpoint = next_after(
-                self.driver.next_checkpoint,
-                sim.time + eps,
-                self.checkpoint_interval,
-            );
-            self.driver.frames = self.out.frames;
-            self.driver.pvd.clone_from(&self.out.pvd);
-            self.driver.wall_seconds = self.wall_before + self.start.elapsed().as_secs_f64();
-            // the time series reach the disk before the checkpoint that a resume cuts them
-            // back to: a crash after it loses no row
-            self.out.sync()?;
-            checkpoint::write(&self.checkpoint_path, deck, sim, &self.driver)?;
-            self.last_checkpoint = Some(sim.time);
-        }
+        // written after, by every rank ([`write_checkpoint`])
+        self.checkpoint_due = checkpoint_due || at_end || interrupted;
+        Ok(())
+    }
+
+    /// Whether a checkpoint is due after the step ([`Writing::after_step`]); the next step's
+    /// is found again.
+    fn take_checkpoint(&mut self) -> bool {
+        std::mem::take(&mut self.checkpoint_due)
+    }
+
+    /// Writes the checkpoint of `sim` (rank 0's file of a run over ranks, which names the
+    /// other ranks' `pieces`).
+    fn checkpoint<const D: usize>(
+        &mut self,
+        deck: &Deck,
+        sim: &Simulation<D>,
+        pieces: Option<&checkpoint::Pieces>,
+    ) -> Result<(), Error> {
+        let eps = self.eps;
+        self.driver.next_checkpoint = next_after(
+            self.driver.next_checkpoint,
+            sim.time + eps,
+            self.checkpoint_interval,
+        );
+        self.driver.frames = self.out.frames;
+        self.driver.pvd.clone_from(&self.out.pvd);
+        self.driver.wall_seconds = self.wall_before + self.start.elapsed().as_secs_f64();
+        // the time series reach the disk before the checkpoint that a resume cuts them
+        // back to: a crash after it loses no row
+        self.out.sync()?;
+        checkpoint::write(&self.checkpoint_path, deck, sim, &self.driver, pieces)?;
+        self.last_checkpoint = Some(sim.time);
         Ok(())
     }
 
@@ -610,7 +810,7 @@ fn open_output<const D: usize>(
     opts: &RunOptions,
     checkpoint_interval: f64,
     eps: f64,
-) -> Result<(OutputWriter, DriverState, crate::output::DirectoryLock), Error> {
+) -> Result<Opened, Error> {
     let end = deck.simulation.end_time;
     Ok(match &opts.resume {
         None => {
@@ -626,10 +826,12 @@ fn open_output<const D: usize>(
                 iterations: (0, 0),
                 wall_seconds: 0.0,
             };
-            (out, driver, lock)
+            (out, driver, lock, checkpoint::Resumed::default())
         }
         Some(path) => {
-            let driver = checkpoint::read(path, deck, sim)?;
+            // (rank 0 of a run over ranks)
+            let ranks = opts.ranks.as_ref().map_or(1, |r| r.0.size());
+            let (driver, resumed) = checkpoint::read(path, deck, sim, 0, ranks)?;
             if sim.time >= end - eps {
                 return Err(Error::Usage(format!(
                     "{}: the checkpoint is at t = {} s, at or past simulation.end_time = {end} s \
@@ -641,10 +843,19 @@ fn open_output<const D: usize>(
             let lock = crate::output::claim_directory(dir, opts.force, Some(path))?;
             crate::output::remove_frames_from(dir, driver.frames)?;
             let out = OutputWriter::resume(dir, deck, sim, &driver)?;
-            (out, driver, lock)
+            (out, driver, lock, resumed)
         }
     })
 }
+
+/// What [`open_output`] opens: the output, the driver's clocks, the directory's lock and
+/// what a resumed run read from its checkpoint.
+type Opened = (
+    OutputWriter,
+    DriverState,
+    crate::output::DirectoryLock,
+    checkpoint::Resumed,
+);
 
 /// The command that resumes this run from its checkpoint.
 /// `launch`: what starts it (`mpirun -n N ` for a run over N ranks, else nothing).

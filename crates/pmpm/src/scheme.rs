@@ -211,6 +211,8 @@ pub struct Simulation<const D: usize> {
     /// Where the grid is cut into slabs over the ranks ([`crate::slabs`]), kept in the
     /// checkpoint; `None` on one process, or where every rank holds the whole grid.
     pub decomposition: Option<crate::slabs::Decomposition>,
+    /// The particles the deck seeds, over every rank (a checkpoint of as many fits).
+    pub seeded: usize,
     /// The slabs' work between steps: the ranks without the slabs' exchange, the particles'
     /// counts per layer and the migration's buffers.
     slabs: Option<SlabWork>,
@@ -271,6 +273,7 @@ impl<const D: usize> Simulation<D> {
             },
             timers: PhaseTimers::default(),
             comm: crate::comm::Ranks::default(),
+            seeded: n,
             decomposition: None,
             slabs: None,
         }

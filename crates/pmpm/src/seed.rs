@@ -88,19 +88,23 @@ impl<const D: usize> Lattice<D> {
     }
 }
 
-/// Fills every body of the deck, in deck order, leaving out what lies in `rigid` (at t = 0).
+/// Fills every body of the deck, in deck order, leaving out what lies in `rigid` (at t = 0),
+/// and keeping only the particles that `keep` takes (given each particle's id and place): a
+/// rank of a distributed run builds its own part, never the whole. Ids, volumes, masses, the
+/// hydrostatic pressure and the report are those of the whole seeding.
 pub fn fill<const D: usize>(
     deck: &Deck,
     geo: &GridGeometry<D>,
     rigid: &RigidBodies<D>,
+    keep: &mut dyn FnMut(u32, &Vector<D>) -> bool,
 ) -> Result<(Particles<D>, Vec<Seeding>), DeckError> {
     let mut ps = Particles::default();
     let mut report = Vec::with_capacity(deck.bodies.len());
+    let mut next_id = 0;
     for b in 0..deck.bodies.len() {
-        report.push(fill_body(deck, b, geo, rigid, &mut ps)?);
+        report.push(fill_body(deck, b, geo, rigid, keep, &mut next_id, &mut ps)?);
     }
     let n = ps.len();
-    ps.id = (0..n as u32).collect();
     // the lattice loop grew the arrays by doubling: give back the unused half
     ps.shrink_to_fit();
     ps.set_stored(deck.stored_fields());
@@ -112,12 +116,15 @@ pub fn fill<const D: usize>(
 }
 
 /// Body `b`'s particles appended to `ps`: the lattice points inside its shape, the grid and
-/// no rigid body, at its initial velocity and stress, with volumes scaled to the shape's.
+/// no rigid body, at its initial velocity and stress, with volumes scaled to the shape's;
+/// numbered from `next_id` on, and only those `keep` takes.
 fn fill_body<const D: usize>(
     deck: &Deck,
     b: usize,
     geo: &GridGeometry<D>,
     rigid: &RigidBodies<D>,
+    keep: &mut dyn FnMut(u32, &Vector<D>) -> bool,
+    next_id: &mut u32,
     ps: &mut Particles<D>,
 ) -> Result<Seeding, DeckError> {
     let body = &deck.bodies[b];
@@ -136,6 +143,12 @@ fn fill_body<const D: usize>(
     let inside = |x: &Vector<D>| geo.contains(x) && solid.contains(x.as_slice());
     let start = ps.len();
     let velocity = body.velocity.compile().expect("validated expressions");
+    let down = (body.stress == Some(InitialStress::Hydrostatic))
+        .then(|| downward(deck, geo))
+        .flatten();
+    // the highest particle along -g, of the whole seeding (not only of those kept)
+    let mut top = f64::NEG_INFINITY;
+    let mut placed = 0;
     // each lattice point's side, kept for the volume's integration
     let mut status = vec![false; lattice.len()];
     for (k, s) in status.iter_mut().enumerate() {
@@ -144,6 +157,16 @@ fn fill_body<const D: usize>(
         if !*s || rigid.contains(&x) {
             continue;
         }
+        let id = *next_id;
+        *next_id += 1;
+        placed += 1;
+        if let Some((down, _)) = &down {
+            top = top.max(-x.dot(down));
+        }
+        if !keep(id, &x) {
+            continue;
+        }
+        ps.id.push(id);
         ps.x.push(x);
         ps.v.push(velocity.eval(&x, 0.0));
         if apic {
@@ -162,10 +185,11 @@ fn fill_body<const D: usize>(
     let n = ps.len();
     ps.jacobian.resize(n, 1.0);
     ps.pressure.resize(n, 0.0);
-    if body.stress == Some(InitialStress::Hydrostatic) {
-        hydrostatic(deck, mat, geo, lattice.spacing, start, ps);
+    if let Some((down, gnorm)) = down {
+        let top = top + 0.5 * lattice.spacing;
+        hydrostatic(deck, mat, down, gnorm, top, start, ps);
     }
-    let count = n - start;
+    let count = placed;
     let points = status.iter().filter(|s| **s).count();
     let mut seeding = Seeding {
         particles: count,
@@ -203,18 +227,9 @@ fn lattice_over<const D: usize>(solid: &Solid, geo: &GridGeometry<D>, spacing: f
     }
 }
 
-/// The initial pressure p = rho |g| (H - y) of particles `start..`, H the body's top along -g
-/// (the body force at the grid's origin at t = 0). With an equation of state p = K (1 - J) the
-/// particle is compressed: it fills its lattice volume now, so its reference volume and mass
-/// are larger.
-fn hydrostatic<const D: usize>(
-    deck: &Deck,
-    mat: usize,
-    geo: &GridGeometry<D>,
-    spacing: f64,
-    start: usize,
-    ps: &mut Particles<D>,
-) {
+/// The direction of the body force at the grid's origin at t = 0, and its magnitude; `None`
+/// without one.
+fn downward<const D: usize>(deck: &Deck, geo: &GridGeometry<D>) -> Option<(Vector<D>, f64)> {
     let g = deck
         .simulation
         .gravity
@@ -222,16 +237,23 @@ fn hydrostatic<const D: usize>(
         .expect("validated expressions")
         .eval(&geo.origin, 0.0);
     let gnorm = g.norm();
-    if gnorm == 0.0 {
-        return;
-    }
+    (gnorm != 0.0).then(|| (g / gnorm, gnorm))
+}
+
+/// The initial pressure p = rho |g| (H - y) of particles `start..`, H = `top`, the body's top
+/// along -g (`down`, the body force at the grid's origin at t = 0, of magnitude `gnorm`).
+/// With an equation of state p = K (1 - J) the particle is compressed: it fills its lattice
+/// volume now, so its reference volume and mass are larger.
+fn hydrostatic<const D: usize>(
+    deck: &Deck,
+    mat: usize,
+    down: Vector<D>,
+    gnorm: f64,
+    top: f64,
+    start: usize,
+    ps: &mut Particles<D>,
+) {
     let rho = deck.materials[mat].density;
-    let down = g / gnorm;
-    let top = ps.x[start..]
-        .iter()
-        .map(|x| -x.dot(&down))
-        .fold(f64::NEG_INFINITY, f64::max)
-        + 0.5 * spacing;
     for p in start..ps.len() {
         ps.pressure[p] = rho * gnorm * (top + ps.x[p].dot(&down));
         if let Some(k) = deck.materials[mat].bulk_modulus {

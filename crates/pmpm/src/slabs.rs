@@ -219,6 +219,15 @@ impl Counts {
         geo: &GridGeometry<D>,
         x: &[crate::grid::Vector<D>],
     ) {
+        self.reset(geo);
+        for x in x {
+            self.add(geo, x);
+        }
+        comm.sum(&mut self.values);
+    }
+
+    /// No particle yet, on the grid `geo`.
+    pub fn reset<const D: usize>(&mut self, geo: &GridGeometry<D>) {
         self.starts.clear();
         let mut at = 0;
         for d in 0..D {
@@ -228,19 +237,22 @@ impl Counts {
         self.starts.push(at);
         self.values.clear();
         self.values.resize(at, 0.0);
-        for x in x {
-            for d in 0..D {
-                self.values[self.starts[d] + layer_of(geo, d, x)] += 1.0;
-            }
+    }
+
+    /// Counts one more particle, at `x` (on this rank: [`Counts::of`] sums over ranks).
+    #[inline]
+    pub fn add<const D: usize>(&mut self, geo: &GridGeometry<D>, x: &crate::grid::Vector<D>) {
+        for d in 0..D {
+            self.values[self.starts[d] + layer_of(geo, d, x)] += 1.0;
         }
-        comm.sum(&mut self.values);
     }
 
     fn axis(&self, d: usize) -> &[f64] {
         &self.values[self.starts[d]..self.starts[d + 1]]
     }
 
-    fn total(&self) -> f64 {
+    /// The particles counted.
+    pub fn total(&self) -> f64 {
         self.axis(0).iter().sum()
     }
 }
