@@ -11,9 +11,9 @@
 //!
 //! Each rank builds only its own particles ([`build`]), and writes them: its piece of a frame
 //! and of a checkpoint (`run`, [`crate::output::write_parts`], [`crate::checkpoint::Pieces`]).
-//! Rank 0 writes the rest, with figures summed over the ranks. Only a gauges' row and a frame
-//! of the grid's nodes still read every particle on rank 0, which for that moment is the run
-//! on one process ([`gathered`]).
+//! Rank 0 writes the rest, with figures and gauges summed over the ranks. Only a frame of the
+//! grid's nodes still reads every particle on rank 0, which for that moment is the run on one
+//! process ([`gathered`]).
 
 use crate::comm::{self, Comm};
 use crate::deck::Deck;

@@ -97,7 +97,8 @@ impl Gauge {
         }
     }
 
-    /// The gauge's reading now, appended to `out`.
+    /// The gauge's reading now, of the particles of every rank of `sim`'s run (every rank
+    /// calls it, and reads the same), appended to `out`.
     pub fn read<const D: usize>(&self, sim: &Simulation<D>, out: &mut Vec<f64>) {
         let point = |at: &[f64; 3]| Vector::<D>::from_fn(|d, _| at[d]);
         match self {
@@ -118,7 +119,8 @@ impl Gauge {
                 }
             }
             Gauge::WallForce { face, all } => {
-                let f = wall_force(sim, *face);
+                let mut f = wall_force(sim, *face);
+                sim.comm.sum_vectors(std::slice::from_mut(&mut f));
                 let axis = face / 2;
                 for d in 0..D {
                     out.push(if *all || d == axis { f[d] } else { 0.0 });
@@ -138,13 +140,21 @@ fn hat_inside(a: f64, lo: f64, hi: f64, h: f64) -> f64 {
 }
 
 /// The mass-weighted mean of `q` over the particles within a cell of `at` (hat weights), and
-/// their weighted mass (0: no material there).
+/// their weighted mass (0: no material there), over every rank.
 fn point_mean<const D: usize>(
     sim: &Simulation<D>,
     at: &Vector<D>,
     q: impl Fn(usize) -> Vector<D>,
 ) -> (f64, Vector<D>) {
-    sim.particles.hat_mean(at, sim.grid.geo.h, q)
+    let comm = &sim.comm;
+    if !comm.is_distributed() {
+        return sim.particles.hat_mean(at, sim.grid.geo.h, q);
+    }
+    let (m, sum) = sim.particles.hat_sums(at, sim.grid.geo.h, q);
+    let mut sums = [Vector::<D>::repeat(m), sum];
+    comm.sum_vectors(&mut sums);
+    let (m, sum) = (sums[0][0], sums[1]);
+    (m, if m > 0.0 { sum / m } else { sum })
 }
 
 /// The surface's height on the vertical line through `at`: the volume fraction phi (the
@@ -194,6 +204,7 @@ fn surface<const D: usize>(
         phi[j] += v * (1.0 - f).max(0.0);
         phi[j + 1] += v * f.clamp(0.0, 1.0);
     }
+    sim.comm.sum(phi);
     for (j, value) in phi.iter_mut().enumerate() {
         let y = lo[up] + j as f64 * h;
         *value /= across * hat_inside(y, lo[up], hi[up], h);

@@ -34,6 +34,8 @@ pub struct OutputWriter {
     gauge_list: Vec<crate::gauges::Gauge>,
     gauge_interval: Option<f64>,
     gauge_row: Vec<f64>,
+    /// Whether `gauge_row` holds the readings of the next row ([`OutputWriter::read_gauges`]).
+    gauges_read: bool,
     /// Whether series.csv has the open boundaries' columns.
     flow: bool,
     /// Node spacing c of the interior fill series.csv reports ([`crate::fill`]).
@@ -130,6 +132,19 @@ pub fn write_parts<const D: usize>(
         stats: FrameStats::of(sim, crate::fill::spacing(deck)),
         ranks: comm.size(),
     })
+}
+
+/// The readings of `gauges` now, in `row` (cleared first), over every rank of `sim`'s run
+/// (every rank calls it at once).
+pub fn read_gauges<const D: usize>(
+    gauges: &[crate::gauges::Gauge],
+    sim: &Simulation<D>,
+    row: &mut Vec<f64>,
+) {
+    row.clear();
+    for g in gauges {
+        g.read(sim, row);
+    }
 }
 
 /// Frame `n`'s piece of rank `rank` (under the run directory).
@@ -668,6 +683,7 @@ impl OutputWriter {
             gauge_list,
             gauge_interval: deck.output.gauge_interval,
             gauge_row: Vec::new(),
+            gauges_read: false,
             dir: dir.to_path_buf(),
             csv: formats.contains(&Format::Csv),
             flow: deck.has_open_flow(),
@@ -834,14 +850,20 @@ impl OutputWriter {
         self.gauge_row_now(sim)
     }
 
+    /// Reads the gauges now, over every rank of a run over ranks (every rank calls
+    /// [`read_gauges`] at once, and rank 0 this), for the next gauges' row.
+    pub fn read_gauges<const D: usize>(&mut self, sim: &Simulation<D>) {
+        read_gauges(&self.gauge_list, sim, &mut self.gauge_row);
+        self.gauges_read = true;
+    }
+
     /// Appends one row of gauge readings of the state now, due or not.
     fn gauge_row_now<const D: usize>(&mut self, sim: &Simulation<D>) -> Result<(), Error> {
         let Some(w) = &mut self.gauges else {
             return Ok(());
         };
-        self.gauge_row.clear();
-        for g in &self.gauge_list {
-            g.read(sim, &mut self.gauge_row);
+        if !std::mem::take(&mut self.gauges_read) {
+            read_gauges(&self.gauge_list, sim, &mut self.gauge_row);
         }
         let r = (|| {
             write!(w, "{:.9e}", sim.time)?;

@@ -145,6 +145,18 @@ macro_rules! particle_fields {
         h: f64,
         q: impl Fn(usize) -> Vector<D>,
     ) -> (f64, Vector<D>) {
+        let (m, sum) = self.hat_sums(at, h, q);
+        (m, if m > 0.0 { sum / m } else { sum })
+    }
+
+    /// The sums of [`Particles::hat_mean`]: the weighted mass, and the mass-weighted sum of
+    /// `q` (a run over ranks adds them up over the ranks before it divides).
+    pub fn hat_sums(
+        &self,
+        at: &Vector<D>,
+        h: f64,
+        q: impl Fn(usize) -> Vector<D>,
+    ) -> (f64, Vector<D>) {
         let (mut m, mut sum) = (0.0, Vector::<D>::zeros());
         for p in 0..self.len() {
             let mut w = 1.0;
@@ -156,7 +168,7 @@ macro_rules! particle_fields {
                 sum += q(p) * (w * self.mass[p]);
             }
         }
-        (m, if m > 0.0 { sum / m } else { sum })
+        (m, sum)
     }
 
             /// Reorders every array so that the particle at place `order[k]` moves to place k.

@@ -161,7 +161,7 @@ fn run_dim<const D: usize>(
         .ranks
         .as_ref()
         .map_or_else(crate::comm::serial, |r| r.0.clone());
-    let (mut sim, _lock, mut w, mut driver, mut generation) =
+    let (mut sim, _lock, mut w, mut driver, mut generation, mut gauges) =
         begin::<D>(deck, file, dir, opts, observer, &comm, start)?;
     let launch = launcher(&*comm);
     let mut last_dt = 0.0;
@@ -187,7 +187,7 @@ fn run_dim<const D: usize>(
         // what the step brings to write: the ranks' parts of a frame first, then the rest on
         // rank 0, with every rank's particles there where it reads them all
         let due = Due::agreed(&*comm, w.as_ref().map(|w| w.due(t0, &sim, end)));
-        let parts = write_parts(deck, dir, &mut sim, &mut w, due);
+        let parts = write_parts(deck, dir, &mut sim, (&mut w, &mut gauges), due);
         let written = parts.and_then(|_| {
             crate::distributed::gathered(&mut sim, due.whole, |sim| match &mut w {
                 Some(w) => {
@@ -248,8 +248,9 @@ struct Due {
     frame: Option<usize>,
     /// The final state's probe row (a sum of the particles onto the grid first).
     final_probe: bool,
-    /// Whether rank 0 reads every particle of a run over ranks: a gauges' row, or a frame of
-    /// the grid's nodes.
+    /// A gauges' row.
+    gauges: bool,
+    /// Whether rank 0 reads every particle of a run over ranks: a frame of the grid's nodes.
     whole: bool,
 }
 
@@ -259,35 +260,48 @@ impl Due {
         if !comm.is_distributed() {
             return found.unwrap_or_default();
         }
-        let mut v = found.map_or([0.0; 3], |d| {
+        let flag = |b: bool| f64::from(u8::from(b));
+        let mut v = found.map_or([0.0; 4], |d| {
             [
                 d.frame.map_or(0.0, |n| n as f64 + 1.0),
-                f64::from(u8::from(d.final_probe)),
-                f64::from(u8::from(d.whole)),
+                flag(d.final_probe),
+                flag(d.gauges),
+                flag(d.whole),
             ]
         });
         comm.max(&mut v);
         Due {
             frame: (v[0] > 0.0).then(|| v[0] as usize - 1),
             final_probe: v[1] > 0.0,
-            whole: v[2] > 0.0,
+            gauges: v[2] > 0.0,
+            whole: v[3] > 0.0,
         }
     }
 }
 
+/// The gauges, on the ranks that do not write (they read them with rank 0), and a row of
+/// their readings.
+type Gauges = (Vec<crate::gauges::Gauge>, Vec<f64>);
+
 /// In a run over ranks, what every rank writes of what is `due` before rank 0 writes the
-/// rest (every rank calls it; on one process it does nothing): the sum onto the grid that
-/// the final probe row reads, and each rank's part of the frame's particle files and figures
-/// ([`crate::output::write_parts`]), handed to rank 0's output.
+/// rest (every rank calls it; on one process it does nothing): the gauges' readings, the sum
+/// onto the grid that the final probe row reads, and each rank's part of the frame's
+/// particle files and figures ([`crate::output::write_parts`]), handed to rank 0's output.
 fn write_parts<const D: usize>(
     deck: &Deck,
     dir: &Path,
     sim: &mut Simulation<D>,
-    w: &mut Option<Writing>,
+    (w, gauges): (&mut Option<Writing>, &mut Gauges),
     due: Due,
 ) -> Result<(), Error> {
     if !sim.comm.0.is_distributed() {
         return Ok(());
+    }
+    if due.gauges {
+        match w {
+            Some(w) => w.out.read_gauges(sim),
+            None => crate::output::read_gauges(&gauges.0, sim, &mut gauges.1),
+        }
     }
     // the final state's probe values, kept for rank 0's row after the step's (the step's
     // values are put back: its row is written first)
@@ -353,13 +367,14 @@ fn write_checkpoint<const D: usize>(
 /// The run set up on this rank: its simulation (its own particles; a resumed run's from the
 /// checkpoint), and on rank 0 the directory's lock and the output, a fresh run's frame of
 /// t = 0 written; the driver's clock set to the next frame; the checkpoints' generation
-/// ([`checkpoint::Pieces`]).
+/// ([`checkpoint::Pieces`]); the gauges the other ranks read with rank 0.
 type Begun<const D: usize> = (
     Simulation<D>,
     Option<crate::output::DirectoryLock>,
     Option<Writing>,
     Driver,
     u64,
+    Gauges,
 );
 
 /// Sets the run up on every rank of `comm` ([`Begun`]); the run began at `start`.
@@ -412,9 +427,14 @@ fn begin<const D: usize>(
         (Some(_), false) => crate::distributed::Held::Every,
     };
     crate::distributed::distribute(&mut sim, comm.clone(), held)?;
+    // (rank 0's are its output's)
+    let mut gauges: Gauges = match &w {
+        None if comm.is_distributed() => (deck.gauges(), Vec::new()),
+        _ => Default::default(),
+    };
     if opts.resume.is_none() {
         let due = Due::agreed(&*comm, w.as_ref().map(|w| w.first_due()));
-        write_parts(deck, dir, &mut sim, &mut w, due)?;
+        write_parts(deck, dir, &mut sim, (&mut w, &mut gauges), due)?;
         crate::distributed::gathered(&mut sim, due.whole, |sim| match &mut w {
             Some(w) => w
                 .out
@@ -433,7 +453,7 @@ fn begin<const D: usize>(
         }
         w.driver.next_frame = driver.next_frame;
     }
-    Ok((sim, lock, w, driver, resumed.generation))
+    Ok((sim, lock, w, driver, resumed.generation, gauges))
 }
 
 /// The run's output, opened on rank 0 by `open` ([`Writing::open`]; a resumed run reads its
@@ -660,7 +680,8 @@ impl Writing {
         Due {
             frame: frame.then_some(self.out.frames),
             final_probe: sim.time >= self.end - self.eps || end.last,
-            whole: self.out.gauge_due(t0, sim.time) || (frame && self.out.grid_frames()),
+            gauges: self.out.gauge_due(t0, sim.time),
+            whole: frame && self.out.grid_frames(),
         }
     }
 
@@ -669,7 +690,8 @@ impl Writing {
         Due {
             frame: Some(self.out.frames),
             final_probe: false,
-            whole: self.out.has_gauges() || self.out.grid_frames(),
+            gauges: self.out.has_gauges(),
+            whole: self.out.grid_frames(),
         }
     }
 
