@@ -110,7 +110,7 @@ pub fn is_piece(name: &str) -> bool {
     let Some((set, rank)) = rest.split_once(".rank") else {
         return false;
     };
-    matches!(set, "0" | "1") && rank.len() == 4 && rank.bytes().all(|b| b.is_ascii_digit())
+    matches!(set, "0" | "1") && rank.len() >= 4 && rank.bytes().all(|b| b.is_ascii_digit())
 }
 
 /// The payload.
@@ -481,11 +481,23 @@ pub fn read<const D: usize>(
     check_deck(path, deck, &s)?;
     let open = deck.has_open_flow();
     let flow = check_open_flow(path, open, flow)?;
-    if let (Some(p), 0) = (&pieces, rank) {
-        // rank 0 reads first, alone, before the directory is cut back to the checkpoint:
-        // every piece is there, whole, or nothing is touched
-        for r in 1..p.counts.len() {
-            whole_piece(path, &piece_path(path, p.generation, r), r)?;
+    if let Some(p) = &pieces {
+        let total: u64 = p.counts.iter().sum();
+        if !open && total != sim.seeded as u64 {
+            return Err(refuse(
+                path,
+                format!(
+                    "its pieces hold {total} particles, the deck makes {}",
+                    sim.seeded
+                ),
+            ));
+        }
+        if rank == 0 {
+            // rank 0 reads first, alone, before the directory is cut back to the checkpoint:
+            // every piece is there, whole and of this checkpoint, or nothing is touched
+            for r in 1..p.counts.len() {
+                read_piece(path, p, r, &s)?;
+            }
         }
     }
     let (s, own) = match &pieces {
@@ -521,31 +533,6 @@ pub struct Resumed {
     pub own: bool,
     /// The checkpoint's generation ([`Pieces::generation`]; 0 for one of one process).
     pub generation: u64,
-}
-
-/// Refuses the checkpoint at `path` where rank `rank`'s piece `at` is missing or is not as
-/// long as its header says (its checksum is checked where that rank reads it).
-fn whole_piece(path: &Path, at: &Path, rank: usize) -> Result<(), Error> {
-    use std::io::Read;
-    let lost = |why: String| {
-        refuse(
-            path,
-            format!("its piece of rank {rank}, {}, {why}", at.display()),
-        )
-    };
-    let mut head = [0u8; 24];
-    let size = std::fs::File::open(at)
-        .and_then(|mut f| {
-            f.read_exact(&mut head)?;
-            f.metadata()
-        })
-        .map_err(|e| lost(format!("cannot be read ({e})")))?
-        .len();
-    let len = u64::from_le_bytes(head[16..24].try_into().expect("8 bytes"));
-    if &head[..8] != MAGIC || size != 24 + len {
-        return Err(lost("is not whole".into()));
-    }
-    Ok(())
 }
 
 /// Rank `rank`'s piece of the checkpoint at `path` whose rank 0 holds `first` and names the
@@ -1042,6 +1029,7 @@ mod tests {
             ]
         );
         assert!(names.iter().all(|n| is_piece(n)));
+        assert!(is_piece("checkpoint.bin.0.rank12345"));
         for other in [
             "checkpoint.bin",
             "checkpoint.bin.2.rank0001",

@@ -64,7 +64,8 @@ pub trait Comm: Send + Sync {
 }
 
 impl<'a> dyn Comm + 'a {
-    /// Whether this is rank 0, the rank that writes the run's files.
+    /// Whether this is rank 0, the rank that writes the run's shared files (the others write
+    /// only their pieces of frames and checkpoints).
     pub fn is_root(&self) -> bool {
         self.rank() == 0
     }

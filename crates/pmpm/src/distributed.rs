@@ -1,12 +1,12 @@
-//! A run spread over ranks (MPI processes): the particles shared out, and gathered again on
-//! rank 0 for what the run writes (docs/distributed.md).
+//! A run spread over ranks (MPI processes): each rank builds, steps and writes its own share
+//! of the particles (docs/distributed.md).
 //!
 //! The grid is cut into slabs, one a rank ([`crate::slabs`]): each rank holds the particles of
 //! its slab and the nodes they reach, and neighbours swap the node layers they share after
 //! every sum of particles onto the grid. Where the grid is too short for as many slabs, every
 //! rank holds the whole grid instead and every such sum is added up over all of it
-//! ([`crate::comm::Comm::sum`]); each rank then holds an equal contiguous share of the
-//! particles in cell order. The projection's pressure solve is not spread yet (its stages read
+//! ([`crate::comm::Comm::sum`]); each rank then holds an equal share of the particles by id,
+//! in cell order. The projection's pressure solve is not spread yet (its stages read
 //! the particles in ways not yet added up over ranks, and are refused: [`unsupported`]).
 //!
 //! Each rank builds only its own particles ([`build`]), and writes them: its piece of a frame
@@ -237,7 +237,7 @@ pub fn gathered<const D: usize>(
     if largest > i32::MAX as f64 {
         return Err(Error::Usage(format!(
             "a rank's particles are {:.1} GB, more than it can send rank 0 in one piece (2 GiB) \
-             to write a frame or a checkpoint in this stage of the distributed run \
+             to write a frame of the grid's nodes in this stage of the distributed run \
              (docs/distributed.md): run them over more ranks",
             largest / 1e9
         )));

@@ -312,7 +312,11 @@ fn frame_number(name: &str) -> Option<usize> {
         Some(rest) => match rest.strip_suffix(".vtu") {
             // a rank's piece of a frame of a run over ranks: NNNNNN_RRRR.vtu
             Some(piece) => match piece.split_once('_') {
-                Some((num, rank)) if rank.len() == 4 && rank.parse::<u32>().is_ok() => num,
+                Some((num, rank))
+                    if rank.len() >= 4 && rank.bytes().all(|b| b.is_ascii_digit()) =>
+                {
+                    num
+                }
                 Some(_) => return None,
                 None => piece,
             },
@@ -1112,7 +1116,7 @@ fn write_vtu<const D: usize>(path: &Path, sim: &Simulation<D>) -> std::io::Resul
         bytes: f64s(at.iter().flat_map(|&p| pad3(&ps.x[p]))),
     };
     let point_data = vtu_point_data(sim, &at);
-    let cells = vtu_cells(ps, &at);
+    let cells = vtu_cells(n);
     let xml = vtu_header(sim.time, n, &point_data, &points, &cells);
     write_atomic(path, |w| {
         w.write_all(xml.as_bytes())?;
@@ -1151,16 +1155,11 @@ fn write_pvtu<const D: usize>(
     xml += "<?xml version=\"1.0\"?>\n";
     xml += "<VTKFile type=\"PUnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
     xml += "  <PUnstructuredGrid GhostLevel=\"0\">\n";
-    xml += "    <PPointData Scalars=\"pressure\" Vectors=\"velocity\" Tensors=\"stress\">\n";
+    xml += "    <PPointData Scalars=\"pressure\" Vectors=\"velocity\">\n";
     xml += &arrays(&vtu_point_data(sim, &[]));
     xml += "    </PPointData>\n    <PPoints>\n";
     xml += "      <PDataArray type=\"Float64\" NumberOfComponents=\"3\"/>\n";
-    xml += "    </PPoints>\n    <PCells>\n";
-    xml += &arrays(&vtu_cells(
-        &crate::particles::Particles::<D>::default(),
-        &[],
-    ));
-    xml += "    </PCells>\n";
+    xml += "    </PPoints>\n";
     for rank in 0..ranks {
         let piece = piece_name(n, rank);
         let file = piece.strip_prefix("frames/").unwrap_or(&piece);
@@ -1258,18 +1257,16 @@ fn vtu_point_data<const D: usize>(sim: &Simulation<D>, at: &[usize]) -> Vec<Arra
     point_data
 }
 
-/// The .vtu's cells: one vertex per particle `at` (in id order).
-fn vtu_cells<const D: usize>(ps: &crate::particles::Particles<D>, at: &[usize]) -> [Array; 3] {
-    let n = ps.len();
+/// The .vtu's cells: one vertex per point, `n` of them.
+fn vtu_cells(n: usize) -> [Array; 3] {
     [
         Array {
             name: "connectivity",
             vtk_type: "Int64",
             components: 1,
-            bytes: at
-                .iter()
-                .flat_map(|&p| (ps.id[p] as i64).to_le_bytes())
-                .collect(),
+            // each vertex's point, by its place in the file (not the particle's id: ids have
+            // gaps where particles left, and a rank's piece holds some of them)
+            bytes: (0..n as i64).flat_map(i64::to_le_bytes).collect(),
         },
         Array {
             name: "offsets",
@@ -1436,6 +1433,7 @@ mod tests {
             ("particles_000012.vtu", 12),
             ("particles_000012.pvtu", 12),
             ("particles_000012_0003.vtu", 12),
+            ("particles_000012_12345.vtu", 12),
             ("particles_000012.csv.partial", 12),
             ("grid_000007.vti", 7),
         ] {

@@ -203,9 +203,10 @@ fn run_dim<const D: usize>(
             })
         });
         // the checkpoint rank 0 found due, written by every rank (its own piece)
-        let checkpoint = comm.any(w.as_mut().is_some_and(|w| w.take_checkpoint()));
         let written = match written {
-            Ok(()) if checkpoint => write_checkpoint(deck, &mut sim, &mut w, dir, &mut generation),
+            Ok(()) if due.checkpoint => {
+                write_checkpoint(deck, &mut sim, &mut w, dir, &mut generation)
+            }
             written => written,
         };
         if let Err(e) = written {
@@ -250,6 +251,8 @@ struct Due {
     final_probe: bool,
     /// A gauges' row.
     gauges: bool,
+    /// A checkpoint (written after the rest).
+    checkpoint: bool,
     /// Whether rank 0 reads every particle of a run over ranks: a frame of the grid's nodes.
     whole: bool,
 }
@@ -261,11 +264,12 @@ impl Due {
             return found.unwrap_or_default();
         }
         let flag = |b: bool| f64::from(u8::from(b));
-        let mut v = found.map_or([0.0; 4], |d| {
+        let mut v = found.map_or([0.0; 5], |d| {
             [
                 d.frame.map_or(0.0, |n| n as f64 + 1.0),
                 flag(d.final_probe),
                 flag(d.gauges),
+                flag(d.checkpoint),
                 flag(d.whole),
             ]
         });
@@ -274,7 +278,8 @@ impl Due {
             frame: (v[0] > 0.0).then(|| v[0] as usize - 1),
             final_probe: v[1] > 0.0,
             gauges: v[2] > 0.0,
-            whole: v[3] > 0.0,
+            checkpoint: v[3] > 0.0,
+            whole: v[4] > 0.0,
         }
     }
 }
@@ -344,10 +349,10 @@ fn write_checkpoint<const D: usize>(
             checkpoint::write(&piece, deck, sim, &DriverState::none(), None).err()
         })
         .flatten()
-        .map(|e| e.to_string());
+        .map(|e| format!("rank {rank}: {e}"));
     if let Some(message) = comm.agree(failed) {
         return Err(Error::Io {
-            path: format!("rank {rank}'s piece of the checkpoint"),
+            path: "a rank's piece of the checkpoint".into(),
             source: std::io::Error::other(message),
         });
     }
@@ -562,8 +567,6 @@ struct Writing {
     room: Option<RoomGuard>,
     /// What starts the run (`mpirun -n N ` over N ranks), for the resume command.
     launch: String,
-    /// Whether the last step brought a checkpoint to write.
-    checkpoint_due: bool,
     /// What a resumed run's rank 0 read from its checkpoint.
     resumed: checkpoint::Resumed,
     /// The final probe row's values, where every rank has summed the particles onto the
@@ -657,7 +660,6 @@ impl Writing {
                 .ranks
                 .as_ref()
                 .map_or_else(String::new, |r| launcher(&**r)),
-            checkpoint_due: false,
             resumed,
             final_probes: None,
         };
@@ -677,10 +679,13 @@ impl Writing {
             return Due::default();
         };
         let frame = end.scheduled || end.last || end.interrupted;
+        let at_end = sim.time >= self.end - self.eps;
+        let checkpoint = sim.time >= self.driver.next_checkpoint - self.eps;
         Due {
             frame: frame.then_some(self.out.frames),
-            final_probe: sim.time >= self.end - self.eps || end.last,
+            final_probe: at_end || end.last,
             gauges: self.out.gauge_due(t0, sim.time),
+            checkpoint: checkpoint || at_end || end.interrupted,
             whole: frame && self.out.grid_frames(),
         }
     }
@@ -691,6 +696,7 @@ impl Writing {
             frame: Some(self.out.frames),
             final_probe: false,
             gauges: self.out.has_gauges(),
+            checkpoint: false,
             whole: self.out.grid_frames(),
         }
     }
@@ -719,8 +725,9 @@ impl Writing {
         Ok(())
     }
 
-    /// After a step of `dt`: the frame the driver found due (`end.scheduled`), the final
-    /// probe row and the checkpoint that are due. At the end there are all three; at the
+    /// After a step of `dt`: the frame the driver found due (`end.scheduled`) and the final
+    /// probe row, where they are due (the checkpoint that is due follows, written by every
+    /// rank: [`Writing::due`], [`write_checkpoint`]). At the end there are all three; at the
     /// `last` step asked for (a benchmark), a frame and the probe row; when `interrupted`, a
     /// frame and a checkpoint. A frame written only because the run was interrupted is not
     /// counted: the resumed run writes the next frame of the schedule under its number, so
@@ -767,16 +774,8 @@ impl Writing {
             }
             self.out.probe_row(sim.time, sim)?;
         }
-        let checkpoint_due = sim.time >= self.driver.next_checkpoint - eps;
-        // written after, by every rank ([`write_checkpoint`])
-        self.checkpoint_due = checkpoint_due || at_end || interrupted;
+        // (the checkpoint that is due is written after, by every rank: [`write_checkpoint`])
         Ok(())
-    }
-
-    /// Whether a checkpoint is due after the step ([`Writing::after_step`]); the next step's
-    /// is found again.
-    fn take_checkpoint(&mut self) -> bool {
-        std::mem::take(&mut self.checkpoint_due)
     }
 
     /// Writes the checkpoint of `sim` (rank 0's file of a run over ranks, which names the
