@@ -278,18 +278,7 @@ fn frames_and_checkpoints_are_a_file_a_rank_and_a_lost_piece_is_named() {
     std::fs::remove_file(copy.join("checkpoint.bin.0.rank0001")).unwrap();
     let before = std::fs::read(copy.join("series.csv")).unwrap();
     let frames = std::fs::read_dir(copy.join("frames")).unwrap().count();
-    let o = run_on(
-        2,
-        &[
-            "run",
-            long.to_str().unwrap(),
-            "-q",
-            "-o",
-            copy.to_str().unwrap(),
-            "--resume",
-            copy.join("checkpoint.bin").to_str().unwrap(),
-        ],
-    );
+    let o = resumed(2, &long, &copy);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("checkpoint.bin.0.rank0001"), "{err}");
@@ -302,7 +291,13 @@ fn frames_and_checkpoints_are_a_file_a_rank_and_a_lost_piece_is_named() {
 
 /// Resumes the run in `out` from its checkpoint with `deck` on `ranks` ranks; it must succeed.
 fn resume(ranks: usize, deck: &Path, out: &Path) {
-    let o = run_on(
+    let o = resumed(ranks, deck, out);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// What resuming the run in `out` from its checkpoint with `deck` on `ranks` ranks gives.
+fn resumed(ranks: usize, deck: &Path, out: &Path) -> Output {
+    run_on(
         ranks,
         &[
             "run",
@@ -313,8 +308,7 @@ fn resume(ranks: usize, deck: &Path, out: &Path) {
             "--resume",
             out.join("checkpoint.bin").to_str().unwrap(),
         ],
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    )
 }
 
 /// Copies a run's directory (files and the frames folder).
