@@ -565,11 +565,10 @@ fn every_piece<const D: usize>(
         more.stored = all.stored;
         all.append(&mut more);
     }
-    let particles = postcard::from_bytes(
-        &postcard::to_stdvec(&all.flat_view()).expect("the particles' flat form serialises"),
-    )
-    .expect("the particles' flat form reads back");
-    Ok(State { particles, ..first })
+    Ok(State {
+        particles: all.flatten(),
+        ..first
+    })
 }
 
 /// The piece of rank `rank` of the checkpoint at `path` (whose rank 0 holds `first`),
