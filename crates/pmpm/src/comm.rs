@@ -395,6 +395,146 @@ mod mpi_comm {
     }
 }
 
+/// Ranks as threads of one process, for the tests of what runs over ranks without MPI: every
+/// operation is built on one mailbox of byte messages, first in first out per pair of ranks,
+/// and the reductions add up on rank 0 in rank order (the same bits on every rank, as MPI's).
+#[cfg(test)]
+pub(crate) mod threads {
+    use super::Comm;
+    use std::collections::{HashMap, VecDeque};
+    use std::sync::{Arc, Condvar, Mutex};
+
+    /// The messages from one rank to another, oldest first.
+    type Queues = HashMap<(usize, usize), VecDeque<Vec<u8>>>;
+
+    #[derive(Default)]
+    struct Post {
+        boxes: Mutex<Queues>,
+        arrived: Condvar,
+    }
+
+    /// One rank of a run over threads.
+    pub(crate) struct Threads {
+        rank: usize,
+        size: usize,
+        post: Arc<Post>,
+    }
+
+    /// Runs `f` on `size` ranks, each a thread with its own [`Threads`], and returns what each
+    /// rank returned, in rank order.
+    pub(crate) fn run<T: Send>(size: usize, f: impl Fn(Arc<dyn Comm>) -> T + Sync) -> Vec<T> {
+        let post = Arc::new(Post::default());
+        std::thread::scope(|s| {
+            let handles: Vec<_> = (0..size)
+                .map(|rank| {
+                    let (post, f) = (post.clone(), &f);
+                    s.spawn(move || f(Arc::new(Threads { rank, size, post })))
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        })
+    }
+
+    impl Threads {
+        fn reduce(&self, values: &mut [f64], op: fn(f64, f64) -> f64) {
+            if self.rank == 0 {
+                for from in 1..self.size {
+                    let theirs: Vec<f64> = bytemuck::pod_collect_to_vec(&self.receive_bytes(from));
+                    for (v, t) in values.iter_mut().zip(theirs) {
+                        *v = op(*v, t);
+                    }
+                }
+            } else {
+                self.send_bytes(0, bytemuck::cast_slice(values));
+            }
+            let mut bytes = bytemuck::cast_slice(values).to_vec();
+            self.broadcast(&mut bytes);
+            values.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f64>(&bytes));
+        }
+    }
+
+    impl Comm for Threads {
+        fn rank(&self) -> usize {
+            self.rank
+        }
+        fn size(&self) -> usize {
+            self.size
+        }
+        fn sum(&self, values: &mut [f64]) {
+            self.reduce(values, |a, b| a + b)
+        }
+        fn max(&self, values: &mut [f64]) {
+            self.reduce(values, f64::max)
+        }
+        fn min(&self, values: &mut [f64]) {
+            self.reduce(values, f64::min)
+        }
+        fn gather(&self, bytes: &[u8]) -> Vec<Vec<u8>> {
+            if self.rank != 0 {
+                self.send_bytes(0, bytes);
+                return Vec::new();
+            }
+            let mut all = vec![bytes.to_vec()];
+            all.extend((1..self.size).map(|from| self.receive_bytes(from)));
+            all
+        }
+        fn broadcast(&self, bytes: &mut Vec<u8>) {
+            if self.rank == 0 {
+                for to in 1..self.size {
+                    self.send_bytes(to, bytes);
+                }
+            } else {
+                *bytes = self.receive_bytes(0);
+            }
+        }
+        fn swap(&self, peer: usize, send: &[f64], recv: &mut [f64]) {
+            self.send_bytes(peer, bytemuck::cast_slice(send));
+            let theirs: Vec<f64> = bytemuck::pod_collect_to_vec(&self.receive_bytes(peer));
+            recv.copy_from_slice(&theirs);
+        }
+        fn send_bytes(&self, to: usize, bytes: &[u8]) {
+            let mut boxes = self.post.boxes.lock().unwrap();
+            boxes
+                .entry((self.rank, to))
+                .or_default()
+                .push_back(bytes.to_vec());
+            self.post.arrived.notify_all();
+        }
+        fn receive_bytes(&self, from: usize) -> Vec<u8> {
+            let mut boxes = self.post.boxes.lock().unwrap();
+            loop {
+                if let Some(m) = boxes
+                    .get_mut(&(from, self.rank))
+                    .and_then(|q| q.pop_front())
+                {
+                    return m;
+                }
+                boxes = self.post.arrived.wait(boxes).unwrap();
+            }
+        }
+        fn exchange(
+            &self,
+            send: &[u8],
+            counts: &[usize],
+            recv: &mut Vec<u8>,
+            recv_counts: &mut Vec<usize>,
+        ) {
+            let mut at = 0;
+            for (to, &c) in counts.iter().enumerate() {
+                self.send_bytes(to, &send[at..at + c]);
+                at += c;
+            }
+            recv.clear();
+            recv_counts.clear();
+            for from in 0..self.size {
+                let m = self.receive_bytes(from);
+                recv_counts.push(m.len());
+                recv.extend_from_slice(&m);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

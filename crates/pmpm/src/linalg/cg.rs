@@ -57,6 +57,14 @@ pub trait Operator<T> {
     /// Removes A's null space from `v` (the constant of a closed container's Laplacian);
     /// nothing where A is definite.
     fn project(&self, _v: &mut [T], _partials: &mut Vec<f64>) {}
+    /// The inner product of two vectors of the solve (over ranks, of their own rows summed
+    /// over the ranks).
+    fn dot(&self, a: &[T], b: &[T], partials: &mut Vec<f64>) -> f64
+    where
+        T: Entry,
+    {
+        dot(a, b, partials)
+    }
 }
 
 /// A preconditioner M^-1 of the conjugate gradient.
@@ -118,7 +126,7 @@ impl<T: Entry> CgWork<T> {
         } = self;
         let (tol, max_iterations) = (params.tolerance, params.max_iterations);
         a.project(r, partials);
-        let mut r_norm = dot(r, r, partials).sqrt();
+        let mut r_norm = a.dot(r, r, partials).sqrt();
         if !r_norm.is_finite() {
             return Err(SolveError::Breakdown(
                 "the right-hand side is not finite".into(),
@@ -135,10 +143,10 @@ impl<T: Entry> CgWork<T> {
         m.apply(r, z);
         a.project(z, partials);
         p.copy_from_slice(z);
-        let mut rz = dot(r, z, partials);
+        let mut rz = a.dot(r, z, partials);
         for it in 1..=max_iterations {
             a.apply(p, q);
-            let pq = dot(p, q, partials);
+            let pq = a.dot(p, q, partials);
             if pq <= 0.0 || !pq.is_finite() {
                 return Err(SolveError::Breakdown(format!(
                     "p.Ap = {pq:.3e} at iteration {it}: the operator is not positive definite"
@@ -153,7 +161,7 @@ impl<T: Entry> CgWork<T> {
                     *r = r.add_scaled(-alpha, *q);
                 });
             a.project(r, partials);
-            r_norm = dot(r, r, partials).sqrt();
+            r_norm = a.dot(r, r, partials).sqrt();
             if !r_norm.is_finite() {
                 return Err(SolveError::Breakdown(format!(
                     "the residual is not finite at iteration {it}"
@@ -169,7 +177,7 @@ impl<T: Entry> CgWork<T> {
             }
             m.apply(r, z);
             a.project(z, partials);
-            let rz_new = dot(r, z, partials);
+            let rz_new = a.dot(r, z, partials);
             let beta = rz_new / rz;
             rz = rz_new;
             p.par_iter_mut()

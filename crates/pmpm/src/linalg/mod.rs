@@ -18,9 +18,11 @@
 
 mod cg;
 pub mod multigrid;
+pub mod spread;
 
 pub use cg::{dot, CgWork, Entry, Operator, Precondition};
 pub use multigrid::{GridLayout, Multigrid};
+pub use spread::Partition;
 
 use faer::linalg::solvers::Solve;
 use faer::sparse::{SparseColMat, Triplet};
@@ -55,10 +57,15 @@ impl EllMatrix {
 
     /// y = A x.
     pub fn matvec(&self, x: &[f64], y: &mut [f64]) {
+        self.matvec_rows(x, y, 0);
+    }
+
+    /// The rows `first..first + y.len()` of A x, into y.
+    pub fn matvec_rows(&self, x: &[f64], y: &mut [f64], first: usize) {
         let w = self.width;
         y.par_chunks_mut(CHUNK).enumerate().for_each(|(c, ys)| {
             for (k, y) in ys.iter_mut().enumerate() {
-                let r = c * CHUNK + k;
+                let r = first + c * CHUNK + k;
                 let cols = &self.cols[r * w..(r + 1) * w];
                 let vals = &self.vals[r * w..(r + 1) * w];
                 *y = cols
@@ -142,6 +149,8 @@ pub struct System<'a> {
     /// The constant vector is A's null space (a closed, filled container): b is made
     /// consistent by removing its mean and the solution has zero mean.
     pub singular: bool,
+    /// The rows spread over ranks ([`spread`]); `None` on one process.
+    pub partition: Option<&'a Partition>,
 }
 
 /// When an iterative solve stops.
@@ -157,6 +166,11 @@ pub struct SolveParams {
 pub trait Preconditioner: Send + Sync {
     /// Prepares for a new system.
     fn setup(&mut self, system: &System);
+    /// Whether it works on a system spread over ranks ([`spread`]): given the rows of this
+    /// rank's slab, it gives back those rows, as on one process.
+    fn spreads(&self) -> bool {
+        false
+    }
     /// z = M^-1 r, for the matrix `a` of the system last given to `setup`.
     fn apply(&mut self, a: &EllMatrix, r: &[f64], z: &mut [f64]);
 }
@@ -168,6 +182,10 @@ pub struct Jacobi {
 }
 
 impl Preconditioner for Jacobi {
+    fn spreads(&self) -> bool {
+        true
+    }
+
     fn setup(&mut self, system: &System) {
         system.matrix.diagonal(&mut self.inverse_diagonal);
         self.inverse_diagonal
@@ -326,6 +344,8 @@ pub enum SolveError {
 pub struct Pcg {
     preconditioner: Box<dyn Preconditioner>,
     work: CgWork<f64>,
+    /// Its work over ranks ([`spread`]).
+    spread: spread::SpreadWork,
 }
 
 /// A system's matrix as the conjugate gradient's operator, the constant removed where the
@@ -364,6 +384,7 @@ impl Pcg {
         Self {
             preconditioner,
             work: CgWork::default(),
+            spread: Default::default(),
         }
     }
 
@@ -377,6 +398,9 @@ impl Pcg {
         params: SolveParams,
         setup: bool,
     ) -> Result<SolveStats, SolveError> {
+        if let Some(partition) = system.partition.filter(|p| p.is_spread()) {
+            return spread::solve(self, system, partition, (b, x), params, setup);
+        }
         let a = system.matrix;
         self.work.resize(a.n);
         if setup {
@@ -553,6 +577,7 @@ mod tests {
             matrix: a,
             layout: &NO_GRID,
             singular,
+            partition: None,
         }
     }
 

@@ -17,6 +17,7 @@
 //! where the geometry gives it for free. Every loop gathers per output row in a fixed order,
 //! so a solve repeats bitwise for a given thread count; all buffers are kept between steps.
 
+use super::spread::{Halo, Share};
 use super::{EllMatrix, Preconditioner, System};
 use rayon::prelude::*;
 
@@ -137,6 +138,8 @@ struct Level {
     x: Vec<f64>,
     b: Vec<f64>,
     r: Vec<f64>,
+    /// This rank's rows, over ranks ([`super::spread`]).
+    share: Share,
 }
 
 /// The multigrid preconditioner.
@@ -151,12 +154,30 @@ pub struct Multigrid {
     /// Dense Cholesky factor of the coarsest level (row-major lower triangle), if factorised.
     factor: Vec<f64>,
     dense: bool,
+    /// This rank's rows of the finest level (every row on one process).
+    fine_share: Share,
+    /// Over ranks, the exchanges ([`super::spread`]); `None` on one process.
+    halo: Option<Halo>,
+    /// Over ranks, with no coarser level: the finest matrix summed whole, for its dense solve,
+    /// and the share that sums it.
+    fine_whole: EllMatrix,
+    fine_gather: Share,
 }
 
 impl Multigrid {
     /// Number of levels of the last setup, the finest included.
     pub fn levels(&self) -> usize {
         self.used + 1
+    }
+
+    /// Per coarse level of the last setup, whether it is cut into slabs and whether it is the
+    /// first one summed whole ([`super::spread`]).
+    #[cfg(test)]
+    pub(super) fn coarse_shares(&self) -> Vec<(bool, bool)> {
+        self.levels[..self.used]
+            .iter()
+            .map(|l| (l.share.slab, l.share.gather))
+            .collect()
     }
 
     /// Unknowns per level of the last setup, finest first.
@@ -176,10 +197,10 @@ fn inverse_diagonal(a: &EllMatrix, d: &mut Vec<f64>) {
 /// Builds `coarse` from the finer level (`fine_layout`, `fine_a`, `fine_row_of`); false when
 /// the grid cannot be coarsened (a periodic axis with an odd or too small number of cells).
 fn coarsen(
-    fine_layout: &GridLayout,
-    fine_a: &EllMatrix,
-    fine_row_of: &[u32],
+    (fine_layout, fine_a, fine_row_of): (&GridLayout, &EllMatrix, &[u32]),
+    fine_share: &Share,
     coarse: &mut Level,
+    halo: &mut Option<Halo>,
 ) -> bool {
     let Some(mut lay) = coarse_layout(fine_layout) else {
         return false;
@@ -190,6 +211,8 @@ fn coarsen(
         coarse.layout = lay;
         return false;
     }
+    let (dim, rank) = (lay.dim, halo.as_ref().map_or(0, |h| h.comm.rank()));
+    coarse.share = fine_share.coarser(&lay.index, dim, lay.nodes[dim - 1], lay.reach, rank);
     link_parents(fine_layout, &lay, coarse);
     link_children(fine_layout, fine_row_of, &lay, coarse);
     let key = [lay.dim, fine_layout.reach, lay.reach];
@@ -198,6 +221,10 @@ fn coarsen(
         coarse.slots_for = key;
     }
     galerkin(fine_a, &lay, coarse);
+    if let Some(h) = halo {
+        h.swap_matrix(&coarse.share, &mut coarse.a);
+        h.gather_matrix(&coarse.share, &mut coarse.a);
+    }
     inverse_diagonal(&coarse.a, &mut coarse.inverse_diagonal);
     for v in [&mut coarse.x, &mut coarse.b, &mut coarse.r] {
         v.resize(n_coarse, 0.0);
@@ -406,7 +433,7 @@ fn slot_table(fine_layout: &GridLayout, lay: &GridLayout, table: &mut Vec<u32>) 
     }
 }
 
-/// The Galerkin operator A_c = P^T A P, gathered per coarse row.
+/// The Galerkin operator A_c = P^T A P, gathered per coarse row (this rank's).
 fn galerkin(fine_a: &EllMatrix, lay: &GridLayout, coarse: &mut Level) {
     let corners = 1usize << lay.dim;
     let kids = 3usize.pow(lay.dim as u32);
@@ -423,13 +450,14 @@ fn galerkin(fine_a: &EllMatrix, lay: &GridLayout, coarse: &mut Level) {
         kids * fw * corners,
         "rows' slots are not geometric"
     );
-    coarse
-        .a
-        .cols
+    let own = coarse.share.owned.clone();
+    let slots = own.start * width..own.end * width;
+    coarse.a.cols[slots.clone()]
         .par_chunks_mut(width)
-        .zip(coarse.a.vals.par_chunks_mut(width))
+        .zip(coarse.a.vals[slots].par_chunks_mut(width))
         .enumerate()
-        .for_each(|(row, (cols, vals))| {
+        .for_each(|(k, (cols, vals))| {
+            let row = own.start + k;
             // slots start unused (column = row, value 0)
             cols.fill(row as u32);
             vals.fill(0.0);
@@ -459,38 +487,61 @@ fn galerkin(fine_a: &EllMatrix, lay: &GridLayout, coarse: &mut Level) {
         });
 }
 
+/// A level's operator and smoother on this rank's rows: A, D^-1, the share.
+#[derive(Clone, Copy)]
+struct Op<'a> {
+    a: &'a EllMatrix,
+    inverse_diagonal: &'a [f64],
+    share: &'a Share,
+}
+
+/// The neighbours' rows of `v` on a slab level, before a loop reads them.
+fn swap(halo: &mut Option<Halo>, share: &Share, v: &mut [f64]) {
+    if let Some(h) = halo {
+        h.swap(share, v);
+    }
+}
+
 /// `sweeps` weighted-Jacobi sweeps on A x = b; `zero_start`: x starts at 0 (the first sweep is
 /// then x = omega D^-1 b). `r` is a work vector.
 fn smooth(
-    a: &EllMatrix,
-    inverse_diagonal: &[f64],
+    op: Op,
     b: &[f64],
     x: &mut [f64],
     r: &mut [f64],
-    sweeps: usize,
-    zero_start: bool,
+    (sweeps, zero_start): (usize, bool),
+    halo: &mut Option<Halo>,
 ) {
+    let s = op.share.span.clone();
+    let d = &op.inverse_diagonal[s.clone()];
+    let b_own = &b[s.clone()];
     let mut first = 0;
     if zero_start {
-        x.par_iter_mut()
-            .zip(b.par_iter().zip(inverse_diagonal.par_iter()))
+        x[s.clone()]
+            .par_iter_mut()
+            .zip(b_own.par_iter().zip(d.par_iter()))
             .for_each(|(x, (b, d))| *x = OMEGA * d * b);
         first = 1;
     }
     for _ in first..sweeps {
-        a.matvec(x, r);
-        x.par_iter_mut()
-            .zip(r.par_iter().zip(b.par_iter()))
-            .zip(inverse_diagonal.par_iter())
+        swap(halo, op.share, x);
+        op.a.matvec_rows(x, &mut r[s.clone()], s.start);
+        x[s.clone()]
+            .par_iter_mut()
+            .zip(r[s.clone()].par_iter().zip(b_own.par_iter()))
+            .zip(d.par_iter())
             .for_each(|((x, (r, b)), d)| *x += OMEGA * d * (b - r));
     }
 }
 
 /// r = b - A x.
-fn residual(a: &EllMatrix, b: &[f64], x: &[f64], r: &mut [f64]) {
-    a.matvec(x, r);
-    r.par_iter_mut()
-        .zip(b.par_iter())
+fn residual(op: Op, b: &[f64], x: &mut [f64], r: &mut [f64], halo: &mut Option<Halo>) {
+    let s = op.share.span.clone();
+    swap(halo, op.share, x);
+    op.a.matvec_rows(x, &mut r[s.clone()], s.start);
+    r[s.clone()]
+        .par_iter_mut()
+        .zip(b[s].par_iter())
         .for_each(|(r, b)| *r = b - *r);
 }
 
@@ -555,161 +606,241 @@ fn cholesky_solve(l: &[f64], n: usize, b: &[f64], x: &mut [f64]) {
     }
 }
 
-impl Preconditioner for Multigrid {
-    fn setup(&mut self, system: &System) {
-        let (a, layout) = (system.matrix, system.layout);
-        self.fine_n = a.n;
-        inverse_diagonal(a, &mut self.fine_inverse_diagonal);
-        self.fine_r.resize(a.n, 0.0);
-        // the finest level's node -> row map, from the layout
-        let mut used = 0;
-        if layout.index.len() == a.n && a.n > COARSEST {
-            let nodes = layout.node_count();
-            let row_of = &mut self.fine_row_of;
-            row_of.clear();
-            row_of.resize(nodes, u32::MAX);
-            for (r, n) in layout.index.iter().enumerate() {
-                row_of[layout.flat(&[n[0] as usize, n[1] as usize, n[2] as usize])] = r as u32;
+impl Multigrid {
+    /// Over ranks, the finest level's share of the rows and the exchanges; every row on one
+    /// process.
+    fn spread_over(&mut self, system: &System) {
+        let n = system.matrix.n;
+        match system.partition.filter(|p| p.is_spread()) {
+            Some(p) => {
+                let l = system.layout;
+                // the conjugate gradient has checked that the rows cut into slabs
+                self.fine_share =
+                    Share::finest(&l.index, l.dim, l.reach, p).unwrap_or_else(|| Share::whole(n));
+                match &mut self.halo {
+                    Some(h) => h.comm = p.comm.clone(),
+                    None => self.halo = Some(Halo::new(p.comm.clone())),
+                }
             }
-            loop {
-                if used == self.levels.len() {
-                    self.levels.push(Level::default());
-                }
-                let (finer, rest) = self.levels.split_at_mut(used);
-                let coarse = &mut rest[0];
-                let ok = if used == 0 {
-                    coarsen(layout, a, &self.fine_row_of, coarse)
-                } else {
-                    let f = &finer[used - 1];
-                    coarsen(&f.layout, &f.a, &f.row_of, coarse)
-                };
-                if !ok {
-                    break;
-                }
-                used += 1;
-                if coarse.a.n <= COARSEST {
-                    break;
-                }
+            None => {
+                self.fine_share = Share::whole(n);
+                self.halo = None;
             }
         }
-        self.used = used;
-        let last = if used == 0 {
-            a
-        } else {
-            &self.levels[used - 1].a
+    }
+
+    /// The coarse levels, until one has at most [`COARSEST`] unknowns or the grid cannot be
+    /// coarsened; returns how many.
+    fn coarsen_all(&mut self, a: &EllMatrix, layout: &GridLayout) -> usize {
+        let mut used = 0;
+        if layout.index.len() != a.n || a.n <= COARSEST {
+            return used;
+        }
+        // the finest level's node -> row map, from the layout
+        let row_of = &mut self.fine_row_of;
+        row_of.clear();
+        row_of.resize(layout.node_count(), u32::MAX);
+        for (r, n) in layout.index.iter().enumerate() {
+            row_of[layout.flat(&[n[0] as usize, n[1] as usize, n[2] as usize])] = r as u32;
+        }
+        loop {
+            if used == self.levels.len() {
+                self.levels.push(Level::default());
+            }
+            let (finer, rest) = self.levels.split_at_mut(used);
+            let coarse = &mut rest[0];
+            let ok = if used == 0 {
+                let fine = (layout, a, &self.fine_row_of[..]);
+                coarsen(fine, &self.fine_share, coarse, &mut self.halo)
+            } else {
+                let f = &finer[used - 1];
+                coarsen(
+                    (&f.layout, &f.a, &f.row_of),
+                    &f.share,
+                    coarse,
+                    &mut self.halo,
+                )
+            };
+            if !ok {
+                break;
+            }
+            used += 1;
+            if coarse.a.n <= COARSEST {
+                break;
+            }
+        }
+        used
+    }
+
+    /// The coarsest level whole on every rank (over ranks its rows summed from the ranks'),
+    /// and its dense factor where it is small enough.
+    fn factorise_coarsest(&mut self, a: &EllMatrix) {
+        let last = match (self.used, &mut self.halo) {
+            (0, None) => a,
+            (0, Some(h)) => {
+                self.fine_gather.clone_from(&self.fine_share);
+                self.fine_gather.make_whole(a.n);
+                self.fine_whole.clone_from(a);
+                h.gather_matrix(&self.fine_gather, &mut self.fine_whole);
+                &self.fine_whole
+            }
+            (used, halo) => {
+                let lv = &mut self.levels[used - 1];
+                if let Some(h) = halo.as_mut().filter(|_| lv.share.slab) {
+                    lv.share.make_whole(lv.a.n);
+                    h.gather_matrix(&lv.share, &mut lv.a);
+                    inverse_diagonal(&lv.a, &mut lv.inverse_diagonal);
+                }
+                &lv.a
+            }
         };
         self.dense = last.n <= DENSE_LIMIT.max(COARSEST) && cholesky(last, &mut self.factor);
     }
 
-    fn apply(&mut self, a: &EllMatrix, r: &[f64], z: &mut [f64]) {
-        if self.used == 0 {
-            if self.dense {
-                cholesky_solve(&self.factor, a.n, r, z);
-            } else {
+    /// The V-cycle's way down from the first coarse level (its right-hand side restricted):
+    /// smooth, restrict the residual; the coarsest level solved.
+    fn descend(&mut self) {
+        for l in 0..self.used {
+            let (upper, lower) = self.levels.split_at_mut(l + 1);
+            let lv = &mut upper[l];
+            let op = Op {
+                a: &lv.a,
+                inverse_diagonal: &lv.inverse_diagonal,
+                share: &lv.share,
+            };
+            if l + 1 < self.used {
                 smooth(
-                    a,
-                    &self.fine_inverse_diagonal,
-                    r,
-                    z,
-                    &mut self.fine_r,
-                    2 * SWEEPS,
-                    true,
+                    op,
+                    &lv.b,
+                    &mut lv.x,
+                    &mut lv.r,
+                    (SWEEPS, true),
+                    &mut self.halo,
                 );
+                residual(op, &lv.b, &mut lv.x, &mut lv.r, &mut self.halo);
+                restrict(&mut lv.r, &lv.share, &mut lower[0], &mut self.halo);
+            } else if self.dense {
+                cholesky_solve(&self.factor, lv.a.n, &lv.b, &mut lv.x);
+            } else {
+                let sweeps = (4 * SWEEPS, true);
+                smooth(op, &lv.b, &mut lv.x, &mut lv.r, sweeps, &mut self.halo);
+            }
+        }
+    }
+}
+
+impl Preconditioner for Multigrid {
+    fn spreads(&self) -> bool {
+        true
+    }
+
+    fn setup(&mut self, system: &System) {
+        let (a, layout) = (system.matrix, system.layout);
+        self.fine_n = a.n;
+        self.spread_over(system);
+        inverse_diagonal(a, &mut self.fine_inverse_diagonal);
+        self.fine_r.resize(a.n, 0.0);
+        self.used = self.coarsen_all(a, layout);
+        self.factorise_coarsest(a);
+    }
+
+    fn apply(&mut self, a: &EllMatrix, r: &[f64], z: &mut [f64]) {
+        let fine = Op {
+            a,
+            inverse_diagonal: &self.fine_inverse_diagonal,
+            share: &self.fine_share,
+        };
+        if self.used == 0 {
+            if !self.dense {
+                let sweeps = (2 * SWEEPS, true);
+                smooth(fine, r, z, &mut self.fine_r, sweeps, &mut self.halo);
+            } else if let Some(h) = &mut self.halo {
+                self.fine_r.copy_from_slice(r);
+                h.gather(&self.fine_gather, &mut self.fine_r);
+                cholesky_solve(&self.factor, a.n, &self.fine_r, z);
+            } else {
+                cholesky_solve(&self.factor, a.n, r, z);
             }
             return;
         }
         // down: smooth, restrict the residual
-        smooth(
-            a,
-            &self.fine_inverse_diagonal,
-            r,
-            z,
+        smooth(fine, r, z, &mut self.fine_r, (SWEEPS, true), &mut self.halo);
+        residual(fine, r, z, &mut self.fine_r, &mut self.halo);
+        restrict(
             &mut self.fine_r,
-            SWEEPS,
-            true,
+            &self.fine_share,
+            &mut self.levels[0],
+            &mut self.halo,
         );
-        residual(a, r, z, &mut self.fine_r);
-        restrict(&self.fine_r, &mut self.levels[0]);
-        for l in 0..self.used {
-            let last = l + 1 == self.used;
-            let lv = &mut self.levels[l];
-            if last {
-                if self.dense {
-                    cholesky_solve(&self.factor, lv.a.n, &lv.b, &mut lv.x);
-                } else {
-                    smooth(
-                        &lv.a,
-                        &lv.inverse_diagonal,
-                        &lv.b,
-                        &mut lv.x,
-                        &mut lv.r,
-                        4 * SWEEPS,
-                        true,
-                    );
-                }
-            } else {
-                smooth(
-                    &lv.a,
-                    &lv.inverse_diagonal,
-                    &lv.b,
-                    &mut lv.x,
-                    &mut lv.r,
-                    SWEEPS,
-                    true,
-                );
-                residual(&lv.a, &lv.b, &lv.x, &mut lv.r);
-                let (a, b) = self.levels.split_at_mut(l + 1);
-                restrict(&a[l].r, &mut b[0]);
-            }
-        }
+        self.descend();
         // up: prolong the correction, smooth
+        let fine = Op {
+            a,
+            inverse_diagonal: &self.fine_inverse_diagonal,
+            share: &self.fine_share,
+        };
         for l in (0..self.used).rev() {
             let (finer, rest) = self.levels.split_at_mut(l);
-            let coarse = &rest[0];
+            let coarse = &mut rest[0];
             if l == 0 {
-                prolong(coarse, z);
+                prolong(coarse, z, &self.fine_share, &mut self.halo);
                 smooth(
-                    a,
-                    &self.fine_inverse_diagonal,
+                    fine,
                     r,
                     z,
                     &mut self.fine_r,
-                    SWEEPS,
-                    false,
+                    (SWEEPS, false),
+                    &mut self.halo,
                 );
             } else {
                 let f = &mut finer[l - 1];
-                prolong(coarse, &mut f.x);
+                prolong(coarse, &mut f.x, &f.share, &mut self.halo);
+                let op = Op {
+                    a: &f.a,
+                    inverse_diagonal: &f.inverse_diagonal,
+                    share: &f.share,
+                };
                 smooth(
-                    &f.a,
-                    &f.inverse_diagonal,
+                    op,
                     &f.b,
                     &mut f.x,
                     &mut f.r,
-                    SWEEPS,
-                    false,
+                    (SWEEPS, false),
+                    &mut self.halo,
                 );
             }
         }
     }
 }
 
-/// coarse.b = P^T r (gathered per coarse row).
-fn restrict(r: &[f64], coarse: &mut Level) {
+/// coarse.b = P^T r (gathered per coarse row), r on the finer level of share `fine`.
+fn restrict(r: &mut [f64], fine: &Share, coarse: &mut Level, halo: &mut Option<Halo>) {
+    swap(halo, fine, r);
     let kids = coarse.children.len() / coarse.a.n.max(1);
     let (children, weights) = (&coarse.children, &coarse.child_weights);
-    coarse.b.par_iter_mut().enumerate().for_each(|(i, b)| {
-        *b = (0..kids)
-            .map(|k| weights[i * kids + k] * r[children[i * kids + k] as usize])
-            .sum();
-    });
+    let own = coarse.share.owned.clone();
+    coarse.b[own.clone()]
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(k, b)| {
+            let i = own.start + k;
+            *b = (0..kids)
+                .map(|k| weights[i * kids + k] * r[children[i * kids + k] as usize])
+                .sum();
+        });
+    if let Some(h) = halo {
+        h.gather(&coarse.share, &mut coarse.b);
+    }
 }
 
-/// x += P coarse.x (gathered per fine row).
-fn prolong(coarse: &Level, x: &mut [f64]) {
+/// x += P coarse.x (gathered per fine row), x on the finer level of share `fine`.
+fn prolong(coarse: &mut Level, x: &mut [f64], fine: &Share, halo: &mut Option<Halo>) {
+    swap(halo, &coarse.share, &mut coarse.x);
     let corners = coarse.parents.len() / x.len().max(1);
     let (parents, weights, xc) = (&coarse.parents, &coarse.parent_weights, &coarse.x);
-    x.par_iter_mut().enumerate().for_each(|(r, x)| {
+    let s = fine.span.clone();
+    x[s.clone()].par_iter_mut().enumerate().for_each(|(k, x)| {
+        let r = s.start + k;
         *x += (0..corners)
             .map(|k| weights[r * corners + k] * xc[parents[r * corners + k] as usize])
             .sum::<f64>();
@@ -812,6 +943,7 @@ mod tests {
             matrix: a,
             layout,
             singular: false,
+            partition: None,
         });
         mg
     }
@@ -864,6 +996,7 @@ mod tests {
                     matrix: &a,
                     layout: &layout,
                     singular: false,
+                    partition: None,
                 };
                 let params = crate::linalg::SolveParams {
                     tolerance: 1e-8,

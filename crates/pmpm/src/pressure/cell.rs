@@ -362,6 +362,7 @@ impl<const D: usize> CellProjection<D> {
             matrix: &self.matrix,
             layout: &GridLayout::EMPTY,
             singular: false,
+            partition: None,
         };
         let params = SolveParams {
             tolerance,

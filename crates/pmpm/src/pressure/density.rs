@@ -385,6 +385,7 @@ impl<const D: usize> PositionCorrection<D> {
             matrix: &system.matrix,
             layout: &system.unknowns.layout,
             singular: stage.free == 0,
+            partition: None,
         };
         let params = SolveParams {
             tolerance: self.tolerance,

@@ -802,6 +802,7 @@ impl<const D: usize> Projection<D> {
             matrix: &self.shared.system.matrix,
             layout: &self.shared.system.unknowns.layout,
             singular: self.last.singular,
+            partition: None,
         };
         let mut params = SolveParams {
             tolerance: self.settings.tolerance,
