@@ -25,7 +25,7 @@
 
 use crate::comm::Comm;
 use crate::grid::GridGeometry;
-use crate::particles::{FlatParticles, Particles};
+use crate::particles::Particles;
 use crate::shape::PAD;
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex};
@@ -418,11 +418,7 @@ impl Migration {
         self.counts.clear();
         for l in &self.leaving {
             let before = self.send.len();
-            if !l.is_empty() {
-                let flat = ps.pick(l).flatten();
-                self.send
-                    .extend(postcard::to_stdvec(&flat).expect("plain numbers serialise"));
-            }
+            ps.pack(l, &mut self.send);
             self.counts.push(self.send.len() - before);
         }
         // MPI's counts are 32-bit: what a rank sends and receives in one step stays under
@@ -445,17 +441,8 @@ impl Migration {
         if moving > 0 {
             ps.keep(&self.staying);
         }
-        let mut at = 0;
-        for &n in &self.recv_counts {
-            if n > 0 {
-                let flat: FlatParticles<D> = postcard::from_bytes(&self.recv[at..at + n])
-                    .expect("the bytes of particles, as a rank of this run wrote them");
-                let mut more = Particles::unflatten(&flat);
-                more.stored = ps.stored;
-                ps.append(&mut more);
-            }
-            at += n;
-        }
+        // each sender's particles, in rank order
+        ps.unpack(&self.recv);
         Ok(true)
     }
 }
