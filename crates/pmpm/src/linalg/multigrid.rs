@@ -20,6 +20,7 @@
 use super::spread::{Halo, Share};
 use super::{EllMatrix, Preconditioner, System};
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// Jacobi weight of the smoother: D^-1 A of the bilinear (trilinear) element Laplacian has its
 /// largest eigenvalue at 1.5 (about 1.8 in 3D), so 0.6 damps the high frequencies and keeps
@@ -188,10 +189,21 @@ impl Multigrid {
     }
 }
 
-fn inverse_diagonal(a: &EllMatrix, d: &mut Vec<f64>) {
-    a.diagonal(d);
-    d.par_iter_mut()
-        .for_each(|v| *v = if *v > 0.0 { 1.0 / *v } else { 0.0 });
+/// D^-1 on the rows `rows` (those a rank smooths; the others are left as they were).
+fn inverse_diagonal(a: &EllMatrix, d: &mut Vec<f64>, rows: Range<usize>) {
+    let w = a.width;
+    d.resize(a.n, 0.0);
+    d[rows.clone()]
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(k, d)| {
+            let r = rows.start + k;
+            let diagonal: f64 = (0..w)
+                .filter(|&s| a.cols[r * w + s] as usize == r)
+                .map(|s| a.vals[r * w + s])
+                .sum();
+            *d = if diagonal > 0.0 { 1.0 / diagonal } else { 0.0 };
+        });
 }
 
 /// Builds `coarse` from the finer level (`fine_layout`, `fine_a`, `fine_row_of`); false when
@@ -213,7 +225,10 @@ fn coarsen(
     }
     let (dim, rank) = (lay.dim, halo.as_ref().map_or(0, |h| h.comm.rank()));
     coarse.share = fine_share.coarser(&lay.index, dim, lay.nodes[dim - 1], lay.reach, rank);
-    link_parents(fine_layout, &lay, coarse);
+    // a rank reads the parents of its fine rows and of their columns, and the children of
+    // its coarse rows
+    let near = fine_share.near(&fine_layout.index, dim, fine_layout.reach + 2);
+    link_parents(fine_layout, &lay, coarse, near);
     link_children(fine_layout, fine_row_of, &lay, coarse);
     let key = [lay.dim, fine_layout.reach, lay.reach];
     if coarse.slots.is_empty() || coarse.slots_for != key {
@@ -225,7 +240,8 @@ fn coarsen(
         h.swap_matrix(&coarse.share, &mut coarse.a);
         h.gather_matrix(&coarse.share, &mut coarse.a);
     }
-    inverse_diagonal(&coarse.a, &mut coarse.inverse_diagonal);
+    let span = coarse.share.span.clone();
+    inverse_diagonal(&coarse.a, &mut coarse.inverse_diagonal, span);
     for v in [&mut coarse.x, &mut coarse.b, &mut coarse.r] {
         v.resize(n_coarse, 0.0);
     }
@@ -315,18 +331,23 @@ fn number_rows(fine_layout: &GridLayout, lay: &mut GridLayout, coarse: &mut Leve
     rows as usize
 }
 
-/// Each fine row's 2^D parents (coarse rows) and weights: the prolongation P.
-fn link_parents(fine_layout: &GridLayout, lay: &GridLayout, coarse: &mut Level) {
+/// The 2^D parents (coarse rows) and weights of each fine row in `rows`: the prolongation P.
+fn link_parents(
+    fine_layout: &GridLayout,
+    lay: &GridLayout,
+    coarse: &mut Level,
+    rows: Range<usize>,
+) {
     let corners = 1usize << lay.dim;
     let n_fine = fine_layout.index.len();
     coarse.parents.resize(n_fine * corners, 0);
     coarse.parent_weights.resize(n_fine * corners, 0.0);
     let row_of = &coarse.row_of;
-    coarse
-        .parents
+    let slots = rows.start * corners..rows.end * corners;
+    coarse.parents[slots.clone()]
         .par_chunks_mut(corners)
-        .zip(coarse.parent_weights.par_chunks_mut(corners))
-        .zip(fine_layout.index.par_iter())
+        .zip(coarse.parent_weights[slots].par_chunks_mut(corners))
+        .zip(fine_layout.index[rows].par_iter())
         .for_each(|((ps, ws), n)| {
             for k in 0..corners {
                 match parent_node(lay, n, k) {
@@ -343,8 +364,8 @@ fn link_parents(fine_layout: &GridLayout, lay: &GridLayout, coarse: &mut Level) 
         });
 }
 
-/// Each coarse row's children, the fine nodes 2 I + delta with delta in {-1, 0, 1}^D, and
-/// their weights: the restriction P^T.
+/// Each coarse row's children (this rank's rows), the fine nodes 2 I + delta with delta in
+/// {-1, 0, 1}^D, and their weights: the restriction P^T.
 fn link_children(
     fine_layout: &GridLayout,
     fine_row_of: &[u32],
@@ -356,11 +377,12 @@ fn link_children(
     let kids = 3usize.pow(dim as u32);
     coarse.children.resize(n_coarse * kids, 0);
     coarse.child_weights.resize(n_coarse * kids, 0.0);
-    coarse
-        .children
+    let own = coarse.share.owned.clone();
+    let slots = own.start * kids..own.end * kids;
+    coarse.children[slots.clone()]
         .par_chunks_mut(kids)
-        .zip(coarse.child_weights.par_chunks_mut(kids))
-        .zip(lay.index.par_iter())
+        .zip(coarse.child_weights[slots].par_chunks_mut(kids))
+        .zip(lay.index[own].par_iter())
         .for_each(|((cs, ws), i)| {
             for k in 0..kids {
                 let mut rem = k;
@@ -689,7 +711,8 @@ impl Multigrid {
                 if let Some(h) = halo.as_mut().filter(|_| lv.share.slab) {
                     lv.share.make_whole(lv.a.n);
                     h.gather_matrix(&lv.share, &mut lv.a);
-                    inverse_diagonal(&lv.a, &mut lv.inverse_diagonal);
+                    let span = lv.share.span.clone();
+                    inverse_diagonal(&lv.a, &mut lv.inverse_diagonal, span);
                 }
                 &lv.a
             }
@@ -738,7 +761,8 @@ impl Preconditioner for Multigrid {
         let (a, layout) = (system.matrix, system.layout);
         self.fine_n = a.n;
         self.spread_over(system);
-        inverse_diagonal(a, &mut self.fine_inverse_diagonal);
+        let span = self.fine_share.span.clone();
+        inverse_diagonal(a, &mut self.fine_inverse_diagonal, span);
         self.fine_r.resize(a.n, 0.0);
         self.used = self.coarsen_all(a, layout);
         self.factorise_coarsest(a);

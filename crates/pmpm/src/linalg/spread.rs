@@ -79,6 +79,8 @@ pub(super) struct Share {
     /// The node layers along the axis each rank owns on this level (ranks + 1 bounds); empty
     /// on one process and on the levels below the first whole one.
     pub bounds: Vec<usize>,
+    /// This rank's node layers on a slab level.
+    pub layers: Range<usize>,
 }
 
 impl Share {
@@ -165,7 +167,18 @@ impl Share {
             gather: false,
             halo: [below, above],
             bounds,
+            layers: lo..hi,
         }
+    }
+
+    /// The rows at `index` within `extra` node layers of this rank's slab along the last of
+    /// `dim` axes; every row off a slab level.
+    pub fn near(&self, index: &[[u32; 3]], dim: usize, extra: usize) -> Range<usize> {
+        if !self.slab {
+            return 0..index.len();
+        }
+        let first_on = |layer: usize| index.partition_point(|n| (n[dim - 1] as usize) < layer);
+        first_on(self.layers.start.saturating_sub(extra))..first_on(self.layers.end + extra)
     }
 
     /// Makes a slab level whole (the coarsest, for its dense solve): its owned rows are then
