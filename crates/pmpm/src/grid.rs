@@ -314,6 +314,43 @@ pub struct Grid<const D: usize> {
     /// fixed for the run;
     /// empty where the deck has none.
     pub damping: Vec<f64>,
+    /// The nodes P2G's gather visits ([`Live`]); `None`: every node.
+    pub live: Option<Live>,
+}
+
+/// The run of nodes (flat indices) that P2G's gather visits, where it need not visit the whole
+/// box: the nodes the particles' bands reach now and reached at the last gather, and over
+/// ranks the slab's (the layers a neighbour's sums can reach). Outside them every P2G field
+/// (mass, momentum, forces, pressure, v^n) is zero, and stays so: a node the particles leave
+/// is visited, and zeroed, once more. So the gather's cost follows the material, not the box
+/// (a tall tank, a rank's slab of a wide one), and its bits are the whole loop's.
+#[derive(Debug, Clone, Default)]
+pub struct Live {
+    /// Over ranks, this rank's slab's nodes with three layers either side; empty on one
+    /// process.
+    pub slab: std::ops::Range<usize>,
+    /// What the last gather reached (its bands, and the slab).
+    pub previous: std::ops::Range<usize>,
+}
+
+impl Live {
+    /// The nodes to visit now, the particles' bands reaching `now`, and `now` with the slab
+    /// kept for the next gather.
+    pub fn visit(&mut self, now: std::ops::Range<usize>) -> std::ops::Range<usize> {
+        let now = hull(now, self.slab.clone());
+        let visit = hull(now.clone(), self.previous.clone());
+        self.previous = now;
+        visit
+    }
+}
+
+/// The smallest run holding both (an empty run holds nothing).
+fn hull(a: std::ops::Range<usize>, b: std::ops::Range<usize>) -> std::ops::Range<usize> {
+    match (a.is_empty(), b.is_empty()) {
+        (true, _) => b,
+        (_, true) => a,
+        _ => a.start.min(b.start)..a.end.max(b.end),
+    }
 }
 
 impl<const D: usize> Grid<D> {
@@ -330,6 +367,7 @@ impl<const D: usize> Grid<D> {
             body: zeroed(n),
             pressure: zeroed(n),
             damping: Vec::new(),
+            live: None,
         }
     }
 }

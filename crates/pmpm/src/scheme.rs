@@ -234,7 +234,7 @@ impl<const D: usize> Simulation<D> {
             let at = parts.particles.x.iter().map(|x| f.eval(x, 0.0)).collect();
             (f, at)
         });
-        Self {
+        let mut sim = Self {
             body_force,
             stepper: parts.stepper,
             averaging: parts.averaging,
@@ -276,7 +276,36 @@ impl<const D: usize> Simulation<D> {
             seeded: n,
             decomposition: None,
             slabs: None,
-        }
+        };
+        sim.fit_live();
+        sim
+    }
+
+    /// Which nodes P2G's gather visits ([`crate::grid::Live`]): under the explicit scheme on
+    /// a grid without a periodic axis, those the particles reach, and over ranks cut along the
+    /// last axis (the slowest of the node numbering, so a slab is one run of nodes) the slab's
+    /// with three layers either side, where a neighbour's sums land; every node otherwise (the
+    /// projection reads and writes v^n on the walls; a periodic grid folds its images; the
+    /// whole grid on every rank, or slabs along another axis, take sums from everywhere).
+    fn fit_live(&mut self) {
+        let geo = &self.grid.geo;
+        let n = geo.node_count();
+        let slab = match (&self.decomposition, self.comm.is_distributed()) {
+            (_, false) => Some(0..0),
+            (Some(d), true) if d.axis == D - 1 => {
+                let (r, s) = (self.comm.rank(), geo.strides[D - 1]);
+                let lo = d.cuts[r].saturating_sub(3);
+                let hi = (d.cuts[r + 1] + 3).min(geo.nodes[D - 1]);
+                Some(lo * s..hi * s)
+            }
+            _ => None,
+        };
+        let explicit = self.stepper.scheme() == Scheme::Explicit && !geo.has_periodic();
+        // (the first gather visits every node: whatever it held before is zeroed)
+        self.grid.live = slab.filter(|_| explicit).map(|slab| crate::grid::Live {
+            slab,
+            previous: 0..n,
+        });
     }
 
     /// One time step of size `dt`, as docs/method.md sets it out.
@@ -335,6 +364,7 @@ impl<const D: usize> Simulation<D> {
         }
         self.boundary.rigid.comm = crate::comm::Ranks(comm.clone());
         self.comm = crate::comm::Ranks(comm);
+        self.fit_live();
     }
 
     /// Makes this simulation a rank of `world`'s with the grid cut into slabs as `d` says
