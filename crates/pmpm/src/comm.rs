@@ -411,6 +411,8 @@ pub(crate) mod threads {
     struct Post {
         boxes: Mutex<Queues>,
         arrived: Condvar,
+        /// A rank panicked: the others stop waiting for it, and panic too.
+        poisoned: std::sync::atomic::AtomicBool,
     }
 
     /// One rank of a run over threads.
@@ -428,7 +430,21 @@ pub(crate) mod threads {
             let handles: Vec<_> = (0..size)
                 .map(|rank| {
                     let (post, f) = (post.clone(), &f);
-                    s.spawn(move || f(Arc::new(Threads { rank, size, post })))
+                    s.spawn(move || {
+                        let comm = Arc::new(Threads {
+                            rank,
+                            size,
+                            post: post.clone(),
+                        });
+                        let run = std::panic::AssertUnwindSafe(|| f(comm));
+                        std::panic::catch_unwind(run).unwrap_or_else(|why| {
+                            let _guard = post.boxes.lock();
+                            post.poisoned
+                                .store(true, std::sync::atomic::Ordering::SeqCst);
+                            post.arrived.notify_all();
+                            std::panic::resume_unwind(why)
+                        })
+                    })
                 })
                 .collect();
             handles.into_iter().map(|h| h.join().unwrap()).collect()
@@ -440,6 +456,11 @@ pub(crate) mod threads {
             if self.rank == 0 {
                 for from in 1..self.size {
                     let theirs: Vec<f64> = bytemuck::pod_collect_to_vec(&self.receive_bytes(from));
+                    assert_eq!(
+                        theirs.len(),
+                        values.len(),
+                        "rank {from} reduced another length"
+                    );
                     for (v, t) in values.iter_mut().zip(theirs) {
                         *v = op(*v, t);
                     }
@@ -508,6 +529,9 @@ pub(crate) mod threads {
                     .and_then(|q| q.pop_front())
                 {
                     return m;
+                }
+                if self.post.poisoned.load(std::sync::atomic::Ordering::SeqCst) {
+                    panic!("rank {}: another rank panicked", self.rank);
                 }
                 boxes = self.post.arrived.wait(boxes).unwrap();
             }

@@ -561,6 +561,13 @@ impl LinearSolver {
     ) -> Result<SolveStats, SolveError> {
         match self {
             LinearSolver::Pcg(s) => s.solve(system, b, x, params, setup),
+            LinearSolver::Direct(_) if system.partition.is_some_and(|p| p.is_spread()) => {
+                Err(SolveError::Breakdown(
+                    "the direct solver cannot be spread over ranks (the conjugate gradient \
+                     can)"
+                        .into(),
+                ))
+            }
             LinearSolver::Direct(s) => s.solve(system.matrix, b, x, system.singular),
         }
     }

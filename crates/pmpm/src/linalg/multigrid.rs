@@ -637,8 +637,7 @@ impl Multigrid {
             Some(p) => {
                 let l = system.layout;
                 // the conjugate gradient has checked that the rows cut into slabs
-                self.fine_share =
-                    Share::finest(&l.index, l.dim, l.reach, p).unwrap_or_else(|| Share::whole(n));
+                self.fine_share = Share::finest(l, p).unwrap_or_else(|| Share::whole(n));
                 match &mut self.halo {
                     Some(h) => h.comm = p.comm.clone(),
                     None => self.halo = Some(Halo::new(p.comm.clone())),
@@ -698,14 +697,15 @@ impl Multigrid {
     /// and its dense factor where it is small enough.
     fn factorise_coarsest(&mut self, a: &EllMatrix) {
         let last = match (self.used, &mut self.halo) {
-            (0, None) => a,
-            (0, Some(h)) => {
+            (0, Some(h)) if a.n <= DENSE_LIMIT.max(COARSEST) => {
                 self.fine_gather.clone_from(&self.fine_share);
                 self.fine_gather.make_whole(a.n);
                 self.fine_whole.clone_from(a);
                 h.gather_matrix(&self.fine_gather, &mut self.fine_whole);
                 &self.fine_whole
             }
+            // (over ranks, a finest level too large for the dense solve is only smoothed)
+            (0, _) => a,
             (used, halo) => {
                 let lv = &mut self.levels[used - 1];
                 if let Some(h) = halo.as_mut().filter(|_| lv.share.slab) {

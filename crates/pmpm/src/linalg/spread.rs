@@ -93,15 +93,28 @@ impl Share {
         }
     }
 
-    /// The finest level's share of `partition`'s rank, for rows at `index` (sorted by their
-    /// node layer along the last of `dim` axes) reaching `reach` layers; `None` where the rows
-    /// are not sorted so, or a slab is thinner than the reach.
-    pub fn finest(index: &[[u32; 3]], dim: usize, reach: usize, p: &Partition) -> Option<Self> {
-        let axis = dim.checked_sub(1)?;
-        if index.windows(2).any(|w| w[0][axis] > w[1][axis]) {
+    /// The finest level's share of `partition`'s rank, for the rows of `layout`; `None` (on
+    /// every rank alike) where they cannot be cut so: the last axis periodic (its seam would
+    /// join the first slab and the last), the cuts not one more than the ranks or not rising
+    /// from 0 to past every row's layer, the rows not sorted by their layer along the last
+    /// axis, or a slab thinner than a row's reach.
+    pub fn finest(layout: &super::GridLayout, p: &Partition) -> Option<Self> {
+        let (index, cuts) = (&layout.index, &p.cuts);
+        let axis = layout.dim.checked_sub(1)?;
+        let last = index
+            .iter()
+            .map(|n| n[axis] as usize + 1)
+            .max()
+            .unwrap_or(0);
+        let cut = cuts.len() == p.comm.size() + 1
+            && cuts.first() == Some(&0)
+            && cuts.windows(2).all(|w| w[0] <= w[1])
+            && cuts.last().is_some_and(|&c| c >= last);
+        let sorted = index.windows(2).all(|w| w[0][axis] <= w[1][axis]);
+        if layout.periodic[axis] || !cut || !sorted {
             return None;
         }
-        let s = Self::of(index, axis, p.cuts.clone(), reach, p.comm.rank());
+        let s = Self::of(index, axis, cuts.clone(), layout.reach, p.comm.rank());
         s.slab.then_some(s)
     }
 
@@ -372,12 +385,13 @@ pub(super) fn solve(
                 .into(),
         ));
     }
-    let share = Share::finest(&layout.index, layout.dim, layout.reach, partition)
+    let share = Share::finest(layout, partition)
         .filter(|_| layout.index.len() == a.n)
         .ok_or_else(|| {
             SolveError::Breakdown(
-                "the rows cannot be cut into the ranks' slabs (not in node order along the \
-                 last axis, or a slab thinner than a row's reach)"
+                "the rows cannot be cut into the ranks' slabs (the last axis periodic, cuts \
+                 that do not cover the grid, rows not in node order along the last axis, or \
+                 a slab thinner than a row's reach)"
                     .into(),
             )
         })?;
@@ -562,73 +576,196 @@ mod tests {
         (0..n).map(|_| rnd() - 0.5).collect()
     }
 
-    /// One V-cycle on `r` over `size` ranks (1: one process): each rank's own rows of z, and
-    /// the coarse levels' shares (slab, first whole).
+    /// A symmetric positive definite matrix of rows reaching `reach` node layers, on n^D
+    /// cells (every node of a periodic axis, the interior nodes of the others, rows in node
+    /// order): -1 / (1 + |o|_1) for the neighbour at offset o, the diagonal the sum of their
+    /// magnitudes over every offset. Rows on node layers along the last axis outside `fill`
+    /// hold NaN: the rows another rank assembles, which this rank must never read.
+    fn banded(
+        (dim, n, reach): (usize, usize, usize),
+        periodic: [bool; 3],
+        fill: std::ops::Range<usize>,
+    ) -> (EllMatrix, GridLayout) {
+        let pad = 2;
+        let count: Vec<usize> = (0..dim).map(|d| n - usize::from(!periodic[d])).collect();
+        let first: Vec<usize> = (0..dim).map(|d| pad + usize::from(!periodic[d])).collect();
+        let rows: usize = count.iter().product();
+        let span = 2 * reach + 1;
+        let width = span.pow(dim as u32);
+        let at = |r: usize, d: usize| r / count[..d].iter().product::<usize>() % count[d];
+        let mut a = EllMatrix::default();
+        a.reshape(rows, width);
+        for r in 0..rows {
+            let filled = fill.contains(&(first[dim - 1] + at(r, dim - 1)));
+            let mut diagonal = 0.0;
+            for s in 0..width {
+                let o: Vec<isize> = (0..dim)
+                    .map(|d| (s / span.pow(d as u32) % span) as isize - reach as isize)
+                    .collect();
+                let l1: usize = o.iter().map(|o| o.unsigned_abs()).sum();
+                let (mut j, mut stride, mut inside) = (0, 1, l1 > 0);
+                for d in 0..dim {
+                    let mut c = at(r, d) as isize + o[d];
+                    if periodic[d] {
+                        c = c.rem_euclid(count[d] as isize);
+                    }
+                    inside &= c >= 0 && c < count[d] as isize;
+                    j += c.max(0) as usize * stride;
+                    stride *= count[d];
+                }
+                let v = if l1 > 0 { -1.0 / (1 + l1) as f64 } else { 0.0 };
+                diagonal -= v;
+                let (c, v) = if inside { (j, v) } else { (r, 0.0) };
+                a.cols[r * width + s] = c as u32;
+                a.vals[r * width + s] = if filled { v } else { f64::NAN };
+            }
+            let centre = r * width + (width - 1) / 2;
+            a.vals[centre] = if filled { diagonal } else { f64::NAN };
+        }
+        let mut layout = GridLayout {
+            dim,
+            reach,
+            periodic,
+            ..GridLayout::default()
+        };
+        for d in 0..dim {
+            layout.nodes[d] = n + 1 + 2 * pad;
+            layout.offset[d] = pad;
+            layout.cells[d] = n;
+        }
+        layout.index = (0..rows)
+            .map(|r| {
+                std::array::from_fn(|d| {
+                    if d < dim {
+                        (first[d] + at(r, d)) as u32
+                    } else {
+                        0
+                    }
+                })
+            })
+            .collect();
+        (a, layout)
+    }
+
+    /// Two V-cycles (the first on other values, so that every level holds stale ones) on
+    /// `cuts.len() - 1` ranks: each rank's matrix filled only on its slab's layers and one
+    /// either side, r NaN off its own rows, z NaN on entry. Each rank's own rows of z in rank
+    /// order, and the coarse levels' shares (slab, first whole). One rank: one process.
     fn v_cycle(
-        a: &EllMatrix,
-        layout: &GridLayout,
-        r: &[f64],
-        size: usize,
-    ) -> (Vec<Vec<f64>>, Vec<(bool, bool)>) {
-        let out = threads::run(size, |comm| {
-            let p = partition(comm, layout);
+        case: (usize, usize, usize),
+        periodic: [bool; 3],
+        cuts: &[usize],
+    ) -> (Vec<f64>, Vec<(bool, bool)>) {
+        let out = threads::run(cuts.len() - 1, |comm| {
+            let rank = comm.rank();
+            let fill = cuts[rank].saturating_sub(1)..cuts[rank + 1] + 1;
+            let (a, layout) = banded(case, periodic, fill);
+            let p = Partition {
+                comm,
+                cuts: cuts.to_vec(),
+            };
+            let own = Share::finest(&layout, &p).map_or(0..a.n, |s| s.owned);
+            let masked = |seed| -> Vec<f64> {
+                let r = pseudo_random(a.n, seed);
+                (0..a.n)
+                    .map(|i| if own.contains(&i) { r[i] } else { f64::NAN })
+                    .collect()
+            };
             let mut mg = Multigrid::default();
             mg.setup(&System {
-                matrix: a,
-                layout,
+                matrix: &a,
+                layout: &layout,
                 singular: false,
                 partition: Some(&p),
             });
-            let own = Share::finest(&layout.index, layout.dim, layout.reach, &p)
-                .map_or(0..a.n, |s| s.owned);
-            let mut z = vec![0.0; a.n];
-            mg.apply(a, r, &mut z);
+            let mut z = vec![f64::NAN; a.n];
+            mg.apply(&a, &masked(99), &mut z);
+            z.iter_mut()
+                .enumerate()
+                .filter(|(i, _)| !own.contains(i))
+                .for_each(|(_, z)| *z = f64::NAN);
+            mg.apply(&a, &masked(3), &mut z);
             (z[own].to_vec(), mg.coarse_shares())
         });
         let shares = out[0].1.clone();
-        (out.into_iter().map(|o| o.0).collect(), shares)
+        (out.into_iter().flat_map(|o| o.0).collect(), shares)
+    }
+
+    /// `size` ranks' cuts of `nodes` node layers, as even as they go.
+    fn even(nodes: usize, size: usize) -> Vec<usize> {
+        let mut cuts: Vec<usize> = (0..size)
+            .map(|r| crate::comm::share(nodes, r, size).start)
+            .collect();
+        cuts.push(nodes);
+        cuts
     }
 
     /// A V-cycle over ranks gives every row the bits it has on one process: each loop computes
     /// a row from the same values in the same order, the halos bring the neighbours' bits,
-    /// and a level summed whole adds zeros. In 2D and 3D, with slabs that stay slabs to the
-    /// coarsest level and with slabs that grow too thin for a coarse level (16 ranks on 69
-    /// node layers: 4 or 5, then 2 or 3, 1 or 2, 0 or 1).
+    /// and a level summed whole adds zeros; and no rank reads a row it does not hold (those
+    /// are NaN). Rows reaching 1, 2 and 3 layers (linear, quadratic, cubic shapes), in 2D and
+    /// 3D; slabs that stay slabs to the coarsest level, slabs that grow too thin for a coarse
+    /// level (16 ranks on 69 node layers: 4 or 5, then 2 or 3, 1 or 2, 0 or 1), ranks that
+    /// hold no row, a periodic axis across the slabs, and a system too small to coarsen.
     #[test]
     fn a_v_cycle_over_ranks_gives_each_row_its_one_process_bits() {
-        let cases: [(EllMatrix, GridLayout, &[usize]); 2] = [
-            {
-                let (a, l) = laplacian::<2>(64);
-                (a, l, &[2, 3, 16])
-            },
-            {
-                let (a, l) = laplacian::<3>(16);
-                (a, l, &[2, 3])
-            },
+        let flat = [false; 3];
+        let x_periodic = [true, false, false];
+        // (dimension, cells a side, reach), periodic axes, cuts
+        type Case = ((usize, usize, usize), [bool; 3], Vec<usize>);
+        let cases: Vec<Case> = vec![
+            ((2, 64, 1), flat, even(69, 2)),
+            ((2, 64, 1), flat, even(69, 3)),
+            ((2, 64, 1), flat, even(69, 16)),
+            ((2, 64, 2), flat, even(69, 3)),
+            ((2, 64, 2), flat, even(69, 8)),
+            ((2, 64, 3), flat, even(69, 4)),
+            ((3, 16, 1), flat, even(21, 3)),
+            ((3, 16, 2), flat, even(21, 2)),
+            ((2, 64, 1), flat, vec![0, 3, 35, 66, 69]),
+            ((2, 64, 1), x_periodic, even(69, 3)),
+            ((2, 8, 1), flat, even(13, 2)),
         ];
-        for (a, layout, ranks) in &cases {
-            let r = pseudo_random(a.n, 3);
-            let one = v_cycle(a, layout, &r, 1).0.concat();
-            for &size in *ranks {
-                let (spread, shares) = v_cycle(a, layout, &r, size);
-                let spread = spread.concat();
-                println!(
-                    "{}D, {size} ranks: coarse levels (slab, first whole) {shares:?}",
-                    layout.dim
-                );
-                assert!(shares.len() >= 3 && shares[0].0, "{shares:?}");
-                // the coarsest level is whole; 16 ranks make one whole before it
-                let last = shares.len() - 1;
-                assert!(shares[last].1 || shares[..last].iter().any(|s| s.1));
-                assert_eq!(size == 16, shares[..last].iter().any(|s| s.1), "{shares:?}");
-                assert_eq!(spread.len(), one.len());
-                let same = spread
+        let mut thin = false;
+        for (case, periodic, cuts) in &cases {
+            let one = v_cycle(*case, *periodic, &[0, cuts[cuts.len() - 1]]).0;
+            let (spread, shares) = v_cycle(*case, *periodic, cuts);
+            let same = spread.len() == one.len()
+                && spread
                     .iter()
                     .zip(&one)
                     .all(|(a, b)| a.to_bits() == b.to_bits());
-                assert!(same, "{}D, {size} ranks: a row differs", layout.dim);
+            assert!(same, "{case:?} {periodic:?} cuts {cuts:?}: a row differs");
+            assert!(one.iter().all(|z| z.is_finite()));
+            if let Some(last) = shares.len().checked_sub(1) {
+                // the coarsest level is whole
+                assert!(
+                    shares[last].1 || shares[..last].iter().any(|s| s.1),
+                    "{shares:?}"
+                );
+                thin |= shares[..last].iter().any(|s| s.1);
             }
         }
+        assert!(thin, "no case made a level whole before the coarsest");
+    }
+
+    /// A partition the solve cannot follow is refused, on every rank alike: cut across a
+    /// periodic last axis, or with cuts that leave rows to no rank.
+    #[test]
+    fn a_partition_the_rows_cannot_follow_is_refused() {
+        let refused = |periodic: [bool; 3], cuts: Vec<usize>| {
+            threads::run(cuts.len() - 1, |comm| {
+                let (_, layout) = banded((2, 16, 1), periodic, 0..usize::MAX);
+                let cuts = cuts.clone();
+                Share::finest(&layout, &Partition { comm, cuts }).is_none()
+            })
+            .into_iter()
+            .all(|r| r)
+        };
+        assert!(!refused([false; 3], even(21, 2)));
+        assert!(refused([false, true, false], even(21, 2)));
+        assert!(refused([false; 3], vec![0, 10, 15]));
+        assert!(refused([false; 3], vec![1, 10, 21]));
     }
 
     /// Iterations and solution of a multigrid-preconditioned solve to 1e-8 over ranks, the
@@ -639,9 +776,23 @@ mod tests {
         (b, singular): (&[f64], bool),
         size: usize,
     ) -> (usize, Vec<f64>) {
+        solve_with(a, layout, (b, singular), size, || {
+            Box::<Multigrid>::default()
+        })
+    }
+
+    /// [`solve_on`] with another preconditioner; a second solve reusing its set-up follows
+    /// the first, from zero again, and must take the same iterations to the same bits.
+    fn solve_with(
+        a: &EllMatrix,
+        layout: &GridLayout,
+        (b, singular): (&[f64], bool),
+        size: usize,
+        preconditioner: impl Fn() -> Box<dyn Preconditioner> + Sync,
+    ) -> (usize, Vec<f64>) {
         let out = threads::run(size, |comm| {
             let p = partition(comm, layout);
-            let mut pcg = Pcg::new(Box::<Multigrid>::default());
+            let mut pcg = Pcg::new(preconditioner());
             let system = System {
                 matrix: a,
                 layout,
@@ -654,7 +805,14 @@ mod tests {
             };
             let mut x = vec![0.0; a.n];
             let stats = pcg.solve(&system, b, &mut x, params, true).unwrap();
-            let own = Share::finest(&layout.index, layout.dim, layout.reach, &p)
+            let mut again = vec![0.0; a.n];
+            let reused = pcg.solve(&system, b, &mut again, params, false).unwrap();
+            assert_eq!(reused.iterations, stats.iterations);
+            assert!(x
+                .iter()
+                .zip(&again)
+                .all(|(x, y)| x.to_bits() == y.to_bits()));
+            let own = Share::finest(layout, &p)
                 .filter(|_| size > 1)
                 .map_or(0..a.n, |s| s.owned);
             (stats.iterations, x[own].to_vec())
@@ -695,6 +853,41 @@ mod tests {
                     .all(|(a, b)| a.to_bits() == b.to_bits()));
             }
         }
+    }
+
+    /// Jacobi's conjugate gradient spreads too, to the same solution; the direct solver is
+    /// refused over ranks rather than run on a matrix each rank holds only a part of.
+    #[test]
+    fn jacobi_spreads_and_the_direct_solver_is_refused() {
+        let (a, layout) = laplacian::<2>(48);
+        let b = pseudo_random(a.n, 13);
+        let jacobi = || Box::<crate::linalg::Jacobi>::default() as Box<dyn Preconditioner>;
+        let (its, x) = solve_with(&a, &layout, (&b, false), 1, jacobi);
+        let (its_r, x_r) = solve_with(&a, &layout, (&b, false), 3, jacobi);
+        let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let err = x
+            .iter()
+            .zip(&x_r)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(err <= 1e-6 * scale, "differs by {err:e} of {scale:e}");
+        assert!(its_r.abs_diff(its) <= its / 50 + 2, "{its_r} against {its}");
+        let refused = threads::run(2, |comm| {
+            let p = partition(comm, &layout);
+            let system = System {
+                matrix: &a,
+                layout: &layout,
+                singular: false,
+                partition: Some(&p),
+            };
+            let params = SolveParams {
+                tolerance: 1e-8,
+                max_iterations: 10,
+            };
+            let mut direct = crate::linalg::LinearSolver::Direct(Default::default());
+            let mut x = vec![0.0; a.n];
+            direct.solve(&system, &b, &mut x, params).is_err()
+        });
+        assert!(refused.into_iter().all(|r| r));
     }
 
     /// A closed box's singular system over ranks: the mean taken out over every rank's rows,
