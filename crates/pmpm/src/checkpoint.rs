@@ -459,8 +459,9 @@ fn refuse(path: &Path, why: impl std::fmt::Display) -> Error {
 /// or another particle count is refused with a message that says which.
 ///
 /// A checkpoint of a run over as many ranks gives each rank its own piece, in its order (so
-/// that the run goes on bit for bit); any other gives every rank every particle, rank 0's
-/// first (the run shares them out again).
+/// that the run goes on bit for bit); one of another number of ranks gives each rank its share
+/// of every rank's particles, cut anew, read a piece at a time; one process takes every
+/// particle, rank 0's first.
 pub fn read<const D: usize>(
     path: &Path,
     deck: &Deck,
@@ -500,14 +501,18 @@ pub fn read<const D: usize>(
             }
         }
     }
-    let (s, own) = match &pieces {
-        None => (s, false),
-        Some(p) if p.counts.len() == ranks => (own_piece(path, p, s, rank)?, true),
-        Some(p) => (every_piece(path, p, s)?, false),
-    };
-    let expected = match (&pieces, own) {
-        (Some(p), true) => Some(p.counts[rank] as usize),
-        _ => None,
+    let (s, own, expected, decomposition) = match &pieces {
+        None => (s, false, None, decomposition),
+        Some(p) if p.counts.len() == ranks => {
+            let n = Some(p.counts[rank] as usize);
+            (own_piece(path, p, s, rank)?, true, n, decomposition)
+        }
+        Some(p) if ranks > 1 => {
+            let (s, cut) = share_of_pieces(path, p, s, &sim.grid.geo, (rank, ranks))?;
+            let n = Some(s.particles.id.len());
+            (s, true, n, cut)
+        }
+        Some(p) => (every_piece(path, p, s)?, false, None, decomposition),
     };
     check_particles(path, open, sim, &s, flow.as_ref(), expected)?;
     let driver = restore(sim, s, flow, free);
@@ -528,8 +533,8 @@ pub fn read<const D: usize>(
 /// What a rank resumed from ([`read`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Resumed {
-    /// Whether the rank holds its own particles (a checkpoint of a run over as many ranks),
-    /// not every particle.
+    /// Whether the rank holds its own particles, not every particle, and the simulation's
+    /// decomposition is their cut (a checkpoint of a run over ranks, resumed over ranks).
     pub own: bool,
     /// The checkpoint's generation ([`Pieces::generation`]; 0 for one of one process).
     pub generation: u64,
@@ -569,6 +574,63 @@ fn every_piece<const D: usize>(
         particles: all.flatten(),
         ..first
     })
+}
+
+/// Rank `rank`'s share of every rank's particles of the checkpoint at `path` (written by
+/// another number of ranks) whose rank 0 holds `first` and names the `pieces`, with `first`'s
+/// state, and the cut of `geo` over `ranks` that shares them. The pieces are read one at a
+/// time, twice: once to count the particles per cell layer, from which the cut is planned as
+/// a fresh run's is ([`Decomposition::plan`]), once to keep the rank's own (those in its slab,
+/// or without slabs an equal share in rank order). No rank holds more than its share and one
+/// piece, where taking every particle first held the whole run on every rank; the particles
+/// and their order are those of that way.
+///
+/// [`Decomposition::plan`]: crate::slabs::Decomposition::plan
+fn share_of_pieces<const D: usize>(
+    path: &Path,
+    pieces: &Pieces,
+    first: State<D>,
+    geo: &crate::grid::GridGeometry<D>,
+    (rank, ranks): (usize, usize),
+) -> Result<(State<D>, Option<crate::slabs::Decomposition>), Error> {
+    let each = |r: usize, f: &mut dyn FnMut(Particles<D>)| -> Result<(), Error> {
+        if r == 0 {
+            f(Particles::unflatten(&first.particles));
+        } else {
+            f(Particles::unflatten(
+                &read_piece(path, pieces, r, &first)?.particles,
+            ));
+        }
+        Ok(())
+    };
+    let mut counts = crate::slabs::Counts::default();
+    counts.reset(geo);
+    for r in 0..pieces.counts.len() {
+        each(r, &mut |ps| ps.x.iter().for_each(|x| counts.add(geo, x)))?;
+    }
+    let plan = crate::slabs::Decomposition::plan(geo, &counts, ranks);
+    let total: u64 = pieces.counts.iter().sum();
+    let share = crate::comm::share(total as usize, rank, ranks);
+    let mut mine = Particles::<D>::default();
+    let (mut at, mut keep) = (0, Vec::new());
+    for r in 0..pieces.counts.len() {
+        each(r, &mut |ps| {
+            keep.clear();
+            keep.extend((0..ps.len()).filter_map(|p| {
+                let own = match &plan {
+                    Some(d) => d.owner_of(geo, &ps.x[p]) == rank,
+                    None => share.contains(&(at + p)),
+                };
+                own.then_some(p as u32)
+            }));
+            at += ps.len();
+            let mut kept = ps.pick(&keep);
+            kept.stored = mine.stored;
+            mine.append(&mut kept);
+        })?;
+    }
+    let particles = mine.flatten();
+    Ok((State { particles, ..first }, plan))
 }
 
 /// The piece of rank `rank` of the checkpoint at `path` (whose rank 0 holds `first`),

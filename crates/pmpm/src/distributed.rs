@@ -84,8 +84,8 @@ pub fn build<const D: usize>(
 pub enum Held {
     /// Its own, as [`build`] built them, and the cut it built them for.
     Fresh(Option<Decomposition>),
-    /// Its own, in the order of its piece of the checkpoint of a run over as many ranks, and
-    /// the cut the checkpoint holds.
+    /// Its own, as a checkpoint gave them (its piece, in order, of a run over as many ranks;
+    /// or its share of every piece, cut anew, of a run over another number), and their cut.
     Own(Option<Decomposition>),
     /// Every particle of the run, as a checkpoint holds them (rank 0's, then rank 1's, ...).
     Every,
