@@ -407,17 +407,8 @@ impl Pcg {
             self.preconditioner.setup(system);
         }
         let b_norm = dot(b, b, &mut self.work.partials).sqrt();
-        if !b_norm.is_finite() {
-            return Err(SolveError::Breakdown(
-                "the right-hand side is not finite".into(),
-            ));
-        }
-        if b_norm == 0.0 {
-            x.fill(0.0);
-            return Ok(SolveStats {
-                iterations: 0,
-                relative_residual: 0.0,
-            });
+        if let Some(done) = nothing_to_solve(b_norm, x) {
+            return done;
         }
         // r = b - A x (x holds the initial guess)
         let r = &mut self.work.r;
@@ -435,6 +426,23 @@ impl Pcg {
         };
         self.work.solve(&mut op, &mut pre, x, b_norm, params)
     }
+}
+
+/// A solve that ends before it starts, from |b|: refused where b is not finite, x = 0 where
+/// b = 0; `None` where there is something to solve.
+fn nothing_to_solve(b_norm: f64, x: &mut [f64]) -> Option<Result<SolveStats, SolveError>> {
+    if !b_norm.is_finite() {
+        return Some(Err(SolveError::Breakdown(
+            "the right-hand side is not finite".into(),
+        )));
+    }
+    (b_norm == 0.0).then(|| {
+        x.fill(0.0);
+        Ok(SolveStats {
+            iterations: 0,
+            relative_residual: 0.0,
+        })
+    })
 }
 
 /// Sparse Cholesky (faer), the factorisation redone for every matrix.

@@ -421,17 +421,8 @@ pub(super) fn solve(
     };
     let b_own = &b[own.clone()];
     let b_norm = op.dot(b_own, b_own, &mut work.partials).sqrt();
-    if !b_norm.is_finite() {
-        return Err(SolveError::Breakdown(
-            "the right-hand side is not finite".into(),
-        ));
-    }
-    if b_norm == 0.0 {
-        x.fill(0.0);
-        return Ok(SolveStats {
-            iterations: 0,
-            relative_residual: 0.0,
-        });
+    if let Some(done) = super::nothing_to_solve(b_norm, x) {
+        return done;
     }
     // r = b - A x on the own rows (x holds the initial guess)
     op.apply(&x[own.clone()], &mut work.r);
@@ -569,6 +560,11 @@ mod tests {
             .collect();
         cuts.push(nodes);
         Partition { comm, cuts }
+    }
+
+    /// max_i |a_i - b_i|.
+    fn largest_difference(a: &[f64], b: &[f64]) -> f64 {
+        a.iter().zip(b).fold(0.0, |m, (a, b)| m.max((a - b).abs()))
     }
 
     fn pseudo_random(n: usize, seed: u64) -> Vec<f64> {
@@ -838,10 +834,7 @@ mod tests {
                     layout.dim
                 );
                 assert!(its_r.abs_diff(its) <= 2, "{its_r} against {its}");
-                let err = x
-                    .iter()
-                    .zip(&x_r)
-                    .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+                let err = largest_difference(&x, &x_r);
                 assert!(
                     err <= 1e-6 * scale,
                     "{size} ranks: differs by {err:e} of {scale:e}"
@@ -865,10 +858,7 @@ mod tests {
         let (its, x) = solve_with(&a, &layout, (&b, false), 1, jacobi);
         let (its_r, x_r) = solve_with(&a, &layout, (&b, false), 3, jacobi);
         let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let err = x
-            .iter()
-            .zip(&x_r)
-            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        let err = largest_difference(&x, &x_r);
         assert!(err <= 1e-6 * scale, "differs by {err:e} of {scale:e}");
         assert!(its_r.abs_diff(its) <= its / 50 + 2, "{its_r} against {its}");
         let refused = threads::run(2, |comm| {
@@ -910,10 +900,7 @@ mod tests {
         for size in [2, 3] {
             let (its_r, x_r) = solve_on(&a, &layout, (&b, true), size);
             assert!(its_r.abs_diff(its) <= 2, "{its_r} against {its}");
-            let err = x
-                .iter()
-                .zip(&x_r)
-                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            let err = largest_difference(&x, &x_r);
             assert!(
                 err <= 1e-6 * scale,
                 "{size} ranks: differs by {err:e} of {scale:e}"
