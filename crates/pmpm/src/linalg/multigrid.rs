@@ -16,6 +16,8 @@
 //! on this storage, and an algebraic one would rebuild its hierarchy from scratch every step
 //! where the geometry gives it for free. Every loop gathers per output row in a fixed order,
 //! so a solve repeats bitwise for a given thread count; all buffers are kept between steps.
+//! Over ranks every loop runs on the rank's own rows of its level, after its neighbours' rows
+//! have come ([`super::spread`]); on one process a level's share is every row.
 
 use super::spread::{Halo, Share};
 use super::{EllMatrix, Preconditioner, System};
