@@ -593,20 +593,23 @@ fn share_of_pieces<const D: usize>(
     geo: &crate::grid::GridGeometry<D>,
     (rank, ranks): (usize, usize),
 ) -> Result<(State<D>, Option<crate::slabs::Decomposition>), Error> {
-    let each = |r: usize, f: &mut dyn FnMut(Particles<D>)| -> Result<(), Error> {
+    let each = |r: usize, f: &mut dyn FnMut(&FlatParticles<D>)| -> Result<(), Error> {
         if r == 0 {
-            f(Particles::unflatten(&first.particles));
+            f(&first.particles);
         } else {
-            f(Particles::unflatten(
-                &read_piece(path, pieces, r, &first)?.particles,
-            ));
+            f(&read_piece(path, pieces, r, &first)?.particles);
         }
         Ok(())
     };
+    // (the positions alone, as the flat piece holds them)
     let mut counts = crate::slabs::Counts::default();
     counts.reset(geo);
     for r in 0..pieces.counts.len() {
-        each(r, &mut |ps| ps.x.iter().for_each(|x| counts.add(geo, x)))?;
+        each(r, &mut |flat| {
+            for x in flat.x.chunks_exact(D) {
+                counts.add(geo, &Vector::<D>::from_column_slice(x));
+            }
+        })?;
     }
     let plan = crate::slabs::Decomposition::plan(geo, &counts, ranks);
     let total: u64 = pieces.counts.iter().sum();
@@ -614,7 +617,8 @@ fn share_of_pieces<const D: usize>(
     let mut mine = Particles::<D>::default();
     let (mut at, mut keep) = (0, Vec::new());
     for r in 0..pieces.counts.len() {
-        each(r, &mut |ps| {
+        each(r, &mut |flat| {
+            let ps = Particles::unflatten(flat);
             keep.clear();
             keep.extend((0..ps.len()).filter_map(|p| {
                 let own = match &plan {

@@ -115,26 +115,44 @@ impl EllMatrix {
 
     /// The diagonal entries (summed over the row's slots that hold column r).
     pub fn diagonal(&self, d: &mut Vec<f64>) {
-        let w = self.width;
         d.resize(self.n, 0.0);
-        d.par_iter_mut().enumerate().for_each(|(r, d)| {
-            *d = (0..w)
-                .filter(|&k| self.cols[r * w + k] as usize == r)
-                .map(|k| self.vals[r * w + k])
-                .sum();
-        });
+        d.par_iter_mut()
+            .enumerate()
+            .for_each(|(r, d)| *d = self.diagonal_of(r));
+    }
+
+    /// Row r's diagonal entry (summed over its slots that hold column r).
+    pub fn diagonal_of(&self, r: usize) -> f64 {
+        let w = self.width;
+        (0..w)
+            .filter(|&k| self.cols[r * w + k] as usize == r)
+            .map(|k| self.vals[r * w + k])
+            .sum()
     }
 }
 
 /// Removes the mean of `x` (the null space of a pure-Neumann Laplacian is the constant).
 fn remove_mean(x: &mut [f64], partials: &mut Vec<f64>) {
-    if x.is_empty() {
+    let n = x.len();
+    remove_mean_of(x, partials, |sum| sum, n);
+}
+
+/// Removes from `x`, a part of a vector of `count` entries, the whole vector's mean: the sum
+/// of this part's entries (in fixed chunks) made the whole's by `total` (over ranks, the sum
+/// over them; every rank calls it, with or without entries).
+fn remove_mean_of(
+    x: &mut [f64],
+    partials: &mut Vec<f64>,
+    total: impl FnOnce(f64) -> f64,
+    count: usize,
+) {
+    if count == 0 {
         return;
     }
     x.par_chunks(CHUNK)
         .map(|c| c.iter().sum::<f64>())
         .collect_into_vec(partials);
-    let mean = partials.iter().sum::<f64>() / x.len() as f64;
+    let mean = total(partials.iter().sum::<f64>()) / count as f64;
     x.par_iter_mut().for_each(|v| *v -= mean);
 }
 

@@ -193,17 +193,12 @@ impl Multigrid {
 
 /// D^-1 on the rows `rows` (those a rank smooths; the others are left as they were).
 fn inverse_diagonal(a: &EllMatrix, d: &mut Vec<f64>, rows: Range<usize>) {
-    let w = a.width;
     d.resize(a.n, 0.0);
     d[rows.clone()]
         .par_iter_mut()
         .enumerate()
         .for_each(|(k, d)| {
-            let r = rows.start + k;
-            let diagonal: f64 = (0..w)
-                .filter(|&s| a.cols[r * w + s] as usize == r)
-                .map(|s| a.vals[r * w + s])
-                .sum();
+            let diagonal = a.diagonal_of(rows.start + k);
             *d = if diagonal > 0.0 { 1.0 / diagonal } else { 0.0 };
         });
 }
@@ -640,10 +635,7 @@ impl Multigrid {
                 let l = system.layout;
                 // the conjugate gradient has checked that the rows cut into slabs
                 self.fine_share = Share::finest(l, p).unwrap_or_else(|| Share::whole(n));
-                match &mut self.halo {
-                    Some(h) => h.comm = p.comm.clone(),
-                    None => self.halo = Some(Halo::new(p.comm.clone())),
-                }
+                Halo::over(&mut self.halo, &p.comm);
             }
             None => {
                 self.fine_share = Share::whole(n);

@@ -220,12 +220,15 @@ impl std::fmt::Debug for Halo {
 }
 
 impl Halo {
-    pub fn new(comm: Arc<dyn Comm>) -> Self {
-        Self {
-            comm,
+    /// The exchanges in `slot` made `comm`'s (its buffers kept where it held them already).
+    pub fn over<'a>(slot: &'a mut Option<Halo>, comm: &Arc<dyn Comm>) -> &'a mut Halo {
+        let halo = slot.get_or_insert_with(|| Halo {
+            comm: comm.clone(),
             send: Vec::new(),
             recv: Vec::new(),
-        }
+        });
+        halo.comm = comm.clone();
+        halo
     }
 
     /// The rows of `v` in `share`'s halo, from the neighbours that compute them; nothing on a
@@ -324,12 +327,8 @@ impl Operator<f64> for SpreadOperator<'_> {
 
     fn project(&self, v: &mut [f64], partials: &mut Vec<f64>) {
         if self.singular {
-            v.par_chunks(super::CHUNK)
-                .map(|c| c.iter().sum::<f64>())
-                .collect_into_vec(partials);
-            let sum = self.halo.comm.sum_scalar(partials.iter().sum());
-            let mean = sum / self.matrix.n.max(1) as f64;
-            v.par_iter_mut().for_each(|v| *v -= mean);
+            let comm = &self.halo.comm;
+            super::remove_mean_of(v, partials, |sum| comm.sum_scalar(sum), self.matrix.n);
         }
     }
 
@@ -401,10 +400,7 @@ pub(super) fn solve(
         work,
         spread,
     } = pcg;
-    let halo = spread
-        .halo
-        .get_or_insert_with(|| Halo::new(partition.comm.clone()));
-    halo.comm = partition.comm.clone();
+    let halo = Halo::over(&mut spread.halo, &partition.comm);
     for v in [&mut spread.full, &mut spread.r, &mut spread.z] {
         v.resize(a.n, 0.0);
     }
