@@ -442,8 +442,18 @@ impl Migration {
             ps.keep(&self.staying);
         }
         // each sender's particles, in rank order
-        ps.unpack(&self.recv);
+        self.take_in(ps);
         Ok(true)
+    }
+
+    /// Appends the particles received, sender by sender (each sender's are packed field by
+    /// field: [`Particles::pack`]).
+    fn take_in<const D: usize>(&self, ps: &mut Particles<D>) {
+        let mut at = 0;
+        for &n in &self.recv_counts {
+            ps.unpack(&self.recv[at..at + n]);
+            at += n;
+        }
     }
 }
 
@@ -534,5 +544,66 @@ mod tests {
                 });
             }
         }
+    }
+
+    /// Particles of ids `ids` at `x`, every field set from the id.
+    fn particles(ids: &[u32], x: &[[f64; 2]]) -> Particles<2> {
+        let f = |i: &u32| f64::from(*i);
+        let mut ps = Particles::<2> {
+            id: ids.to_vec(),
+            x: x.iter().map(|x| Vector::<2>::new(x[0], x[1])).collect(),
+            v: ids.iter().map(|i| Vector::<2>::new(f(i), -f(i))).collect(),
+            mass: ids.iter().map(f).collect(),
+            volume0: ids.iter().map(f).collect(),
+            jacobian: ids.iter().map(f).collect(),
+            pressure: ids.iter().map(f).collect(),
+            velocity_gradient: ids
+                .iter()
+                .map(|i| crate::particles::Matrix::<2>::repeat(f(i)))
+                .collect(),
+            affine: ids
+                .iter()
+                .map(|i| crate::particles::Matrix::<2>::repeat(f(i)))
+                .collect(),
+            material: ids.iter().map(|&i| i as u16).collect(),
+            half_width: ids.iter().map(f).collect(),
+            ..Particles::default()
+        };
+        ps.set_stored(crate::particles::Stored {
+            deformation: false,
+            stress: false,
+        });
+        ps
+    }
+
+    #[test]
+    fn a_rank_takes_in_particles_from_both_neighbours_in_one_step() {
+        // three slabs of x: [0, 5), [5, 9), [9, 14) (padded cell layers, h = 1 from -2)
+        let geo = GridGeometry::<2>::new(Vector::<2>::new(-2.0, -2.0), 1.0, [9, 4]);
+        let d = Decomposition {
+            axis: 0,
+            cuts: vec![0, 5, 9, 14],
+        };
+        // rank 0 and rank 2 each hold a particle that moved into rank 1's slab (x = 4.5)
+        let held = [
+            (vec![0, 1], vec![[0.5, 0.5], [4.5, 0.5]]),
+            (vec![2], vec![[4.5, 1.5]]),
+            (vec![3, 4], vec![[4.5, 1.0], [8.5, 1.5]]),
+        ];
+        let out = crate::comm::threads::run(3, |comm| {
+            let (ids, x) = &held[comm.rank()];
+            let mut ps = particles(ids, x);
+            let mut migration = Migration::default();
+            assert!(migration.run(&*comm, &geo, &d, &mut ps).unwrap());
+            format!("{:?}", ps)
+        });
+        let want = |ids: &[u32], x: &[[f64; 2]]| format!("{:?}", particles(ids, x));
+        assert_eq!(out[0], want(&[0], &[[0.5, 0.5]]));
+        // its own first, then rank 0's, then rank 2's, every field whole
+        assert_eq!(
+            out[1],
+            want(&[2, 1, 3], &[[4.5, 1.5], [4.5, 0.5], [4.5, 1.0]])
+        );
+        assert_eq!(out[2], want(&[4], &[[8.5, 1.5]]));
     }
 }
