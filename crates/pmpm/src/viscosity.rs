@@ -25,8 +25,16 @@
 //! one gather of L_q and one scatter of tau_q G_iq per iteration, through the same stencils as
 //! the transfers. It is written by hand, as the transfers are, because its operator exists
 //! only as sums over points.
+//!
+//! Over ranks with the grid in slabs ([`crate::slabs`]) each rank integrates over the points
+//! of its own cells, and its sums onto the nodes are added up with its neighbours' as P2G's
+//! are ([`crate::comm::Comm::add_nodes`]): the operator, the diagonal and the cells' fill that
+//! picks the points. The conjugate gradient's updates are node by node, so every node a
+//! rank's points read stays the same on the ranks that share it; its dot products are sums
+//! over each rank's own node layers, added up over the ranks.
 
 use crate::boundary::Boundary;
+use crate::comm::Comm;
 use crate::grid::{CellBins, Grid, GridGeometry, Vector};
 use crate::linalg::{dot, CgWork, Operator, Precondition, SolveError, SolveParams};
 use crate::material::{deviatoric_strain_rate, in_mask, Law, MaterialParams};
@@ -34,6 +42,7 @@ use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
 use crate::transfer::{scatter_weighted, Band, Points};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// No one material: a cell of several, or a point that is a particle.
 const MIXED: u16 = u16::MAX;
@@ -161,6 +170,69 @@ pub struct ImplicitViscosity<const D: usize> {
     bands: Vec<Band<Vector<D>>>,
     /// The conjugate gradient's work vectors.
     cg: CgWork<Vector<D>>,
+    /// Over ranks with the grid in slabs, this rank's share; `None` on one process.
+    ranks: Option<Slab>,
+    /// Over ranks, the cells' fill and material as sums onto the nodes
+    /// ([`ImplicitViscosity::sum_cells`]).
+    cell_fill: [Vec<f64>; 4],
+}
+
+/// A rank's share of the solve: the ranks, and the cell (node) layers along `axis` it owns.
+#[derive(Clone)]
+pub struct Slab {
+    /// The ranks, their sums onto the nodes those of the grid's slabs.
+    pub comm: Arc<dyn Comm>,
+    /// The axis the grid is cut along.
+    pub axis: usize,
+    /// This rank's cell layers, and the node layers it counts in the dot products.
+    pub layers: std::ops::Range<usize>,
+}
+
+impl std::fmt::Debug for Slab {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Slab(axis {}, layers {:?})", self.axis, self.layers)
+    }
+}
+
+impl Slab {
+    /// Whether node (or cell) `i` lies on this rank's layers.
+    #[inline]
+    fn owns<const D: usize>(&self, geo: &GridGeometry<D>, i: usize) -> bool {
+        self.layers.contains(&geo.multi(i)[self.axis])
+    }
+
+    /// Sums of the ranks' points onto the nodes of `v` ([`Comm::add_nodes`]).
+    fn add<const D: usize>(&self, v: &mut [Vector<D>]) {
+        self.comm.add_nodes(&mut [bytemuck::cast_slice_mut(v)]);
+    }
+
+    /// a . b over the nodes of every rank's own layers.
+    fn dot<const D: usize>(
+        &self,
+        geo: &GridGeometry<D>,
+        (a, b): (&[Vector<D>], &[Vector<D>]),
+        partials: &mut Vec<f64>,
+    ) -> f64 {
+        let own = if self.axis == D - 1 {
+            // a slab along the last axis is one run of nodes
+            let s = geo.strides[D - 1];
+            let run = (self.layers.start * s).min(a.len())..(self.layers.end * s).min(a.len());
+            dot(&a[run.clone()], &b[run], partials)
+        } else {
+            a.par_chunks(CHUNK)
+                .zip(b.par_chunks(CHUNK))
+                .enumerate()
+                .map(|(c, (a, b))| {
+                    (0..a.len())
+                        .filter(|&k| self.owns(geo, c * CHUNK + k))
+                        .map(|k| a[k].dot(&b[k]))
+                        .sum::<f64>()
+                })
+                .collect_into_vec(partials);
+            partials.iter().sum()
+        };
+        self.comm.sum_scalar(own)
+    }
 }
 
 impl<const D: usize> ImplicitViscosity<D> {
@@ -183,6 +255,11 @@ impl<const D: usize> ImplicitViscosity<D> {
             mass_epsilon,
             ..Self::default()
         }
+    }
+
+    /// Makes this the solve of a rank whose grid is cut as `slab` says; `None`, one process.
+    pub fn spread_over(&mut self, slab: Option<Slab>) {
+        self.ranks = slab;
     }
 
     /// Replaces the node velocities v in `grid.velocity_new` by the solution u of
@@ -218,6 +295,7 @@ impl<const D: usize> ImplicitViscosity<D> {
             stress,
             bands,
             cg,
+            ranks,
             ..
         } = self;
         // |b| = |M v*| and r = b - (M + dt K) v* = -dt K v*, on the free components
@@ -230,7 +308,14 @@ impl<const D: usize> ImplicitViscosity<D> {
                     .sum::<f64>()
             })
             .collect_into_vec(&mut cg.partials);
-        let b_norm = cg.partials.iter().sum::<f64>().sqrt();
+        let mut b_norm = cg.partials.iter().sum::<f64>().sqrt();
+        if let Some(slab) = ranks.as_ref() {
+            // (r is written below: here it holds M v on the free components)
+            cg.r.par_iter_mut().enumerate().for_each(|(i, r)| {
+                *r = (u[i] * mass[i]).component_mul(&mask[i]);
+            });
+            b_norm = slab.dot(geo, (&cg.r, &cg.r), &mut cg.partials).sqrt();
+        }
         let mut op = ViscousOperator {
             geo,
             shape,
@@ -241,6 +326,7 @@ impl<const D: usize> ImplicitViscosity<D> {
             coefficient,
             stress,
             bands,
+            ranks: ranks.as_ref(),
         };
         op.viscous(u, &mut cg.r);
         cg.r.par_iter_mut().enumerate().for_each(|(i, r)| {
@@ -248,7 +334,7 @@ impl<const D: usize> ImplicitViscosity<D> {
         });
         // relative to |M v| on the free components, or to the first residual where the free
         // nodes are at rest and only the held ones (a lid, a body) drive the flow
-        let r_norm = dot(&cg.r, &cg.r, &mut cg.partials).sqrt();
+        let r_norm = op.dot(&cg.r, &cg.r, &mut cg.partials).sqrt();
         let params = SolveParams {
             tolerance: *tolerance,
             max_iterations: *max_iterations,
@@ -339,24 +425,8 @@ impl<const D: usize> ImplicitViscosity<D> {
         let geo = &grid.geo;
         self.bins.sort(geo, &ps.x);
         let n = geo.node_count();
+        self.sum_cells(ps, geo);
         let (bins, weight) = (&self.bins, &self.particle_weight);
-        self.cell_sums.resize(n, (0.0, MIXED));
-        self.cell_sums
-            .par_iter_mut()
-            .enumerate()
-            .for_each(|(c, sums)| {
-                let mut material = None;
-                let mut one = true;
-                let mut v = 0.0;
-                for &p in bins.particles(c) {
-                    let p = p as usize;
-                    if weight[p] > 0.0 {
-                        v += ps.volume(p);
-                        one &= *material.get_or_insert(ps.material[p]) == ps.material[p];
-                    }
-                }
-                *sums = (v, material.filter(|_| one).unwrap_or(MIXED));
-            });
         let open: [bool; 6] = std::array::from_fn(|f| f < 2 * D && boundary.is_open(f));
         let sums = &self.cell_sums;
         // whether cell c is of one material, and it and the 3^D cells around it hold the fluid
@@ -385,8 +455,10 @@ impl<const D: usize> ImplicitViscosity<D> {
         self.point_material.clear();
         let corners = 1usize << D;
         let gauss_weight = geo.h.powi(D as i32) / corners as f64;
+        let ranks = self.ranks.as_ref();
         for c in 0..n {
-            if sums[c].0 <= 0.0 {
+            // (over ranks a rank's own cells: the others' points are theirs)
+            if sums[c].0 <= 0.0 || ranks.is_some_and(|r| !r.owns(geo, c)) {
                 continue;
             }
             let idx = geo.multi(c);
@@ -432,6 +504,65 @@ impl<const D: usize> ImplicitViscosity<D> {
             });
     }
 
+    /// Per cell, the volume of its implicit particles and their material ([`MIXED`] where
+    /// they are of several); over ranks added up with the neighbours' cells, as their particles
+    /// lie in them.
+    fn sum_cells(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>) {
+        let n = geo.node_count();
+        let (bins, weight) = (&self.bins, &self.particle_weight);
+        self.cell_sums.resize(n, (0.0, MIXED));
+        self.cell_sums
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(c, sums)| {
+                let mut material = None;
+                let mut one = true;
+                let mut v = 0.0;
+                for &p in bins.particles(c) {
+                    let p = p as usize;
+                    if weight[p] > 0.0 {
+                        v += ps.volume(p);
+                        one &= *material.get_or_insert(ps.material[p]) == ps.material[p];
+                    }
+                }
+                *sums = (v, material.filter(|_| one).unwrap_or(MIXED));
+            });
+        let Some(slab) = &self.ranks else {
+            return;
+        };
+        // the material as numbers whose sums tell one material from several (a particle the
+        // density correction moved past the cut is still its rank's until the next move):
+        // for each rank with particles in the cell, 1, k = m + 1 and k^2 (MIXED + 1 for
+        // several); the ranks agree on one material where n sum k^2 = (sum k)^2
+        let [fill, ranks, codes, squares] = &mut self.cell_fill;
+        for a in [&mut *fill, &mut *ranks, &mut *codes, &mut *squares] {
+            a.clear();
+        }
+        for &(v, m) in &self.cell_sums {
+            let (r, k) = if v > 0.0 {
+                (1.0, f64::from(m) + 1.0)
+            } else {
+                (0.0, 0.0)
+            };
+            fill.push(v);
+            ranks.push(r);
+            codes.push(k);
+            squares.push(k * k);
+        }
+        let mut arrays = [
+            &mut fill[..],
+            &mut ranks[..],
+            &mut codes[..],
+            &mut squares[..],
+        ];
+        slab.comm.add_nodes(&mut arrays);
+        for (c, sums) in self.cell_sums.iter_mut().enumerate() {
+            let (r, k) = (ranks[c], codes[c]);
+            let one = r > 0.0 && r * squares[c] == k * k;
+            *sums = (fill[c], if one { (k / r - 1.0) as u16 } else { MIXED });
+        }
+    }
+
     /// The inverse diagonal of M + dt K on the free components (0 elsewhere): component d of
     /// node i has m_i + sum_p dt V_p mu_p (|G_ip|^2 + G_ip,d^2 (1 - 2 / D)), the stress of
     /// a unit velocity of that component alone (|dev sym (e_d (x) G)|^2 = (|G|^2 + G_d^2) / 2
@@ -457,6 +588,9 @@ impl<const D: usize> ImplicitViscosity<D> {
             },
             &mut self.inverse_diagonal,
         );
+        if let Some(slab) = &self.ranks {
+            slab.add(&mut self.inverse_diagonal);
+        }
         let mask = &self.mask;
         self.inverse_diagonal
             .par_iter_mut()
@@ -486,6 +620,7 @@ struct ViscousOperator<'a, const D: usize> {
     coefficient: &'a [f64],
     stress: &'a mut Vec<Matrix<D>>,
     bands: &'a mut Vec<Band<Vector<D>>>,
+    ranks: Option<&'a Slab>,
 }
 
 impl<const D: usize> ViscousOperator<'_, D> {
@@ -527,6 +662,9 @@ impl<const D: usize> ViscousOperator<'_, D> {
             |s, nw| s * nw.grad,
             q,
         );
+        if let Some(slab) = self.ranks {
+            slab.add(q);
+        }
     }
 }
 
@@ -537,6 +675,13 @@ impl<const D: usize> Operator<Vector<D>> for ViscousOperator<'_, D> {
         q.par_iter_mut().enumerate().for_each(|(i, q)| {
             *q = (*q + x[i] * mass[i]).component_mul(&mask[i]);
         });
+    }
+
+    fn dot(&self, a: &[Vector<D>], b: &[Vector<D>], partials: &mut Vec<f64>) -> f64 {
+        match self.ranks {
+            None => dot(a, b, partials),
+            Some(slab) => slab.dot(self.geo, (a, b), partials),
+        }
     }
 }
 
@@ -752,6 +897,7 @@ particles_per_cell = 2
                 coefficient: &self.coefficient,
                 stress: &mut self.stress,
                 bands: &mut self.bands,
+                ranks: self.ranks.as_ref(),
             }
         }
     }
