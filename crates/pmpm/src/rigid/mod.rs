@@ -1469,7 +1469,56 @@ impl<const D: usize> RigidBodies<D> {
                 kinds,
             } => (particles, shape, pressure, level_set, kinds),
         };
-        let geo = &grid.geo;
+        self.pressure_force(&grid.geo, sliced, (ps, shape, node_pressure), (phi, kinds));
+    }
+
+    /// The pressure's force on the bodies under the nodal projection (measured after the
+    /// bodies' momentum): over its particles next to them and over their wet faces.
+    fn pressure_force(
+        &mut self,
+        geo: &GridGeometry<D>,
+        sliced: bool,
+        (ps, shape, node_pressure): (&Particles<D>, ShapeFunction, &[f64]),
+        (phi, kinds): (Option<&[f64]>, &[NodeKind]),
+    ) {
+        // over slabs each rank's particles' and faces' sum apart (a face the rank's whose slab
+        // holds it, where the free surface is that rank's), then added up over the ranks
+        let whole = sliced.then(|| {
+            let mut f = std::mem::take(&mut self.push_force);
+            let mut t = std::mem::take(&mut self.push_torque);
+            f.clear();
+            f.resize(self.len(), Vector::<D>::zeros());
+            t.clear();
+            t.resize(self.len(), Vector3::zeros());
+            std::mem::swap(&mut self.force, &mut f);
+            std::mem::swap(&mut self.torque, &mut t);
+            (f, t)
+        });
+        self.pressure_on(geo, sliced, (ps, shape, node_pressure), (phi, kinds));
+        if let Some((mut f, mut t)) = whole {
+            self.comm.sum_all(&mut [
+                bytemuck::cast_slice_mut(&mut self.force),
+                bytemuck::cast_slice_mut(&mut self.torque),
+            ]);
+            for b in 0..self.len() {
+                f[b] += self.force[b];
+                t[b] += self.torque[b];
+            }
+            std::mem::swap(&mut self.force, &mut f);
+            std::mem::swap(&mut self.torque, &mut t);
+            (self.push_force, self.push_torque) = (f, t);
+        }
+    }
+
+    /// The pressure's force on the bodies, added to `force` and `torque`: from the particles
+    /// next to them and from the wet faces (over slabs, those of this rank's slab).
+    fn pressure_on(
+        &mut self,
+        geo: &GridGeometry<D>,
+        sliced: bool,
+        (ps, shape, node_pressure): (&Particles<D>, ShapeFunction, &[f64]),
+        (phi, kinds): (Option<&[f64]>, &[NodeKind]),
+    ) {
         // the pressure's force on the components the bodies hold, as the corrector applied it:
         // f_i = -sum_p V_p N_ip (grad p)_p. Serial: the particles near the bodies are few, and
         // a fixed order keeps the sum's bits the same on any number of threads.
@@ -1502,8 +1551,15 @@ impl<const D: usize> RigidBodies<D> {
         // and the pressure on the faces, int_faces p n dS (n into the body): the corrector's
         // gradient form pushes the material with -int grad p dV, whose part on a body's side is
         // this, the face's reaction; over the wet faces only, where the level set reads water
+        let mine = |x: &Vector<D>| match &self.owned_layers {
+            Some((axis, layers)) if sliced => {
+                let layer = ((x[*axis] - geo.origin[*axis]) / geo.h).floor() + PAD as f64;
+                layers.contains(&(layer.max(0.0) as usize))
+            }
+            _ => true,
+        };
         for f in &self.faces {
-            if !wet(geo, phi, &f.x) {
+            if !mine(&f.x) || !wet(geo, phi, &f.x) {
                 continue;
             }
             if let Some(p) = surface_pressure(geo, node_pressure, kinds, &f.x) {
@@ -1513,7 +1569,7 @@ impl<const D: usize> RigidBodies<D> {
         // and on the shaped bodies' wet surfaces, at the rays' crossings
         // (a part of a body outside the domain meets no material)
         for f in &self.surface {
-            if !geo.contains(&f.x) || !wet(geo, phi, &f.x) {
+            if !geo.contains(&f.x) || !mine(&f.x) || !wet(geo, phi, &f.x) {
                 continue;
             }
             if let Some(p) = surface_pressure(geo, node_pressure, kinds, &f.x) {
