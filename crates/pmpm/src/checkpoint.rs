@@ -508,11 +508,16 @@ pub fn read<const D: usize>(
             (own_piece(path, p, s, rank)?, true, n, decomposition)
         }
         Some(p) if ranks > 1 => {
-            let (s, cut) = share_of_pieces(path, p, s, &sim.grid.geo, (rank, ranks))?;
+            let geo = &sim.grid.geo;
+            let s = whole_pressure(path, p, s, geo, decomposition.as_ref())?;
+            let (s, cut) = share_of_pieces(path, p, s, geo, (rank, ranks, sim.window()))?;
             let n = Some(s.particles.id.len());
             (s, true, n, cut)
         }
-        Some(p) => (every_piece(path, p, s)?, false, None, decomposition),
+        Some(p) => {
+            let s = whole_pressure(path, p, s, &sim.grid.geo, decomposition.as_ref())?;
+            (every_piece(path, p, s)?, false, None, decomposition)
+        }
     };
     check_particles(path, open, sim, &s, flow.as_ref(), expected)?;
     let driver = restore(sim, s, flow, free);
@@ -556,6 +561,41 @@ fn own_piece<const D: usize>(
     Ok(piece)
 }
 
+/// `first`, rank 0's state of a checkpoint of the projection over ranks cut as `cut`, with the
+/// node pressure of every piece on its own node layers, where the rank that wrote it found the
+/// free surface (each rank's is exact only on its slab and the window around it); as it is
+/// without a cut or the projection's state.
+fn whole_pressure<const D: usize>(
+    path: &Path,
+    pieces: &Pieces,
+    mut first: State<D>,
+    geo: &crate::grid::GridGeometry<D>,
+    cut: Option<&crate::slabs::Decomposition>,
+) -> Result<State<D>, Error> {
+    let Some(d) = cut.filter(|_| !first.node_pressure.is_empty()) else {
+        return Ok(first);
+    };
+    for r in 1..pieces.counts.len().min(d.ranks()) {
+        let piece = read_piece(path, pieces, r, &first)?;
+        for l in d.cuts[r]..d.cuts[r + 1] {
+            for i in geo.layer_nodes(d.axis, l) {
+                first.node_pressure[i] = piece.node_pressure[i];
+            }
+        }
+    }
+    Ok(first)
+}
+
+/// The projection's V_p / rho_p = V_p^0 V_p^0 / m_p of `s`'s particles (what a run keeps of
+/// them from the start), where `s` holds the projection's state.
+fn volume_over_density<const D: usize>(s: &mut State<D>) {
+    if s.node_pressure.is_empty() && s.volume_over_density.is_empty() {
+        return;
+    }
+    let (v0, m) = (&s.particles.volume0, &s.particles.mass);
+    s.volume_over_density = v0.iter().zip(m).map(|(v, m)| v * v / m).collect();
+}
+
 /// Every rank's particles of the checkpoint at `path` whose rank 0 holds `first` and names
 /// the `pieces`, in rank order, with `first`'s state.
 fn every_piece<const D: usize>(
@@ -570,10 +610,12 @@ fn every_piece<const D: usize>(
         more.stored = all.stored;
         all.append(&mut more);
     }
-    Ok(State {
+    let mut s = State {
         particles: all.flatten(),
         ..first
-    })
+    };
+    volume_over_density(&mut s);
+    Ok(s)
 }
 
 /// Rank `rank`'s share of every rank's particles of the checkpoint at `path` (written by
@@ -591,7 +633,7 @@ fn share_of_pieces<const D: usize>(
     pieces: &Pieces,
     first: State<D>,
     geo: &crate::grid::GridGeometry<D>,
-    (rank, ranks): (usize, usize),
+    (rank, ranks, window): (usize, usize, usize),
 ) -> Result<(State<D>, Option<crate::slabs::Decomposition>), Error> {
     let each = |r: usize, f: &mut dyn FnMut(&FlatParticles<D>)| -> Result<(), Error> {
         if r == 0 {
@@ -611,7 +653,7 @@ fn share_of_pieces<const D: usize>(
             }
         })?;
     }
-    let plan = crate::slabs::Decomposition::plan(geo, &counts, ranks);
+    let plan = crate::slabs::Decomposition::plan(geo, &counts, ranks, window);
     let total: u64 = pieces.counts.iter().sum();
     let share = crate::comm::share(total as usize, rank, ranks);
     let mut mine = Particles::<D>::default();
@@ -634,7 +676,9 @@ fn share_of_pieces<const D: usize>(
         })?;
     }
     let particles = mine.flatten();
-    Ok((State { particles, ..first }, plan))
+    let mut s = State { particles, ..first };
+    volume_over_density(&mut s);
+    Ok((s, plan))
 }
 
 /// The piece of rank `rank` of the checkpoint at `path` (whose rank 0 holds `first`),
@@ -660,8 +704,10 @@ fn read_piece<const D: usize>(
         && piece.steps == first.steps
         && piece.particles.id.len() as u64 == pieces.counts[rank]
         && piece.body_force.is_empty()
-        && piece.node_pressure.is_empty()
-        && piece.volume_over_density.is_empty();
+        // the projection's state: each rank's node pressure, and its particles' V / rho
+        && piece.node_pressure.len() == first.node_pressure.len()
+        && (piece.volume_over_density.len() == piece.particles.id.len()
+            || first.node_pressure.is_empty() && piece.volume_over_density.is_empty());
     if !fits {
         return Err(refuse(
             path,

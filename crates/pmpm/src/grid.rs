@@ -172,6 +172,19 @@ impl<const D: usize> GridGeometry<D> {
         (0..D).map(|d| idx[d] * self.strides[d]).sum()
     }
 
+    /// The nodes (flat) of node layer `layer` along `axis`, in node order.
+    pub fn layer_nodes(&self, axis: usize, layer: usize) -> impl Iterator<Item = usize> + '_ {
+        let count = self.node_count() / self.nodes[axis];
+        (0..count).map(move |mut k| {
+            let mut i = layer * self.strides[axis];
+            for d in (0..D).filter(|&d| d != axis) {
+                i += (k % self.nodes[d]) * self.strides[d];
+                k /= self.nodes[d];
+            }
+            i
+        })
+    }
+
     /// Padded multi-index of a flat index.
     #[inline]
     pub fn multi(&self, mut flat: usize) -> [usize; D] {

@@ -223,6 +223,9 @@ struct SlabWork {
     world: Arc<dyn Comm>,
     counts: crate::slabs::Counts,
     migration: crate::slabs::Migration,
+    /// While the neighbours' particles are lent to this rank (the projection's window:
+    /// [`crate::slabs::Decomposition::window`]), how many of the particles are its own.
+    own: Option<usize>,
 }
 
 impl<const D: usize> Simulation<D> {
@@ -324,7 +327,11 @@ impl<const D: usize> Simulation<D> {
         self.particles_to_grid();
         self.boundary.rigid.begin_step(&self.grid, dt);
         self.timers.lap(Phase::P2g);
-        // 3a. the projection's free surface, from where the particles are
+        // 3a. the projection's free surface, from where the particles are (over ranks with
+        //     the neighbours' particles in this rank's window lent to it until the corrector)
+        if self.stepper.scheme() == Scheme::Projection {
+            self.lend_ghosts()?;
+        }
         if let Stepper::Projection(projection) = &mut self.stepper {
             projection.find_free_surface(&self.particles, &self.grid, &self.boundary);
             self.timers.lap(Phase::FreeSurface);
@@ -374,6 +381,9 @@ impl<const D: usize> Simulation<D> {
         let sliced = crate::slabs::Sliced::new(world.clone(), &self.grid.geo, &d);
         let rank = world.rank();
         self.boundary.rigid.owned_layers = Some((d.axis, d.cuts[rank]..d.cuts[rank + 1]));
+        if let Some(p) = self.stepper.projection_mut() {
+            p.spread_over((d.window > 0).then(|| (world.clone(), d.axis, d.cuts.clone())));
+        }
         self.decomposition = Some(d);
         match &mut self.slabs {
             Some(s) => s.world = world,
@@ -382,10 +392,19 @@ impl<const D: usize> Simulation<D> {
                     world,
                     counts: Default::default(),
                     migration: Default::default(),
+                    own: None,
                 })
             }
         }
         self.set_comm(Arc::new(sliced));
+        if let Some(v) = &mut self.viscosity {
+            let d = self.decomposition.as_ref().expect("just cut");
+            v.spread_over(Some(crate::viscosity::Slab {
+                comm: self.comm.0.clone(),
+                axis: d.axis,
+                layers: d.cuts[rank]..d.cuts[rank + 1],
+            }));
+        }
     }
 
     /// Step 4b: the particles outside this rank's slab sent to the ranks whose slabs hold them.
@@ -401,6 +420,36 @@ impl<const D: usize> Simulation<D> {
             self.fit_particle_arrays();
         }
         Ok(())
+    }
+
+    /// Over ranks under the projection, the neighbours' particles in this rank's window
+    /// appended to its own as ghosts ([`crate::slabs::Migration::lend_ghosts`]), for the
+    /// projection's stages; nothing on one process.
+    fn lend_ghosts(&mut self) -> Result<(), Error> {
+        let (Some(d), Some(s)) = (&self.decomposition, &mut self.slabs) else {
+            return Ok(());
+        };
+        if d.window == 0 || s.own.is_some() {
+            return Ok(());
+        }
+        let own = s
+            .migration
+            .lend_ghosts(&*self.comm, &self.grid.geo, d, &mut self.particles)
+            .map_err(|why| Error::Usage(format!("run stopped at step {}: {why}", self.steps)))?;
+        s.own = Some(own);
+        if let Some(p) = self.stepper.projection_mut() {
+            p.ghosts_from(&self.particles, own);
+        }
+        Ok(())
+    }
+
+    /// The ghosts of [`Simulation::lend_ghosts`] dropped; the count of this rank's own
+    /// particles, for the projection's state ([`Projection::ghosts_gone`]), where there were
+    /// ghosts.
+    fn drop_ghosts(&mut self) -> Option<usize> {
+        let own = self.slabs.as_mut()?.own.take()?;
+        self.particles.truncate(own);
+        Some(own)
     }
 
     /// Step 0b: every [`crate::slabs::REBALANCE_EVERY`] steps, new cuts where the largest
@@ -421,22 +470,27 @@ impl<const D: usize> Simulation<D> {
         Ok(())
     }
 
+    /// The window past its slab a rank of this run sees over ranks
+    /// ([`crate::slabs::Decomposition::window`]): the projection's, 0 for the explicit scheme.
+    pub fn window(&self) -> usize {
+        self.stepper.projection().map_or(0, |p| p.window())
+    }
+
     /// The first setting that a run over several ranks does not
     /// support yet (the distributed module asks it), as the deck's key.
     pub(crate) fn unsupported_distributed(&self) -> Option<&'static str> {
         let outflow = (0..2 * D).any(|f| self.boundary.is_outflow(f));
+        if let Some(key) = self
+            .stepper
+            .projection()
+            .and_then(|p| p.unsupported_over_ranks())
+        {
+            return Some(key);
+        }
         [
-            (
-                self.stepper.scheme() == Scheme::Projection,
-                "simulation.scheme = \"projection\"",
-            ),
             (
                 matches!(self.stepper, Stepper::Explicit(Some(_))),
                 "pressure.density_correction = \"particles\"",
-            ),
-            (
-                self.viscosity.is_some(),
-                "simulation.viscosity = \"implicit\"",
             ),
             (self.body_force.is_some(), "simulation.body_force"),
             (outflow, "grid.boundary = \"outflow\""),
@@ -599,32 +653,35 @@ impl<const D: usize> Simulation<D> {
     /// velocity).
     fn project(&mut self, projection: &mut Projection<D>, dt: f64) -> Result<(), Error> {
         self.timers.lap(Phase::Predictor);
-        projection
-            .project(
-                &mut self.particles,
-                &mut self.grid,
-                &self.boundary,
-                dt,
-                &mut self.timers,
-            )
-            .map_err(|e| {
-                let hint = match e {
-                    SolveError::NotConverged { .. } => {
-                        "raise pressure.max_iterations, or use preconditioner = \"multigrid\" \
+        let projected = projection.project(
+            &mut self.particles,
+            &mut self.grid,
+            &self.boundary,
+            dt,
+            &mut self.timers,
+        );
+        // the ghosts go before the sums over the particles below
+        if let Some(own) = self.drop_ghosts() {
+            projection.ghosts_gone(own);
+        }
+        projected.map_err(|e| {
+            let hint = match e {
+                SolveError::NotConverged { .. } => {
+                    "raise pressure.max_iterations, or use preconditioner = \"multigrid\" \
                          on a large grid"
-                    }
-                    SolveError::Breakdown(_) => {
-                        "likely a time step too large for the flow (lower simulation.cfl or \
+                }
+                SolveError::Breakdown(_) => {
+                    "likely a time step too large for the flow (lower simulation.cfl or \
                          simulation.dt); next to a rigid body, pressure.rigid_faces = \"nodes\" \
                          is the other way to hold its faces"
-                    }
-                };
-                Error::BlowUp(format!(
-                    "run stopped at step {}, t = {:.6} s: {e}. {hint}",
-                    self.steps + 1,
-                    self.time
-                ))
-            })?;
+                }
+            };
+            Error::BlowUp(format!(
+                "run stopped at step {}, t = {:.6} s: {e}. {hint}",
+                self.steps + 1,
+                self.time
+            ))
+        })?;
         let pressure = match projection.cell_pressure_force() {
             Some(f) => crate::rigid::PressureForce::Nodal(f),
             None => crate::rigid::PressureForce::Particles {
@@ -730,6 +787,9 @@ impl<const D: usize> Simulation<D> {
         } else {
             crate::pressure::density::Pace::whole(0.0)
         };
+        if corrects && self.stepper.scheme() == Scheme::Projection {
+            self.lend_ghosts()?;
+        }
         let (ps, geo, boundary) = (&mut self.particles, &self.grid.geo, &self.boundary);
         // the explicit scheme packs a share of the way each step ([`Packing::share`])
         let moved = match &mut self.stepper {
@@ -741,8 +801,13 @@ impl<const D: usize> Simulation<D> {
                 None => Ok(false),
             },
             Stepper::Explicit(None) => Ok(false),
+        };
+        if let Some(own) = self.drop_ghosts() {
+            if let Some(p) = self.stepper.projection_mut() {
+                p.ghosts_gone(own);
+            }
         }
-        .map_err(|e| {
+        let moved = moved.map_err(|e| {
             Error::BlowUp(format!(
                 "run stopped at step {}, t = {:.6} s: the density correction: {e}",
                 self.steps + 1,

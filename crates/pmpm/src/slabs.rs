@@ -49,7 +49,27 @@ pub struct Decomposition {
     pub axis: usize,
     /// The slabs' bounds, one more than the ranks.
     pub cuts: Vec<usize>,
+    /// The window each rank sees past its slab, in cell layers: 0 where it works only the
+    /// nodes its particles reach (the explicit scheme), else the projection's
+    /// ([`window_of`]): the neighbours' particles and node sums that near its slab come to
+    /// it ([`Migration::lend_ghosts`], [`Sliced`]), and every slab is at least this wide.
+    #[serde(default)]
+    pub window: usize,
 }
+
+/// The cell layers past its slab that a rank of the projection sees ([`Decomposition::window`]):
+/// the bubble closing's reach (a gap of up to `bubble_cells` cells spans as many layers; one
+/// that runs out of the window is larger, and stays open, as it does on one process) and
+/// [`PROJECTION_REACH`] more for the stages that read the free surface: the level set, the
+/// Gauss points of the cells next to an unknown, the assembly, the corrector.
+pub fn window_of(bubble_cells: usize) -> usize {
+    bubble_cells + PROJECTION_REACH
+}
+
+/// The cell layers the projection's stages after the bubble closing read past a node: its
+/// level set (a cell), the cells whose Gauss points reach an unknown (two with the wider
+/// shape functions), their particles' stencils (two), and a layer to spare.
+pub const PROJECTION_REACH: usize = 8;
 
 impl Decomposition {
     /// How many ranks it is cut for.
@@ -64,7 +84,10 @@ impl Decomposition {
             && self.cuts.len() == ranks + 1
             && self.cuts.first() == Some(&0)
             && self.cuts.last() == Some(&geo.nodes[self.axis])
-            && self.cuts.windows(2).all(|w| w[1] >= w[0] + MIN_WIDTH)
+            && self
+                .cuts
+                .windows(2)
+                .all(|w| w[1] >= w[0] + least_width(self.window))
     }
 
     /// The rank whose slab holds padded cell layer `layer`.
@@ -87,17 +110,18 @@ impl Decomposition {
     /// The best cut of the particles counted in `counts` (per axis, per padded cell layer)
     /// for `ranks` ranks: along the last axis, not periodic, whose largest share is within
     /// half of [`DRIFT`] of the mean of the least; `None` where no axis has room for `ranks`
-    /// slabs.
+    /// slabs. With a `window` ([`Decomposition::window`]), slabs at least as wide.
     pub fn plan<const D: usize>(
         geo: &GridGeometry<D>,
         counts: &Counts,
         ranks: usize,
+        window: usize,
     ) -> Option<Self> {
         let cuts: Vec<(f64, Self)> = (0..D)
             .filter(|&a| !geo.periodic[a])
             .filter_map(|axis| {
-                let cuts = cut(counts.axis(axis), ranks)?;
-                let d = Self { axis, cuts };
+                let cuts = cut(counts.axis(axis), ranks, least_width(window))?;
+                let d = Self { axis, cuts, window };
                 Some((d.largest_share(counts), d))
             })
             .collect();
@@ -126,13 +150,15 @@ impl Decomposition {
         }
         let better = |d: &Self| d.largest_share(counts) <= now - 0.5 * DRIFT * mean;
         // the same axis where it is cut well enough (fewer particles move), else the best
-        let along = cut(counts.axis(self.axis), self.ranks()).map(|cuts| Self {
+        let width = least_width(self.window);
+        let along = cut(counts.axis(self.axis), self.ranks(), width).map(|cuts| Self {
             axis: self.axis,
             cuts,
+            window: self.window,
         });
         along
             .filter(better)
-            .or_else(|| Self::plan(geo, counts, self.ranks()).filter(better))
+            .or_else(|| Self::plan(geo, counts, self.ranks(), self.window).filter(better))
     }
 
     /// The most particles one slab holds.
@@ -162,14 +188,50 @@ impl Decomposition {
         let upper = (rank + 1 < self.ranks()).then(|| nodes_in(layers(self.cuts[rank + 1])));
         [lower.unwrap_or_default(), upper.unwrap_or_default()]
     }
+
+    /// The window's nodes (flat) that rank `rank` sends its lower and its upper neighbour
+    /// (the `window` node layers of its own slab next to each cut) and those it receives from
+    /// them (as many of theirs past the cut); all empty without a window.
+    pub fn window_nodes<const D: usize>(
+        &self,
+        geo: &GridGeometry<D>,
+        rank: usize,
+    ) -> [[Vec<u32>; 2]; 2] {
+        let w = self.window;
+        let nodes_in = |range: std::ops::Range<usize>| -> Vec<u32> {
+            (0..geo.node_count())
+                .filter(|&f| range.contains(&geo.multi(f)[self.axis]))
+                .map(|f| f as u32)
+                .collect()
+        };
+        let (lo, hi) = (self.cuts[rank], self.cuts[rank + 1]);
+        let top = geo.nodes[self.axis];
+        let lower = (rank > 0 && w > 0).then(|| {
+            let send = nodes_in(lo..(lo + w).min(hi));
+            let receive = nodes_in(lo.saturating_sub(w)..lo);
+            [send, receive]
+        });
+        let upper = (rank + 1 < self.ranks() && w > 0).then(|| {
+            let send = nodes_in(hi.saturating_sub(w).max(lo)..hi);
+            let receive = nodes_in(hi..(hi + w).min(top));
+            [send, receive]
+        });
+        [lower.unwrap_or_default(), upper.unwrap_or_default()]
+    }
 }
 
-/// The cuts of `counts` (particles per layer) into `ranks` slabs of at least [`MIN_WIDTH`]
-/// layers, each cut at the layer boundary where the running count comes nearest its share of
-/// the total; `None` where the layers are too few.
-fn cut(counts: &[f64], ranks: usize) -> Option<Vec<usize>> {
+/// The fewest cell layers a slab may have with `window` ([`Decomposition::window`]): a
+/// neighbour's window reaches no further than the next slab.
+pub fn least_width(window: usize) -> usize {
+    window.max(MIN_WIDTH)
+}
+
+/// The cuts of `counts` (particles per layer) into `ranks` slabs of at least `width` layers,
+/// each cut at the layer boundary where the running count comes nearest its share of the
+/// total; `None` where the layers are too few.
+fn cut(counts: &[f64], ranks: usize, width: usize) -> Option<Vec<usize>> {
     let n = counts.len();
-    if n < ranks * MIN_WIDTH {
+    if n < ranks * width {
         return None;
     }
     let total: f64 = counts.iter().sum();
@@ -187,7 +249,7 @@ fn cut(counts: &[f64], ranks: usize) -> Option<Vec<usize>> {
             layer -= 1;
             running -= counts[layer];
         }
-        let (least, most) = (cuts[r - 1] + MIN_WIDTH, n - (ranks - r) * MIN_WIDTH);
+        let (least, most) = (cuts[r - 1] + width, n - (ranks - r) * width);
         cuts[r] = layer.clamp(least, most);
     }
     Some(cuts)
@@ -264,6 +326,10 @@ pub struct Sliced {
     world: Arc<dyn Comm>,
     /// The nodes shared with the lower and the upper neighbour.
     shared: [Vec<u32>; 2],
+    /// With a window ([`Decomposition::window`]), the nodes sent to and received from the
+    /// lower and the upper neighbour after the sums, so that every node of the window holds
+    /// its owner's sum.
+    window: [[Vec<u32>; 2]; 2],
     nodes: usize,
     /// The swap's buffers (out, in), kept from step to step.
     buffers: Mutex<(Vec<f64>, Vec<f64>)>,
@@ -278,6 +344,7 @@ impl Sliced {
     ) -> Self {
         Self {
             shared: d.shared_nodes(geo, world.rank()),
+            window: d.window_nodes(geo, world.rank()),
             world,
             nodes: geo.node_count(),
             buffers: Mutex::new((Vec::new(), Vec::new())),
@@ -331,21 +398,12 @@ impl Comm for Sliced {
 
     /// Two rounds of swaps, so that no rank waits on a chain: first the pairs (0, 1), (2, 3),
     /// ..., then (1, 2), (3, 4), ...; each rank adds its neighbour's sums to its own on the
-    /// layers they share.
+    /// layers they share. With a window, two more rounds copy each neighbour's sums onto the
+    /// window's nodes (those of the shared layers come back the same bits).
     fn add_nodes(&self, arrays: &mut [&mut [f64]]) {
-        let (rank, size) = (self.rank(), self.size());
         let mut guard = self.buffers.lock().unwrap_or_else(|e| e.into_inner());
         let (out, into) = &mut *guard;
-        for round in 0..2 {
-            // the upper neighbour in the even ranks' first round and the odd ranks' second
-            let upper = (rank % 2 == 0) == (round == 0);
-            let Some(peer) = (if upper {
-                rank.checked_add(1).filter(|&p| p < size)
-            } else {
-                rank.checked_sub(1)
-            }) else {
-                continue;
-            };
+        for (upper, peer) in self.rounds() {
             let shared = &self.shared[usize::from(upper)];
             out.clear();
             for a in arrays.iter() {
@@ -370,6 +428,51 @@ impl Comm for Sliced {
                 }
             }
         }
+        for (upper, peer) in self.rounds() {
+            let [send, receive] = &self.window[usize::from(upper)];
+            if send.is_empty() && receive.is_empty() {
+                continue;
+            }
+            out.clear();
+            for a in arrays.iter() {
+                let k = a.len() / self.nodes;
+                for &i in send {
+                    out.extend_from_slice(&a[i as usize * k..(i as usize + 1) * k]);
+                }
+            }
+            let wanted: usize = arrays.iter().map(|a| a.len() / self.nodes).sum();
+            into.resize(wanted * receive.len(), 0.0);
+            self.world.swap(peer, out, into);
+            let mut at = 0;
+            for a in arrays.iter_mut() {
+                let k = a.len() / self.nodes;
+                for &i in receive {
+                    for v in &mut a[i as usize * k..(i as usize + 1) * k] {
+                        // (written only where it changes: an empty node's page stays
+                        // uncommitted)
+                        crate::pages::store(v, into[at]);
+                        at += 1;
+                    }
+                }
+            }
+        }
+    }
+}
+
+impl Sliced {
+    /// The two rounds of a swap with the neighbours, as (whether with the upper one, its
+    /// rank): the upper neighbour in the even ranks' first round and the odd ranks' second.
+    fn rounds(&self) -> impl Iterator<Item = (bool, usize)> {
+        let (rank, size) = (self.rank(), self.size());
+        (0..2).filter_map(move |round| {
+            let upper = (rank % 2 == 0) == (round == 0);
+            let peer = if upper {
+                rank.checked_add(1).filter(|&p| p < size)
+            } else {
+                rank.checked_sub(1)
+            };
+            peer.map(|p| (upper, p))
+        })
     }
 }
 
@@ -414,36 +517,46 @@ impl Migration {
         if !comm.any(moving > 0) {
             return Ok(false);
         }
-        self.send.clear();
-        self.counts.clear();
-        for l in &self.leaving {
-            let before = self.send.len();
-            ps.pack(l, &mut self.send);
-            self.counts.push(self.send.len() - before);
-        }
-        // MPI's counts are 32-bit: what a rank sends and receives in one step stays under
-        // 2 GiB (each rank sends at most `largest`, and receives from every other at most that)
-        let largest = comm.max_scalar(self.send.len() as f64);
-        if largest * (size - 1) as f64 > i32::MAX as f64 {
-            return Err(format!(
-                "the particles that crossed between ranks in one step are up to {:.1} GB a \
-                 rank, more than one exchange carries (2 GiB): run over more ranks, or with a \
-                 smaller step",
-                largest / 1e9
-            ));
-        }
-        comm.exchange(
-            &self.send,
-            &self.counts,
-            &mut self.recv,
-            &mut self.recv_counts,
-        );
+        self.send_out(comm, ps, "crossed between ranks")?;
         if moving > 0 {
             ps.keep(&self.staying);
         }
         // each sender's particles, in rank order
         self.take_in(ps);
         Ok(true)
+    }
+
+    /// Copies to each neighbour the particles of this rank's slab in the `d.window` cell
+    /// layers next to their cut (its window: [`Decomposition::window`]), and appends the
+    /// neighbours' copies to `ps`, in the senders' rank order: ghosts, which the projection's
+    /// stages read as the particles around the slab and which are dropped after them
+    /// (`ps.truncate` to the count returned, this rank's own particles, which stay first).
+    pub fn lend_ghosts<const D: usize>(
+        &mut self,
+        comm: &dyn Comm,
+        geo: &GridGeometry<D>,
+        d: &Decomposition,
+        ps: &mut Particles<D>,
+    ) -> Result<usize, String> {
+        let (rank, size) = (comm.rank(), comm.size());
+        self.leaving.resize(size, Vec::new());
+        for l in &mut self.leaving {
+            l.clear();
+        }
+        let (lo, hi) = (d.cuts[rank], d.cuts[rank + 1]);
+        for (p, x) in ps.x.iter().enumerate() {
+            let layer = layer_of(geo, d.axis, x);
+            if rank > 0 && layer < lo + d.window {
+                self.leaving[rank - 1].push(p as u32);
+            }
+            if rank + 1 < size && layer + d.window >= hi {
+                self.leaving[rank + 1].push(p as u32);
+            }
+        }
+        let own = ps.len();
+        self.send_out(comm, ps, "lie near the ranks' cuts")?;
+        self.take_in(ps);
+        Ok(own)
     }
 
     /// Appends the particles received, sender by sender (each sender's are packed field by
@@ -454,6 +567,41 @@ impl Migration {
             ps.unpack(&self.recv[at..at + n]);
             at += n;
         }
+    }
+
+    /// Packs the particles of `leaving` for each rank and exchanges them (all to all) into
+    /// `recv`; an error (on every rank alike) where one exchange cannot carry them, naming
+    /// the particles sent as those that `what`.
+    fn send_out<const D: usize>(
+        &mut self,
+        comm: &dyn Comm,
+        ps: &Particles<D>,
+        what: &str,
+    ) -> Result<(), String> {
+        self.send.clear();
+        self.counts.clear();
+        for l in &self.leaving {
+            let before = self.send.len();
+            ps.pack(l, &mut self.send);
+            self.counts.push(self.send.len() - before);
+        }
+        // MPI's counts are 32-bit: what a rank sends and receives in one step stays under
+        // 2 GiB (each rank sends at most `largest`, and receives from every other at most that)
+        let largest = comm.max_scalar(self.send.len() as f64);
+        if largest * (comm.size() - 1) as f64 > i32::MAX as f64 {
+            return Err(format!(
+                "the particles that {what} in one step are up to {:.1} GB a rank, more than \
+                 one exchange carries (2 GiB): run over more ranks, or with a smaller step",
+                largest / 1e9
+            ));
+        }
+        comm.exchange(
+            &self.send,
+            &self.counts,
+            &mut self.recv,
+            &mut self.recv_counts,
+        );
+        Ok(())
     }
 }
 
@@ -469,18 +617,18 @@ mod tests {
         for c in &mut counts[10..30] {
             *c = 5.0;
         }
-        let cuts = cut(&counts, 4).unwrap();
+        let cuts = cut(&counts, 4, MIN_WIDTH).unwrap();
         assert_eq!(cuts, vec![0, 15, 20, 25, 50]);
         // all the particles in two layers: each slab still MIN_WIDTH wide
         let mut narrow = vec![0.0; 20];
         narrow[3] = 10.0;
         narrow[4] = 10.0;
-        let cuts = cut(&narrow, 3).unwrap();
+        let cuts = cut(&narrow, 3, MIN_WIDTH).unwrap();
         assert!(
             cuts.windows(2).all(|w| w[1] - w[0] >= MIN_WIDTH),
             "{cuts:?}"
         );
-        assert!(cut(&narrow, 7).is_none());
+        assert!(cut(&narrow, 7, MIN_WIDTH).is_none());
     }
 
     #[test]
@@ -488,6 +636,7 @@ mod tests {
         let d = Decomposition {
             axis: 0,
             cuts: vec![0, 5, 9, 14],
+            window: 0,
         };
         let owners: Vec<usize> = (0..14).map(|l| d.owner(l)).collect();
         assert_eq!(owners, [0, 0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 2]);
@@ -501,7 +650,7 @@ mod tests {
             .collect();
         let mut counts = Counts::default();
         counts.of(&*crate::comm::serial(), &geo, &x);
-        let d = Decomposition::plan(&geo, &counts, 4).unwrap();
+        let d = Decomposition::plan(&geo, &counts, 4, 0).unwrap();
         assert_eq!(d.axis, 0);
         assert_eq!(d.largest_share(&counts), 100.0);
         assert!(d.rebalanced(&geo, &counts).is_none());
@@ -519,7 +668,7 @@ mod tests {
             .map(|k| Vector::<2>::new(0.05 + 0.1 * (k % 20) as f64, 0.05 + 0.1 * (k / 20) as f64))
             .collect();
         counts.of(&*crate::comm::serial(), &square, &x);
-        assert_eq!(Decomposition::plan(&square, &counts, 4).unwrap().axis, 1);
+        assert_eq!(Decomposition::plan(&square, &counts, 4, 0).unwrap().axis, 1);
     }
 
     #[test]
@@ -583,6 +732,7 @@ mod tests {
         let d = Decomposition {
             axis: 0,
             cuts: vec![0, 5, 9, 14],
+            window: 0,
         };
         // rank 0 and rank 2 each hold a particle that moved into rank 1's slab (x = 4.5)
         let held = [

@@ -552,6 +552,15 @@ pub enum LinearSolver {
 }
 
 impl LinearSolver {
+    /// Whether it solves a system spread over ranks ([`spread`]): the conjugate gradient
+    /// with Jacobi or the multigrid.
+    pub fn spreads(&self) -> bool {
+        match self {
+            LinearSolver::Pcg(pcg) => pcg.preconditioner.spreads(),
+            LinearSolver::Direct(_) => false,
+        }
+    }
+
     /// Solves A x = b to the relative residual `params.tolerance`; x holds the initial guess of
     /// the iterative solver.
     pub fn solve(

@@ -292,11 +292,17 @@ impl<const D: usize> PositionCorrection<D> {
             ghost: [scratch, first_layer],
             vector_bands,
             nodal: displacement,
+            ranks,
         } = shared;
         bins.sort(geo, &ps.x);
         self.gather_volumes(ps, geo, rate);
         // free surface and unknowns, from where the particles are now
-        let epsilon = 1e-9 * ps.volume0.iter().copied().fold(f64::INFINITY, f64::min);
+        let own = ranks.as_ref().map_or(ps.len(), |r| r.own.min(ps.len()));
+        let least = ps.volume0[..own]
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
+        let epsilon = 1e-9 * ranks.as_ref().map_or(least, |r| r.min(least));
         surface.detect(
             geo,
             bins,
@@ -305,9 +311,8 @@ impl<const D: usize> PositionCorrection<D> {
             epsilon,
             &boundary.rigid,
         );
-        let unknowns = &mut system.unknowns;
-        let free = unknowns.number(geo, &surface.kinds);
-        let rows = unknowns.node_of_row.len();
+        let free = super::number(geo, &surface.kinds, &mut system.unknowns, ranks);
+        let rows = system.unknowns.node_of_row.len();
         self.stats = SolveStats {
             iterations: 0,
             relative_residual: 0.0,
@@ -323,7 +328,14 @@ impl<const D: usize> PositionCorrection<D> {
             cut: boundary.rigid.cuts_cells().then_some(&boundary.rigid),
         };
         let v0 = &ps.volume0;
-        gauss.build(geo, (bins, v0, v0), &surface.fraction, shape, Some(domain));
+        let mean = super::ranks::mean_density(v0, v0, ranks.as_ref());
+        gauss.build(
+            geo,
+            (bins, v0, v0, mean),
+            &surface.fraction,
+            shape,
+            Some(domain),
+        );
         gauss.divergence.fill(0.0);
         gauss.velocity.fill(Vector::<D>::zeros());
         crate::pages::fit(&mut self.potential, geo.node_count());
@@ -337,6 +349,9 @@ impl<const D: usize> PositionCorrection<D> {
         let (matrix, rhs) = (&mut system.matrix, &mut system.rhs);
         let quadrature = gauss.quadrature(false);
         super::assemble::assemble(geo, shape, &quadrature, &system_rows, 1.0, matrix, rhs);
+        if let Some(r) = ranks.as_ref() {
+            r.order_slots::<D>(matrix, 2 * shape.width() - 1);
+        }
         if self.volumes {
             for (b, &i) in rhs.iter_mut().zip(&system.unknowns.node_of_row) {
                 *b += self.excess[i as usize];
@@ -344,12 +359,13 @@ impl<const D: usize> PositionCorrection<D> {
         }
         matrix.pin_empty_rows(rhs);
         let u = &mut system.unknowns;
-        describe_layout(&mut u.layout, geo, shape, &u.node_of_row);
+        describe_layout(&mut u.layout, geo, shape, (&u.node_of_row, ranks.as_ref()));
         let stage = Stage {
             geo,
             kinds: &surface.kinds,
             phi: surface.level_set(),
             free,
+            ranks: ranks.as_ref(),
         };
         if self.volumes {
             let linear = (&mut *solver, &*system, &mut *solution);
@@ -385,13 +401,16 @@ impl<const D: usize> PositionCorrection<D> {
             matrix: &system.matrix,
             layout: &system.unknowns.layout,
             singular: stage.free == 0,
-            partition: None,
+            partition: stage.ranks.map(|r| &r.partition),
         };
         let params = SolveParams {
             tolerance: self.tolerance,
             max_iterations: self.max_iterations,
         };
         let stats = solver.solve(&linear, &system.rhs, solution, params)?;
+        if let Some(r) = stage.ranks {
+            r.gather(solution);
+        }
         for (r, &i) in system.unknowns.node_of_row.iter().enumerate() {
             self.potential[i as usize] = solution[r];
         }
@@ -753,6 +772,8 @@ struct Stage<'a, const D: usize> {
     kinds: &'a [NodeKind],
     phi: Option<&'a [f64]>,
     free: usize,
+    /// Over ranks, how the solves are spread.
+    ranks: Option<&'a super::ranks::Ranks>,
 }
 
 /// Whether a node within one node of node `i` along every axis (the corners of the cells its

@@ -15,12 +15,14 @@ pub(crate) mod cell;
 pub(crate) mod density;
 pub use density::Packing;
 pub mod free_surface;
+mod ranks;
 mod settings;
 mod spacing;
 
 pub use settings::{DensityCorrection, Preconditioner, PressureSettings, Solver, MULTIGRID_CELLS};
 
 use crate::boundary::Boundary;
+use crate::comm::Comm;
 use crate::grid::{CellBins, Grid, Vector};
 use crate::linalg::{
     Direct, EllMatrix, GridLayout, IncompleteCholesky, Jacobi, LinearSolver, Multigrid, Pcg,
@@ -35,6 +37,7 @@ use assemble::ParticleQuadrature;
 use free_surface::NodeKind;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 /// Right-hand side of the pressure Poisson equation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -110,6 +113,8 @@ struct Settings {
     traction_free: bool,
     /// Nodes of at most this mass are empty.
     mass_epsilon: f64,
+    /// The window past its slab a rank sees over ranks ([`crate::slabs::window_of`]).
+    window: usize,
 }
 
 /// The projection's work buffers, sized as the particles and the grid need them.
@@ -156,6 +161,8 @@ pub struct Shared<const D: usize> {
     /// sum_p V_p N_ip (grad p)_p, the density correction's displacements.
     vector_bands: Vec<Band<Vector<D>>>,
     nodal: Vec<Vector<D>>,
+    /// Over ranks, how the stages share their work ([`ranks`]); `None` on one process.
+    ranks: Option<ranks::Ranks>,
 }
 
 impl<const D: usize> Shared<D> {
@@ -170,6 +177,7 @@ impl<const D: usize> Shared<D> {
             ghost: Default::default(),
             vector_bands: Vec::new(),
             nodal: Vec::new(),
+            ranks: None,
         }
     }
 }
@@ -258,6 +266,7 @@ impl<const D: usize> Projection<D> {
                 volume_correction: pd.volume_correction,
                 traction_free,
                 mass_epsilon,
+                window: crate::slabs::window_of(pd.bubble_cells),
             },
             solver,
             shared: Shared::new(pd, boundary),
@@ -423,12 +432,68 @@ impl<const D: usize> Projection<D> {
             self.settings.mass_epsilon,
             &boundary.rigid,
         );
-        let free = self
-            .shared
-            .system
-            .unknowns
-            .number(geo, &self.shared.surface.kinds);
+        let shared = &mut self.shared;
+        let free = number(
+            geo,
+            &shared.surface.kinds,
+            &mut shared.system.unknowns,
+            &mut shared.ranks,
+        );
         self.last.singular = free == 0 && !self.shared.system.unknowns.node_of_row.is_empty();
+    }
+
+    /// The first of its settings that a run over ranks does not support yet, as the deck's
+    /// key and value: the cell unknowns, and a solver that is not spread (the direct solver,
+    /// the incomplete Cholesky).
+    pub fn unsupported_over_ranks(&self) -> Option<&'static str> {
+        if self.cells.is_some() {
+            Some("pressure.unknowns = \"cells\"")
+        } else if let LinearSolver::Direct(_) = self.solver {
+            Some("pressure.solver = \"direct\"")
+        } else if !self.solver.spreads() {
+            Some("pressure.preconditioner = \"ic0\"")
+        } else {
+            None
+        }
+    }
+
+    /// The window past its slab that a rank of this projection sees over ranks
+    /// ([`crate::slabs::Decomposition::window`]).
+    pub fn window(&self) -> usize {
+        self.settings.window
+    }
+
+    /// Makes this the projection of a rank of `comm`'s, the grid cut at `cuts` along `axis`
+    /// ([`crate::slabs::Decomposition`]); `None` makes it one process's again.
+    pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
+        self.shared.ranks = ranks.map(|(comm, axis, cuts)| ranks::Ranks::new(comm, axis, cuts));
+    }
+
+    /// Over ranks, the neighbours' particles from `own` on in `ps` are ghosts
+    /// ([`crate::slabs::Migration::lend_ghosts`]) until [`Projection::ghosts_gone`]: the
+    /// per-particle state follows them, and no sum over the particles counts them.
+    pub fn ghosts_from(&mut self, ps: &Particles<D>, own: usize) {
+        if let Some(r) = &mut self.shared.ranks {
+            r.own = own;
+        }
+        let vod = &mut self.work.volume_over_density;
+        vod.truncate(own);
+        vod.extend(
+            ps.volume0[own..]
+                .iter()
+                .zip(&ps.mass[own..])
+                .map(|(v, m)| v * v / m),
+        );
+        self.fit_particles(ps.len());
+    }
+
+    /// The ghosts of [`Projection::ghosts_from`] dropped: `own` particles again.
+    pub fn ghosts_gone(&mut self, own: usize) {
+        self.work.volume_over_density.truncate(own);
+        self.fit_particles(own);
+        if let Some(r) = &mut self.shared.ranks {
+            r.own = own;
+        }
     }
 
     /// The node pressure that decides which walls hold this step
@@ -586,14 +651,11 @@ impl<const D: usize> Projection<D> {
         self.assemble_pass(ps, grid, boundary, dt, first);
         timers.lap(Phase::Assembly);
         // a sequential sum: the same bits on any number of threads
-        let norm = self
-            .shared
-            .system
-            .rhs
-            .iter()
-            .map(|b| b * b)
-            .sum::<f64>()
-            .sqrt();
+        let rhs = &self.shared.system.rhs;
+        let norm = match &self.shared.ranks {
+            None => rhs.iter().map(|b| b * b).sum::<f64>().sqrt(),
+            Some(r) => r.norm(rhs),
+        };
         self.last.pass_norms.push(norm);
         let mut further_tolerance = 0.0;
         if let Some((residual, last_norm)) = further {
@@ -651,9 +713,10 @@ impl<const D: usize> Projection<D> {
                 solid: self.shared.surface.solid(),
                 cut: boundary.rigid.cuts_cells().then_some(&boundary.rigid),
             });
+            let mean = ranks::mean_density(&ps.mass, &ps.volume0, self.shared.ranks.as_ref());
             self.shared.gauss.build(
                 geo,
-                (&self.shared.bins, &ps.mass, &ps.volume0),
+                (&self.shared.bins, &ps.mass, &ps.volume0, mean),
                 &self.shared.surface.fraction,
                 shape,
                 domain,
@@ -736,6 +799,9 @@ impl<const D: usize> Projection<D> {
             };
             let (matrix, rhs) = (&mut self.shared.system.matrix, &mut self.shared.system.rhs);
             assemble::assemble(geo, shape, &quadrature, &rows, dt, matrix, rhs);
+            if let Some(r) = &self.shared.ranks {
+                r.order_slots::<D>(matrix, 2 * shape.width() - 1);
+            }
         } else {
             assemble::right_hand_side(
                 geo,
@@ -792,7 +858,13 @@ impl<const D: usize> Projection<D> {
         }
         if first {
             let u = &mut self.shared.system.unknowns;
-            describe_layout(&mut u.layout, geo, self.settings.shape, &u.node_of_row);
+            let ranks = self.shared.ranks.as_ref();
+            describe_layout(
+                &mut u.layout,
+                geo,
+                self.settings.shape,
+                (&u.node_of_row, ranks),
+            );
         }
         self.shared
             .system
@@ -802,7 +874,7 @@ impl<const D: usize> Projection<D> {
             matrix: &self.shared.system.matrix,
             layout: &self.shared.system.unknowns.layout,
             singular: self.last.singular,
-            partition: None,
+            partition: self.shared.ranks.as_ref().map(|r| &r.partition),
         };
         let mut params = SolveParams {
             tolerance: self.settings.tolerance,
@@ -825,6 +897,9 @@ impl<const D: usize> Projection<D> {
                 params,
             )?
         };
+        if let Some(r) = &self.shared.ranks {
+            r.gather(&mut self.shared.solution);
+        }
         Ok(stats)
     }
 
@@ -1033,24 +1108,34 @@ fn linear_solver(pd: &PressureSettings, cells: usize) -> LinearSolver {
 
 /// Where the rows `node_of_row` sit on the grid, for a geometric preconditioner (the
 /// multigrid's coarsening).
+///
+/// The solver spreads its rows over ranks in slabs along the layout's last axis
+/// ([`crate::linalg::spread`]); over ranks cut along another axis (`ranks`), that axis is
+/// the layout's last and the others keep their order before it, so that the rows, numbered
+/// layer by layer along the cut ([`Unknowns::number`]), are in the layout's node order.
 fn describe_layout<const D: usize>(
     layout: &mut GridLayout,
     geo: &crate::grid::GridGeometry<D>,
     shape: ShapeFunction,
-    node_of_row: &[u32],
+    (node_of_row, ranks): (&[u32], Option<&ranks::Ranks>),
 ) {
+    let cut = ranks.map_or(D - 1, |r| r.axis);
+    let mut order = [0usize; D];
+    for (k, d) in (0..D).filter(|&d| d != cut).chain([cut]).enumerate() {
+        order[k] = d;
+    }
     layout.dim = D;
     layout.reach = shape.width() - 1;
-    for d in 0..D {
-        layout.nodes[d] = geo.nodes[d];
-        layout.offset[d] = crate::shape::PAD;
-        layout.cells[d] = geo.cells[d];
-        layout.periodic[d] = geo.periodic[d];
+    for (k, &d) in order.iter().enumerate() {
+        layout.nodes[k] = geo.nodes[d];
+        layout.offset[k] = crate::shape::PAD;
+        layout.cells[k] = geo.cells[d];
+        layout.periodic[k] = geo.periodic[d];
     }
     layout.index.clear();
     layout.index.extend(node_of_row.iter().map(|&i| {
         let m = geo.multi(i as usize);
-        std::array::from_fn(|d| if d < D { m[d] as u32 } else { 0 })
+        std::array::from_fn(|k| if k < D { m[order[k]] as u32 } else { 0 })
     }));
 }
 
@@ -1074,18 +1159,25 @@ impl Unknowns {
         self.row_of[i].wrapping_sub(1)
     }
 
-    /// Numbers the interior nodes (a periodic image shares its node's row) and returns the
-    /// number of free-surface nodes.
+    /// Numbers the interior nodes (a periodic image shares its node's row) in node order and
+    /// returns the number of free-surface nodes; with `layers`, only those of the node layers
+    /// `layers.1` along axis `layers.0` (a rank's own, over ranks), layer by layer.
     pub fn number<const D: usize>(
         &mut self,
         geo: &crate::grid::GridGeometry<D>,
         kinds: &[NodeKind],
+        layers: Option<(usize, std::ops::Range<usize>)>,
     ) -> usize {
         pages::fit(&mut self.row_of, geo.node_count());
         pages::reset(&mut self.row_of);
         self.node_of_row.clear();
         let mut free = 0usize;
-        for (i, k) in kinds.iter().enumerate() {
+        let nodes: Box<dyn Iterator<Item = usize> + '_> = match layers {
+            Some((axis, l)) => Box::new(l.flat_map(move |l| geo.layer_nodes(axis, l))),
+            None => Box::new(0..kinds.len()),
+        };
+        for i in nodes {
+            let k = &kinds[i];
             if geo.canonical(i) != i {
                 continue;
             }
@@ -1099,6 +1191,24 @@ impl Unknowns {
             }
         }
         free
+    }
+}
+
+/// Numbers the unknowns of `kinds` ([`Unknowns::number`]) and returns the number of
+/// free-surface nodes: on one process every node's; over ranks each rank's own layers', every
+/// rank's rows then joined into the numbering of the whole grid on each ([`ranks::Ranks::join`]).
+fn number<const D: usize>(
+    geo: &crate::grid::GridGeometry<D>,
+    kinds: &[NodeKind],
+    unknowns: &mut Unknowns,
+    ranks: &mut Option<ranks::Ranks>,
+) -> usize {
+    match ranks {
+        None => unknowns.number(geo, kinds, None),
+        Some(r) => {
+            let free = unknowns.number(geo, kinds, Some((r.axis, r.layers())));
+            r.join(unknowns, free)
+        }
     }
 }
 
@@ -1229,11 +1339,11 @@ impl<const D: usize> GaussPoints<D> {
 
     /// The points of the cells with fluid (volume fractions `fraction`), or with a level set
     /// of the cells next to an unknown (`domain`), each cell's density from the masses and
-    /// volumes of the particles `bins` holds in it.
+    /// volumes of the particles `bins` holds in it (`mean_density` in a cell without any).
     fn build(
         &mut self,
         geo: &crate::grid::GridGeometry<D>,
-        (bins, mass, volume): (&CellBins, &[f64], &[f64]),
+        (bins, mass, volume, mean_density): (&CellBins, &[f64], &[f64], f64),
         fraction: &[f64],
         shape: ShapeFunction,
         domain: Option<FluidDomain<'_, D>>,
@@ -1244,7 +1354,6 @@ impl<const D: usize> GaussPoints<D> {
         self.volume.clear();
         self.cell.clear();
         self.volume_over_density.clear();
-        let mean_density = mass.iter().sum::<f64>() / volume.iter().sum::<f64>();
         let corners = 1usize << D;
         let cell_volume = geo.h.powi(D as i32);
         for (c, &phi) in fraction.iter().enumerate() {

@@ -1,0 +1,171 @@
+//! The projection over ranks (docs/distributed.md).
+//!
+//! Each rank runs the projection's stages on its slab and on the window around it
+//! ([`crate::slabs::Decomposition::window`]): its own particles, the neighbours' particles in
+//! the window (ghosts) and the node sums its neighbours copied onto the window's nodes. The
+//! stages read no further than the window from a node of the slab, so on the slab's nodes
+//! every rank finds the free surface, the Gauss points and the rows of the system that one
+//! process finds. Each rank numbers the unknowns of its own node layers; every rank's rows in
+//! rank order are the system's (node order, the last axis slowest), the solve is spread over
+//! the ranks ([`crate::linalg::spread`]), and its solution comes back whole to every rank, so
+//! that the stages after it read the pressure on the window's nodes too.
+//!
+//! This first stage keeps the whole numbering and the whole solution on every rank: an
+//! exchange of every row's node and value each solve (4 and 8 bytes a row). A numbering of
+//! each rank's own rows with the others' offsets would make both fall with the ranks.
+
+use super::Unknowns;
+use crate::comm::Comm;
+use crate::linalg::{EllMatrix, Partition};
+use rayon::prelude::*;
+use std::ops::Range;
+use std::sync::Arc;
+
+/// How the projection of a rank of a run spread over ranks shares its work.
+pub struct Ranks {
+    /// The ranks, and the node layers along `axis` each one owns (its slab's).
+    pub partition: Partition,
+    /// The axis the grid is cut along.
+    pub axis: usize,
+    /// While the stages run, how many of the particles are this rank's own: those after
+    /// them are ghosts, which count in no sum over the particles.
+    pub own: usize,
+    /// The first row of each rank, and the row count (ranks + 1 bounds).
+    starts: Vec<usize>,
+}
+
+impl Ranks {
+    /// The projection of rank `comm.rank()` with the grid cut at `cuts` (padded layers along
+    /// `axis`, ranks + 1 bounds, as [`crate::slabs::Decomposition::cuts`]).
+    pub fn new(comm: Arc<dyn Comm>, axis: usize, cuts: Vec<usize>) -> Self {
+        Self {
+            partition: Partition { comm, cuts },
+            axis,
+            own: 0,
+            starts: Vec::new(),
+        }
+    }
+
+    fn comm(&self) -> &dyn Comm {
+        &*self.partition.comm
+    }
+
+    /// The node layers along the cut axis this rank owns.
+    pub fn layers(&self) -> Range<usize> {
+        let (r, cuts) = (self.comm().rank(), &self.partition.cuts);
+        cuts[r]..cuts[r + 1]
+    }
+
+    /// After this rank numbered the unknowns of its own layers (with `free` free-surface
+    /// nodes there): every rank's rows, in rank order, become the numbering on every rank.
+    /// Returns the free-surface nodes of every rank.
+    pub fn join(&mut self, unknowns: &mut Unknowns, free: usize) -> usize {
+        let comm = self.partition.comm.clone();
+        let mine = unknowns.node_of_row.len();
+        let mut all: Vec<u8> = comm
+            .gather(bytemuck::cast_slice(&unknowns.node_of_row))
+            .concat();
+        comm.broadcast(&mut all);
+        let mut counts = vec![0.0; comm.size()];
+        counts[comm.rank()] = mine as f64;
+        comm.sum(&mut counts);
+        self.starts.clear();
+        self.starts.push(0);
+        for c in counts {
+            let last = *self.starts.last().unwrap_or(&0);
+            self.starts.push(last + c as usize);
+        }
+        unknowns.node_of_row.clear();
+        unknowns
+            .node_of_row
+            .extend(all.chunks_exact(4).map(bytemuck::pod_read_unaligned::<u32>));
+        crate::pages::reset(&mut unknowns.row_of);
+        for (r, &i) in unknowns.node_of_row.iter().enumerate() {
+            unknowns.row_of[i as usize] = r as u32 + 1;
+        }
+        comm.sum_scalar(free as f64) as usize
+    }
+
+    /// Over ranks cut along another axis than the last, the slots of every row of `a` (an
+    /// offset a slot, the first axis fastest: [`super::assemble::assemble`]; the solver reads
+    /// this rank's rows and those of its halo, which it assembled as well) put
+    /// in the axis order of the solver's layout, the cut axis last (`describe_layout`): the
+    /// multigrid reads a slot's offset along the layout's axes.
+    pub fn order_slots<const D: usize>(&self, a: &mut EllMatrix, span: usize) {
+        if self.axis == D - 1 {
+            return;
+        }
+        let order: Vec<usize> = (0..D)
+            .filter(|&d| d != self.axis)
+            .chain([self.axis])
+            .collect();
+        // slot s (offsets o_d, axis d with stride span^d) goes to sum_k o_(order k) span^k
+        let target: Vec<usize> = (0..a.width)
+            .map(|s| {
+                let offset = |d: usize| (s / span.pow(d as u32)) % span;
+                (0..D).map(|k| offset(order[k]) * span.pow(k as u32)).sum()
+            })
+            .collect();
+        let w = a.width;
+        a.cols
+            .par_chunks_mut(w)
+            .zip(a.vals.par_chunks_mut(w))
+            .for_each(|(c, v)| {
+                let (c0, v0) = (c.to_vec(), v.to_vec());
+                for (s, &t) in target.iter().enumerate() {
+                    c[t] = c0[s];
+                    v[t] = v0[s];
+                }
+            });
+    }
+
+    /// This rank's rows of the last numbering ([`Ranks::join`]).
+    pub fn own_rows(&self) -> Range<usize> {
+        let r = self.comm().rank();
+        match self.starts.get(r..r + 2) {
+            Some(s) => s[0]..s[1],
+            None => 0..0,
+        }
+    }
+
+    /// Every rank's rows of `x` on every rank (each rank holds its own on entry).
+    pub fn gather(&self, x: &mut [f64]) {
+        let own = self.own_rows();
+        let mut all: Vec<u8> = self.comm().gather(bytemuck::cast_slice(&x[own])).concat();
+        self.comm().broadcast(&mut all);
+        for (v, b) in x.iter_mut().zip(all.chunks_exact(8)) {
+            *v = bytemuck::pod_read_unaligned::<f64>(b);
+        }
+    }
+
+    /// The norm of `b` over every rank's own rows.
+    pub fn norm(&self, b: &[f64]) -> f64 {
+        let own: f64 = b[self.own_rows()].iter().map(|b| b * b).sum();
+        self.comm().sum_scalar(own).sqrt()
+    }
+
+    /// The sum over every rank of `value`.
+    pub fn sum(&self, value: f64) -> f64 {
+        self.comm().sum_scalar(value)
+    }
+
+    /// The least over every rank of `value`.
+    pub fn min(&self, value: f64) -> f64 {
+        let mut v = [value];
+        self.comm().min(&mut v);
+        v[0]
+    }
+}
+
+/// The mean density sum m / sum V of the particles: on one process of every particle, over
+/// ranks of every rank's own (not its ghosts).
+pub fn mean_density(mass: &[f64], volume: &[f64], ranks: Option<&Ranks>) -> f64 {
+    match ranks {
+        None => mass.iter().sum::<f64>() / volume.iter().sum::<f64>(),
+        Some(r) => {
+            let own = r.own.min(mass.len());
+            let m = r.sum(mass[..own].iter().sum());
+            m / r.sum(volume[..own].iter().sum())
+        }
+    }
+}
