@@ -503,10 +503,7 @@ impl Migration {
     ) -> Result<bool, String> {
         let (rank, size) = (comm.rank(), comm.size());
         self.staying.clear();
-        self.leaving.resize(size, Vec::new());
-        for l in &mut self.leaving {
-            l.clear();
-        }
+        self.clear_leaving(size);
         for (p, x) in ps.x.iter().enumerate() {
             match d.owner_of(geo, x) {
                 r if r == rank => self.staying.push(p as u32),
@@ -539,10 +536,7 @@ impl Migration {
         ps: &mut Particles<D>,
     ) -> Result<usize, String> {
         let (rank, size) = (comm.rank(), comm.size());
-        self.leaving.resize(size, Vec::new());
-        for l in &mut self.leaving {
-            l.clear();
-        }
+        self.clear_leaving(size);
         let (lo, hi) = (d.cuts[rank], d.cuts[rank + 1]);
         for (p, x) in ps.x.iter().enumerate() {
             let layer = layer_of(geo, d.axis, x);
@@ -557,6 +551,14 @@ impl Migration {
         self.send_out(comm, ps, "lie near the ranks' cuts")?;
         self.take_in(ps);
         Ok(own)
+    }
+
+    /// An empty list of the particles to send for each of `size` ranks.
+    fn clear_leaving(&mut self, size: usize) {
+        self.leaving.resize(size, Vec::new());
+        for l in &mut self.leaving {
+            l.clear();
+        }
     }
 
     /// Appends the particles received, sender by sender (each sender's are packed field by
