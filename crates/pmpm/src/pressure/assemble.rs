@@ -289,6 +289,16 @@ pub struct Rows<'a> {
     pub dirichlet: &'a [f64],
 }
 
+/// Whether this rank assembles row `row` (every row on one process; over ranks those of
+/// `Unknowns::assembled`).
+#[inline]
+fn assembles(unknowns: &super::Unknowns, row: u32) -> bool {
+    unknowns
+        .assembled
+        .as_ref()
+        .is_none_or(|near| near.contains(&(row as usize)))
+}
+
 /// Assembles the rows of the interior nodes (`rows.unknowns.node_of_row`) into `a` and the
 /// right-hand side into `rhs`. `row_of[i]` is node i's row, or `u32::MAX` if it is not an
 /// unknown; the free-surface nodes hold the values `dirichlet[i]` (moved to the right-hand
@@ -324,6 +334,12 @@ pub fn assemble<const D: usize>(
         .zip(node_of_row.par_iter())
         .for_each(|(((cols, vals), b), &i)| {
             let row = unknowns.row(i as usize);
+            if !assembles(unknowns, row) {
+                cols.fill(row);
+                vals.fill(0.0);
+                *b = 0.0;
+                return;
+            }
             let node = geo.multi(i as usize);
             let mut acc = [0.0f64; MAX_SLOTS];
             let mut source = 0.0;
@@ -393,15 +409,21 @@ pub fn right_hand_side<const D: usize>(
     geo: &GridGeometry<D>,
     shape: ShapeFunction,
     q: &ParticleQuadrature<D>,
-    node_of_row: &[u32],
+    unknowns: &super::Unknowns,
     dt: f64,
     rhs: &mut Vec<f64>,
 ) {
     let bins = q.bins;
+    let node_of_row = &unknowns.node_of_row;
     rhs.resize(node_of_row.len(), 0.0);
     rhs.par_iter_mut()
         .zip(node_of_row.par_iter())
-        .for_each(|(b, &i)| {
+        .enumerate()
+        .for_each(|(r, (b, &i))| {
+            if !assembles(unknowns, r as u32) {
+                *b = 0.0;
+                return;
+            }
             let node = geo.multi(i as usize);
             let mut source = 0.0;
             geo.for_each_image(&node, |image| {

@@ -807,7 +807,7 @@ impl<const D: usize> Projection<D> {
                 geo,
                 shape,
                 &quadrature,
-                &self.shared.system.unknowns.node_of_row,
+                &self.shared.system.unknowns,
                 dt,
                 &mut self.shared.system.rhs,
             );
@@ -1150,6 +1150,9 @@ pub struct Unknowns {
     pub node_of_row: Vec<u32>,
     /// Where the rows sit on the grid, for the solver.
     pub layout: GridLayout,
+    /// Over ranks, the rows this rank assembles (its own and those the solver reads beside
+    /// them, numbered over the ranks); the others are left empty. `None`: every row.
+    pub assembled: Option<std::ops::Range<usize>>,
 }
 
 impl Unknowns {
@@ -1171,6 +1174,7 @@ impl Unknowns {
         pages::fit(&mut self.row_of, geo.node_count());
         pages::reset(&mut self.row_of);
         self.node_of_row.clear();
+        self.assembled = None;
         let mut free = 0usize;
         let nodes: Box<dyn Iterator<Item = usize> + '_> = match layers {
             Some((axis, l)) => Box::new(l.flat_map(move |l| geo.layer_nodes(axis, l))),
@@ -1207,7 +1211,7 @@ fn number<const D: usize>(
         None => unknowns.number(geo, kinds, None),
         Some(r) => {
             let free = unknowns.number(geo, kinds, Some((r.axis, r.layers())));
-            r.join(unknowns, free)
+            r.join(geo, unknowns, free)
         }
     }
 }

@@ -16,10 +16,16 @@
 
 use super::Unknowns;
 use crate::comm::Comm;
+use crate::grid::GridGeometry;
 use crate::linalg::{EllMatrix, Partition};
 use rayon::prelude::*;
 use std::ops::Range;
 use std::sync::Arc;
+
+/// Node layers beside a rank's own whose rows it assembles too: the solver reads its
+/// neighbours' rows that far (the multigrid's Galerkin product reads the fine rows of its
+/// coarse rows' children, a layer or two past the slab), well inside the window.
+pub const BESIDE: usize = 4;
 
 /// How the projection of a rank of a run spread over ranks shares its work.
 pub struct Ranks {
@@ -57,9 +63,15 @@ impl Ranks {
     }
 
     /// After this rank numbered the unknowns of its own layers (with `free` free-surface
-    /// nodes there): every rank's rows, in rank order, become the numbering on every rank.
-    /// Returns the free-surface nodes of every rank.
-    pub fn join(&mut self, unknowns: &mut Unknowns, free: usize) -> usize {
+    /// nodes there): every rank's rows, in rank order, become the numbering on every rank,
+    /// of which this rank assembles those of its layers and [`BESIDE`] more either side
+    /// (`Unknowns::assembled`). Returns the free-surface nodes of every rank.
+    pub fn join<const D: usize>(
+        &mut self,
+        geo: &GridGeometry<D>,
+        unknowns: &mut Unknowns,
+        free: usize,
+    ) -> usize {
         let comm = self.partition.comm.clone();
         let mine = unknowns.node_of_row.len();
         let mut all: Vec<u8> = comm
@@ -83,6 +95,14 @@ impl Ranks {
         for (r, &i) in unknowns.node_of_row.iter().enumerate() {
             unknowns.row_of[i as usize] = r as u32 + 1;
         }
+        // the rows are in layer order along the cut
+        let layers = self.layers();
+        let (lo, hi) = (layers.start.saturating_sub(BESIDE), layers.end + BESIDE);
+        let below = |l: usize| {
+            let layer = |&i: &u32| geo.multi(i as usize)[self.axis];
+            unknowns.node_of_row.partition_point(|i| layer(i) < l)
+        };
+        unknowns.assembled = Some(below(lo)..below(hi));
         comm.sum_scalar(free as f64) as usize
     }
 
