@@ -417,6 +417,9 @@ impl<const D: usize> Simulation<D> {
             .run(&*self.comm, &self.grid.geo, d, &mut self.particles)
             .map_err(|why| Error::Usage(format!("run stopped at step {}: {why}", self.steps)))?;
         if moved {
+            if let Some(p) = self.stepper.projection_mut() {
+                p.particles_moved(&self.particles);
+            }
             self.fit_particle_arrays();
         }
         Ok(())

@@ -457,12 +457,18 @@ impl<const D: usize> ImplicitViscosity<D> {
         let gauss_weight = geo.h.powi(D as i32) / corners as f64;
         let ranks = self.ranks.as_ref();
         for c in 0..n {
-            // (over ranks a rank's own cells: the others' points are theirs)
-            if sums[c].0 <= 0.0 || ranks.is_some_and(|r| !r.owns(geo, c)) {
+            if sums[c].0 <= 0.0 {
                 continue;
             }
+            // over ranks a deep cell's Gauss points are the rank's whose slab holds it; the
+            // particles elsewhere are their rank's wherever they are (the density correction
+            // moves some past the cut until the next migration)
+            let owned = ranks.is_none_or(|r| r.owns(geo, c));
             let idx = geo.multi(c);
             if (0..D).any(|d| idx[d] < PAD || idx[d] >= PAD + geo.cells[d]) {
+                continue;
+            }
+            if deep(c) && !owned {
                 continue;
             }
             if deep(c) {

@@ -476,14 +476,16 @@ impl<const D: usize> Projection<D> {
         if let Some(r) = &mut self.shared.ranks {
             r.own = own;
         }
+        self.particles_moved(ps);
+    }
+
+    /// Over ranks, after particles left or joined this rank (a migration, ghosts): V_p / rho_p
+    /// = V_p^0 V_p^0 / m_p of every particle again (what it is from the start: the same bits),
+    /// and the per-particle scratch sized.
+    pub fn particles_moved(&mut self, ps: &Particles<D>) {
         let vod = &mut self.work.volume_over_density;
-        vod.truncate(own);
-        vod.extend(
-            ps.volume0[own..]
-                .iter()
-                .zip(&ps.mass[own..])
-                .map(|(v, m)| v * v / m),
-        );
+        vod.clear();
+        vod.extend(ps.volume0.iter().zip(&ps.mass).map(|(v, m)| v * v / m));
         self.fit_particles(ps.len());
     }
 
