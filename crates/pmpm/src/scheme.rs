@@ -467,6 +467,9 @@ impl<const D: usize> Simulation<D> {
         s.counts.of(&*self.comm, &self.grid.geo, &self.particles.x);
         if let Some(new) = d.rebalanced(&self.grid.geo, &s.counts) {
             let world = s.world.clone();
+            if let Some(p) = self.stepper.projection_mut() {
+                p.share_pressure(&self.grid.geo);
+            }
             self.cut_into_slabs(world, new);
             self.migrate()?;
         }

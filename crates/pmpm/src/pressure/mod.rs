@@ -489,6 +489,23 @@ impl<const D: usize> Projection<D> {
         self.fit_particles(ps.len());
     }
 
+    /// Over ranks, before the grid is cut anew: p^n on every node as the rank whose slab
+    /// holds it found it (each rank's is exact only on its slab and window, and a new cut
+    /// gives it another slab): each rank's own layers, summed over the ranks.
+    pub fn share_pressure(&mut self, geo: &crate::grid::GridGeometry<D>) {
+        let Some(r) = &self.shared.ranks else {
+            return;
+        };
+        let (axis, layers) = (r.axis, r.layers());
+        pages::fit(&mut self.previous, geo.node_count());
+        self.previous.par_iter_mut().enumerate().for_each(|(i, p)| {
+            if !layers.contains(&geo.multi(i)[axis]) {
+                pages::store(p, 0.0);
+            }
+        });
+        r.partition.comm.sum(&mut self.previous);
+    }
+
     /// The ghosts of [`Projection::ghosts_from`] dropped: `own` particles again.
     pub fn ghosts_gone(&mut self, own: usize) {
         self.work.volume_over_density.truncate(own);
