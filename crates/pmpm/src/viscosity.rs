@@ -468,10 +468,11 @@ impl<const D: usize> ImplicitViscosity<D> {
             if (0..D).any(|d| idx[d] < PAD || idx[d] >= PAD + geo.cells[d]) {
                 continue;
             }
-            if deep(c) && !owned {
+            let deep = deep(c);
+            if deep && !owned {
                 continue;
             }
-            if deep(c) {
+            if deep {
                 let lower = geo.node_position(&idx);
                 for k in 0..corners {
                     let s = crate::grid::gauss_point::<D>(k);

@@ -16,7 +16,7 @@ use crate::shape::{ShapeFunction, Stencil, PAD};
 use rayon::prelude::*;
 
 /// Largest row: (2K - 1)^D slots, K = 4 (cubic B-spline), D = 3.
-const MAX_SLOTS: usize = 343;
+pub(super) const MAX_SLOTS: usize = 343;
 
 /// Slots per row for a shape function: the (2K - 1)^D nodes a node can share a particle with.
 pub fn row_width<const D: usize>(shape: ShapeFunction) -> usize {

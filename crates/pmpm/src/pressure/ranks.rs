@@ -14,6 +14,7 @@
 //! exchange of every row's node and value each solve (4 and 8 bytes a row). A numbering of
 //! each rank's own rows with the others' offsets would make both fall with the ranks.
 
+use super::assemble::MAX_SLOTS;
 use super::Unknowns;
 use crate::comm::Comm;
 use crate::grid::GridGeometry;
@@ -131,7 +132,10 @@ impl Ranks {
             .par_chunks_mut(w)
             .zip(a.vals.par_chunks_mut(w))
             .for_each(|(c, v)| {
-                let (c0, v0) = (c.to_vec(), v.to_vec());
+                // (copies on the stack: no allocation a row)
+                let (mut c0, mut v0) = ([0u32; MAX_SLOTS], [0.0f64; MAX_SLOTS]);
+                c0[..w].copy_from_slice(c);
+                v0[..w].copy_from_slice(v);
                 for (s, &t) in target.iter().enumerate() {
                     c[t] = c0[s];
                     v[t] = v0[s];
