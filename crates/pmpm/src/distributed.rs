@@ -22,6 +22,7 @@ use crate::comm::{self, Comm};
 use crate::deck::Deck;
 use crate::error::Error;
 use crate::particles::{FlatParticles, Particles};
+use crate::pressure::DensityCorrection;
 use crate::scheme::Simulation;
 use crate::slabs::{Counts, Decomposition};
 use std::sync::Arc;
@@ -44,8 +45,7 @@ pub fn check<const D: usize>(sim: &Simulation<D>, size: usize) -> Result<(), Err
             key: key.to_string(),
             message: format!(
                 "{value} not supported yet in a run over {} MPI ranks (not yet spread: outflow \
-                 faces, inflows, body-force fields, the explicit scheme's particle packing, \
-                 the cell pressure unknowns, the direct solver and the ic0 preconditioner; \
+                 faces, inflows, body-force fields, the cell pressure unknowns, the direct solver and the ic0 preconditioner; \
                  docs/distributed.md). Run it on one process (without mpirun), or change the \
                  key",
                 size
@@ -142,35 +142,7 @@ pub fn distribute<const D: usize>(
     };
     match plan {
         Some(d) => sim.cut_into_slabs(comm, d),
-        None if sim.window() > 0 || sim.viscosity.is_some() => {
-            let geo = &sim.grid.geo;
-            let layers = geo.nodes[D - 1];
-            let least = crate::slabs::least_width(sim.window());
-            return Err(Error::Unsupported {
-                file: String::new(),
-                key: if sim.window() > 0 {
-                    "simulation.scheme".into()
-                } else {
-                    "simulation.viscosity".into()
-                },
-                message: format!(
-                    "{} over {} MPI ranks needs the grid cut into slabs along its last axis, \
-                     at least {} cell layers each, and this grid has {layers} with its \
-                     padding: run it on at most {} ranks",
-                    if sim.window() > 0 {
-                        format!(
-                            "\"projection\" (its slabs as wide as pressure.bubble_cells + {})",
-                            crate::slabs::PROJECTION_REACH
-                        )
-                    } else {
-                        "\"implicit\"".to_string()
-                    },
-                    comm.size(),
-                    least,
-                    (layers / least).max(1)
-                ),
-            });
-        }
+        None if needs_slabs(sim) => return Err(too_short(sim, comm.size())),
         None => {
             sim.decomposition = None;
             sim.set_comm(comm);
@@ -180,12 +152,70 @@ pub fn distribute<const D: usize>(
     Ok(())
 }
 
+/// Whether a run over ranks needs its grid cut into slabs (the projection's window, the
+/// packing's, the implicit viscosity's sums): it cannot fall back on every rank holding the
+/// whole grid.
+fn needs_slabs<const D: usize>(sim: &Simulation<D>) -> bool {
+    sim.window() > 0 || sim.viscosity.is_some()
+}
+
+/// Refuses, before anything is written, a fresh run over `size` ranks whose grid is too short
+/// for the slabs it needs (`plan`, the cut [`build`] planned).
+pub fn check_plan<const D: usize>(
+    sim: &Simulation<D>,
+    plan: &Option<Decomposition>,
+    size: usize,
+) -> Result<(), Error> {
+    match plan {
+        None if size > 1 && needs_slabs(sim) => Err(too_short(sim, size)),
+        _ => Ok(()),
+    }
+}
+
+/// The refusal of a run over `size` ranks on a grid too short for its slabs, with the most
+/// ranks it takes.
+fn too_short<const D: usize>(sim: &Simulation<D>, size: usize) -> Error {
+    let geo = &sim.grid.geo;
+    let axes = (0..D).filter(|&a| !geo.periodic[a]);
+    let layers = axes.map(|a| geo.nodes[a]).max().unwrap_or(0);
+    let least = crate::slabs::least_width(sim.window());
+    let explicit = sim.stepper.scheme() == crate::scheme::Scheme::Explicit;
+    let (key, what) = match (sim.window() > 0, explicit) {
+        (true, false) => ("simulation.scheme", "\"projection\""),
+        (true, true) => ("pressure.density_correction", "\"particles\""),
+        (false, _) => ("simulation.viscosity", "\"implicit\""),
+    };
+    Error::Unsupported {
+        file: String::new(),
+        key: key.into(),
+        message: format!(
+            "{} over {} MPI ranks needs the grid cut into slabs along an axis that is \
+             not periodic, at least {} cell layers each, and this grid's longest has \
+             {layers} with its padding: run it on at most {} ranks",
+            if sim.window() > 0 {
+                format!(
+                    "{what} (its slabs as wide as pressure.bubble_cells + {})",
+                    crate::slabs::PROJECTION_REACH
+                )
+            } else {
+                what.to_string()
+            },
+            size,
+            least,
+            (layers / least).max(1)
+        ),
+    }
+}
+
 /// The window past its slab that each rank of the deck's run sees
-/// ([`Decomposition::window`]): the projection's, 0 for the explicit scheme.
+/// ([`Decomposition::window`]): the projection's, and the explicit scheme's where it packs
+/// the particles (`density_correction = "particles"`: the same free surface and solve); 0
+/// for the explicit scheme otherwise.
 pub fn window_of(deck: &Deck) -> usize {
+    let packs = deck.pressure.density_correction == Some(DensityCorrection::Particles);
     match deck.simulation.scheme {
-        crate::scheme::Scheme::Projection => crate::slabs::window_of(deck.pressure.bubble_cells),
-        crate::scheme::Scheme::Explicit => 0,
+        crate::scheme::Scheme::Explicit if !packs => 0,
+        _ => crate::slabs::window_of(deck.pressure.bubble_cells),
     }
 }
 
@@ -477,6 +507,28 @@ mod tests {
         // a layer 12 cells deep: the slabs are cut along x
         let text = include_str!("../../../examples/bingham_slump_2d.toml");
         agrees::<2>(text, 0.05, &[2, 3], [1e-9, 1e-7, 1e-5], 0.0);
+    }
+
+    #[test]
+    fn the_explicit_packing_over_two_and_three_ranks_agrees_with_one() {
+        // the explicit dam break with its particles packed (density_correction = "particles"):
+        // the packing's free surface and solve run on the window's ghosts, as the projection's
+        let plain = include_str!("../../../examples/dam_break_2d_explicit.toml");
+        let text = plain.replace(
+            "[[materials]]",
+            "[pressure]\ndensity_correction = \"particles\"\n\n[[materials]]",
+        );
+        agrees::<2>(&text, 0.02, &[2, 3], [1e-9, 1e-7, 1e-5], 0.0);
+        // (the packing moved the particles: the run without it ends elsewhere)
+        let (packed, unpacked) = (
+            run_over::<2>(1, &text, 0.02).0,
+            run_over::<2>(1, plain, 0.02).0,
+        );
+        let moved = packed
+            .iter()
+            .zip(&unpacked)
+            .map(|(a, b)| (a.1[0] - b.1[0]).abs());
+        assert!(moved.fold(0.0, f64::max) > 1e-5);
     }
 
     #[test]

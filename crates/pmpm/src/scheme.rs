@@ -69,6 +69,47 @@ impl<const D: usize> Stepper<D> {
             Stepper::Projection(p) => Some(p),
         }
     }
+
+    /// The explicit scheme's packing, where the deck asks for it.
+    pub fn packing_mut(&mut self) -> Option<&mut Packing<D>> {
+        match self {
+            Stepper::Explicit(packing) => packing.as_deref_mut(),
+            Stepper::Projection(_) => None,
+        }
+    }
+
+    /// The window past its slab that a rank sees over ranks
+    /// ([`crate::slabs::Decomposition::window`]): the projection's and the explicit packing's
+    /// (their free surface and solves), 0 for the explicit scheme without packing.
+    pub fn window(&self) -> usize {
+        match self {
+            Stepper::Explicit(packing) => packing.as_ref().map_or(0, |p| p.window()),
+            Stepper::Projection(p) => p.window(),
+        }
+    }
+
+    /// The deck's key that keeps the pressure's or the packing's solver from running over
+    /// ranks; `None` where it spreads.
+    fn unsupported_over_ranks(&self) -> Option<&'static str> {
+        match self {
+            Stepper::Explicit(packing) => packing.as_ref().and_then(|p| p.unsupported_over_ranks()),
+            Stepper::Projection(p) => p.unsupported_over_ranks(),
+        }
+    }
+
+    /// Over ranks, how many of the particles are this rank's own, the others lent as ghosts
+    /// for the stages that need them ([`Projection::ghosts_from`], [`Projection::ghosts_gone`]).
+    fn own_particles(&mut self, ps: &Particles<D>, own: usize, lent: bool) {
+        match self {
+            Stepper::Explicit(packing) => {
+                if let Some(p) = packing {
+                    p.own_particles(own);
+                }
+            }
+            Stepper::Projection(p) if lent => p.ghosts_from(ps, own),
+            Stepper::Projection(p) => p.ghosts_gone(own),
+        }
+    }
 }
 
 /// The most cells a particle's volume may cover before the run stops: a particle that large
@@ -287,7 +328,8 @@ impl<const D: usize> Simulation<D> {
     /// Which nodes P2G's gather visits ([`crate::grid::Live`]): under the explicit scheme on
     /// a grid without a periodic axis, those the particles reach, and over ranks cut along the
     /// last axis (the slowest of the node numbering, so a slab is one run of nodes) the slab's
-    /// with three layers either side, where a neighbour's sums land; every node otherwise (the
+    /// with three layers either side, where a neighbour's sums land (the window's, where it is
+    /// wider); every node otherwise (the
     /// projection reads and writes v^n on the walls; a periodic grid folds its images; the
     /// whole grid on every rank, or slabs along another axis, take sums from everywhere).
     fn fit_live(&mut self) {
@@ -296,9 +338,12 @@ impl<const D: usize> Simulation<D> {
         let slab = match (&self.decomposition, self.comm.is_distributed()) {
             (_, false) => Some(0..0),
             (Some(d), true) if d.axis == D - 1 => {
+                // (with the packing's window, its layers too: the neighbours copy their sums
+                // there)
                 let (r, s) = (self.comm.rank(), geo.strides[D - 1]);
-                let lo = d.cuts[r].saturating_sub(3);
-                let hi = (d.cuts[r + 1] + 3).min(geo.nodes[D - 1]);
+                let reach = d.window.max(3);
+                let lo = d.cuts[r].saturating_sub(reach);
+                let hi = (d.cuts[r + 1] + reach).min(geo.nodes[D - 1]);
                 Some(lo * s..hi * s)
             }
             _ => None,
@@ -381,8 +426,11 @@ impl<const D: usize> Simulation<D> {
         let sliced = crate::slabs::Sliced::new(world.clone(), &self.grid.geo, &d);
         let rank = world.rank();
         self.boundary.rigid.owned_layers = Some((d.axis, d.cuts[rank]..d.cuts[rank + 1]));
-        if let Some(p) = self.stepper.projection_mut() {
-            p.spread_over((d.window > 0).then(|| (world.clone(), d.axis, d.cuts.clone())));
+        let ranks = (d.window > 0).then(|| (world.clone(), d.axis, d.cuts.clone()));
+        match &mut self.stepper {
+            Stepper::Projection(p) => p.spread_over(ranks),
+            Stepper::Explicit(Some(p)) => p.spread_over(ranks),
+            Stepper::Explicit(None) => {}
         }
         self.decomposition = Some(d);
         match &mut self.slabs {
@@ -440,9 +488,7 @@ impl<const D: usize> Simulation<D> {
             .lend_ghosts(&*self.comm, &self.grid.geo, d, &mut self.particles)
             .map_err(|why| Error::Usage(format!("run stopped at step {}: {why}", self.steps)))?;
         s.own = Some(own);
-        if let Some(p) = self.stepper.projection_mut() {
-            p.ghosts_from(&self.particles, own);
-        }
+        self.stepper.own_particles(&self.particles, own, true);
         Ok(())
     }
 
@@ -479,25 +525,17 @@ impl<const D: usize> Simulation<D> {
     /// The window past its slab a rank of this run sees over ranks
     /// ([`crate::slabs::Decomposition::window`]): the projection's, 0 for the explicit scheme.
     pub fn window(&self) -> usize {
-        self.stepper.projection().map_or(0, |p| p.window())
+        self.stepper.window()
     }
 
     /// The first setting that a run over several ranks does not
     /// support yet (the distributed module asks it), as the deck's key.
     pub(crate) fn unsupported_distributed(&self) -> Option<&'static str> {
         let outflow = (0..2 * D).any(|f| self.boundary.is_outflow(f));
-        if let Some(key) = self
-            .stepper
-            .projection()
-            .and_then(|p| p.unsupported_over_ranks())
-        {
+        if let Some(key) = self.stepper.unsupported_over_ranks() {
             return Some(key);
         }
         [
-            (
-                matches!(self.stepper, Stepper::Explicit(Some(_))),
-                "pressure.density_correction = \"particles\"",
-            ),
             (self.body_force.is_some(), "simulation.body_force"),
             (outflow, "grid.boundary = \"outflow\""),
             (!self.boundary.inflows.is_empty(), "inflows"),
@@ -793,7 +831,9 @@ impl<const D: usize> Simulation<D> {
         } else {
             crate::pressure::density::Pace::whole(0.0)
         };
-        if corrects && self.stepper.scheme() == Scheme::Projection {
+        // over ranks, the neighbours' particles in the window lent for it, as for the projection
+        let explicit = self.stepper.scheme() == Scheme::Explicit;
+        if corrects && !(explicit && Packing::<D>::share(pace.packing).is_none()) {
             self.lend_ghosts()?;
         }
         let (ps, geo, boundary) = (&mut self.particles, &self.grid.geo, &self.boundary);
@@ -809,9 +849,7 @@ impl<const D: usize> Simulation<D> {
             Stepper::Explicit(None) => Ok(false),
         };
         if let Some(own) = self.drop_ghosts() {
-            if let Some(p) = self.stepper.projection_mut() {
-                p.ghosts_gone(own);
-            }
+            self.stepper.own_particles(&self.particles, own, false);
         }
         let moved = moved.map_err(|e| {
             Error::BlowUp(format!(

@@ -31,12 +31,14 @@ use super::free_surface::{self, NodeKind};
 use super::{describe_layout, FluidDomain, Shared};
 use super::{DensityCorrection, PressureSettings};
 use crate::boundary::Boundary;
+use crate::comm::Comm;
 use crate::grid::{CellBins, GridGeometry, Vector};
 use crate::linalg::{LinearSolver, SolveError, SolveParams, SolveStats, System};
 use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
 use crate::transfer::{scatter_to_nodes, Band, Points};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Largest displacement of a node in one correction, in cells: a particle whose volume is far
 /// off (after an impact) is brought back over several steps, not thrown across the grid.
@@ -95,6 +97,9 @@ pub struct Packing<const D: usize> {
     correction: PositionCorrection<D>,
     solver: LinearSolver,
     shared: Shared<D>,
+    /// The window past its slab a rank sees over ranks, the projection's
+    /// ([`crate::slabs::window_of`]): the packing finds the same free surface.
+    window: usize,
 }
 
 impl<const D: usize> Packing<D> {
@@ -114,6 +119,34 @@ impl<const D: usize> Packing<D> {
             correction: PositionCorrection::new(pd, shape).packing_only(),
             solver: super::linear_solver(pd, cells),
             shared,
+            window: crate::slabs::window_of(pd.bubble_cells),
+        }
+    }
+
+    /// The window past its slab that a rank of this packing sees over ranks
+    /// ([`crate::slabs::Decomposition::window`]).
+    pub fn window(&self) -> usize {
+        self.window
+    }
+
+    /// The deck's key that keeps this packing from running over ranks, as
+    /// [`super::Projection::unsupported_over_ranks`]; `None` where it spreads.
+    pub fn unsupported_over_ranks(&self) -> Option<&'static str> {
+        super::unspread(&self.solver)
+    }
+
+    /// Makes this the packing of a rank of `comm`'s, the grid cut at `cuts` along `axis`, as
+    /// [`super::Projection::spread_over`].
+    pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
+        self.shared.ranks =
+            ranks.map(|(comm, axis, cuts)| super::ranks::Ranks::new(comm, axis, cuts));
+    }
+
+    /// Over ranks, how many of the particles are this rank's own: those after them are the
+    /// neighbours' ghosts, lent for the packing ([`crate::slabs::Migration::lend_ghosts`]).
+    pub fn own_particles(&mut self, own: usize) {
+        if let Some(r) = &mut self.shared.ranks {
+            r.own = own;
         }
     }
 

@@ -448,12 +448,8 @@ impl<const D: usize> Projection<D> {
     pub fn unsupported_over_ranks(&self) -> Option<&'static str> {
         if self.cells.is_some() {
             Some("pressure.unknowns = \"cells\"")
-        } else if let LinearSolver::Direct(_) = self.solver {
-            Some("pressure.solver = \"direct\"")
-        } else if !self.solver.spreads() {
-            Some("pressure.preconditioner = \"ic0\"")
         } else {
-            None
+            unspread(&self.solver)
         }
     }
 
@@ -1110,6 +1106,18 @@ fn aim_at_volume<const D: usize>(
 }
 
 /// The linear solver `[pressure]` asks for.
+/// The deck's key that keeps `solver` from running over ranks (the direct solver and ic0
+/// factor the whole matrix on one process); `None` where its solves spread.
+fn unspread(solver: &LinearSolver) -> Option<&'static str> {
+    if let LinearSolver::Direct(_) = solver {
+        Some("pressure.solver = \"direct\"")
+    } else if !solver.spreads() {
+        Some("pressure.preconditioner = \"ic0\"")
+    } else {
+        None
+    }
+}
+
 fn linear_solver(pd: &PressureSettings, cells: usize) -> LinearSolver {
     match (pd.solver, pd.preconditioner(cells)) {
         (Solver::Direct, _) => LinearSolver::Direct(Direct::default()),
