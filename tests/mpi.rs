@@ -363,6 +363,28 @@ fn a_deck_this_stage_cannot_spread_is_refused_with_its_key() {
     // said once (by rank 0), and nothing written
     assert_eq!(err.matches("error:").count(), 1, "{err}");
     assert!(!out.exists());
+    // a grid too short for two slabs as wide as the projection's window (16 layers): 24 x 10
+    // cells with the padding
+    let text = std::fs::read_to_string(&base)
+        .unwrap()
+        .replace("cell_size = 0.0028575", "cell_size = 0.02");
+    let deck = dir.join("coarse.toml");
+    std::fs::write(&deck, text).unwrap();
+    let args = [
+        "run",
+        deck.to_str().unwrap(),
+        "-q",
+        "-o",
+        out.to_str().unwrap(),
+    ];
+    let o = run_on(2, &args);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("simulation.scheme") && err.contains("run it on at most 1 ranks"),
+        "{err}"
+    );
+    assert!(!out.exists());
 }
 
 // The projection's solves stop at a relative residual of 1e-8 and their dot products round

@@ -399,6 +399,10 @@ fn begin<const D: usize>(
     if comm.is_distributed() {
         // refused on every rank alike, before rank 0 takes the directory
         crate::distributed::check(&sim, comm.size()).map_err(|e| e.with_file(file))?;
+        if opts.resume.is_none() {
+            crate::distributed::check_plan(&sim, &plan, comm.size())
+                .map_err(|e| e.with_file(file))?;
+        }
     }
     let clock = crate::build::clock(deck);
     // rank 0 writes; the directory's lock is held to the run's end, after the output is
