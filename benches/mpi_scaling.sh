@@ -4,6 +4,7 @@
 # width, in a tank 1 m long and 0.5 m high, slip walls, h = H, 2^3 particles a cell), STEPS
 # steps' worth of time, frames only at the start and the end.
 #   bash benches/mpi_scaling.sh PMPM H END_TIME "RANKS..."
+# SCHEME=projection runs the projection (its defaults) in place of the explicit scheme.
 # PMPM: a binary built with --features mpi (mpirun on the PATH). Strong: width 0.4 m on R
 # ranks of one thread, and on one process of R threads. Weak: width 0.1 R m on R ranks.
 # Prints one line per run: kind, ranks or threads, particles, steps, wall seconds of the run
@@ -12,15 +13,16 @@
 set -eu
 pmpm=$1; h=$2; end=$3; counts=$4
 work=${WORK:-target/bench/mpi}; mkdir -p "$work"
+transfer=flip; [ "${SCHEME:-explicit}" = projection ] && transfer=apic
 deck() { # width -> deck on stdout
   cat <<EOF
 [simulation]
 dimension = 3
-scheme = "explicit"
+scheme = "${SCHEME:-explicit}"
 end_time = $end
 cfl = 0.4
 gravity = [0.0, 0.0, -9.81]
-transfer = "flip"
+transfer = "$transfer"
 shape_function = "linear"
 [grid]
 origin = [0.0, 0.0, 0.0]
