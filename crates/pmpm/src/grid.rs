@@ -339,8 +339,8 @@ pub struct Grid<const D: usize> {
 /// (a tall tank, a rank's slab of a wide one), and its bits are the whole loop's.
 #[derive(Debug, Clone, Default)]
 pub struct Live {
-    /// Over ranks, this rank's slab's nodes with three layers either side; empty on one
-    /// process.
+    /// Over ranks, this rank's slab's nodes with three layers either side (the window's,
+    /// where the explicit packing's is wider); empty on one process.
     pub slab: std::ops::Range<usize>,
     /// What the last gather reached (its bands, and the slab).
     pub previous: std::ops::Range<usize>,

@@ -70,14 +70,6 @@ impl<const D: usize> Stepper<D> {
         }
     }
 
-    /// The explicit scheme's packing, where the deck asks for it.
-    pub fn packing_mut(&mut self) -> Option<&mut Packing<D>> {
-        match self {
-            Stepper::Explicit(packing) => packing.as_deref_mut(),
-            Stepper::Projection(_) => None,
-        }
-    }
-
     /// The window past its slab that a rank sees over ranks
     /// ([`crate::slabs::Decomposition::window`]): the projection's and the explicit packing's
     /// (their free surface and solves), 0 for the explicit scheme without packing.
@@ -328,10 +320,10 @@ impl<const D: usize> Simulation<D> {
     /// Which nodes P2G's gather visits ([`crate::grid::Live`]): under the explicit scheme on
     /// a grid without a periodic axis, those the particles reach, and over ranks cut along the
     /// last axis (the slowest of the node numbering, so a slab is one run of nodes) the slab's
-    /// with three layers either side, where a neighbour's sums land (the window's, where it is
-    /// wider); every node otherwise (the
-    /// projection reads and writes v^n on the walls; a periodic grid folds its images; the
-    /// whole grid on every rank, or slabs along another axis, take sums from everywhere).
+    /// with three layers either side, where a neighbour's sums land (the packing's window,
+    /// where it is wider); every node otherwise (the projection reads and writes v^n on the
+    /// walls; a periodic grid folds its images; the whole grid on every rank, or slabs along
+    /// another axis, take sums from everywhere).
     fn fit_live(&mut self) {
         let geo = &self.grid.geo;
         let n = geo.node_count();
@@ -523,7 +515,8 @@ impl<const D: usize> Simulation<D> {
     }
 
     /// The window past its slab a rank of this run sees over ranks
-    /// ([`crate::slabs::Decomposition::window`]): the projection's, 0 for the explicit scheme.
+    /// ([`crate::slabs::Decomposition::window`]): the projection's and the explicit packing's,
+    /// 0 for the explicit scheme without packing.
     pub fn window(&self) -> usize {
         self.stepper.window()
     }
