@@ -435,7 +435,7 @@ fn begin<const D: usize>(
         (Some(_), true) => crate::distributed::Held::Own(sim.decomposition.clone()),
         (Some(_), false) => crate::distributed::Held::Every,
     };
-    crate::distributed::distribute(&mut sim, comm.clone(), held)?;
+    crate::distributed::distribute(&mut sim, comm.clone(), held).map_err(|e| e.with_file(file))?;
     // (rank 0's are its output's)
     let mut gauges: Gauges = match &w {
         None if comm.is_distributed() => (deck.gauges(), Vec::new()),
