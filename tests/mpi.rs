@@ -363,11 +363,11 @@ fn a_deck_this_stage_cannot_spread_is_refused_with_its_key() {
     // said once (by rank 0), and nothing written
     assert_eq!(err.matches("error:").count(), 1, "{err}");
     assert!(!out.exists());
-    // a grid too short for two slabs as wide as the projection's window (16 layers): 24 x 10
-    // cells with the padding
+    // a grid too short for two slabs as wide as the projection's window (8 layers): 10 x 4
+    // cells, 15 x 9 nodes with the padding
     let text = std::fs::read_to_string(&base)
         .unwrap()
-        .replace("cell_size = 0.0028575", "cell_size = 0.02");
+        .replace("cell_size = 0.0028575", "cell_size = 0.05");
     let deck = dir.join("coarse.toml");
     std::fs::write(&deck, text).unwrap();
     let args = [

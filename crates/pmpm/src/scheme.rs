@@ -415,10 +415,12 @@ impl<const D: usize> Simulation<D> {
     /// ([`crate::slabs`]): its sums onto the nodes are exchanged with its neighbours, and its
     /// particles are those of its slab from the next migration on.
     pub fn cut_into_slabs(&mut self, world: Arc<dyn Comm>, d: crate::slabs::Decomposition) {
-        let sliced = crate::slabs::Sliced::new(world.clone(), &self.grid.geo, &d);
+        let sliced: Arc<dyn Comm> =
+            Arc::new(crate::slabs::Sliced::new(world.clone(), &self.grid.geo, &d));
         let rank = world.rank();
         self.boundary.rigid.owned_layers = Some((d.axis, d.cuts[rank]..d.cuts[rank + 1]));
-        let ranks = (d.window > 0).then(|| (world.clone(), d.axis, d.cuts.clone()));
+        // (the stages' comm is the slabs': its sums onto the nodes copy the window's layers)
+        let ranks = (d.window > 0).then(|| (sliced.clone(), d.axis, d.cuts.clone()));
         match &mut self.stepper {
             Stepper::Projection(p) => p.spread_over(ranks),
             Stepper::Explicit(Some(p)) => p.spread_over(ranks),
@@ -436,7 +438,7 @@ impl<const D: usize> Simulation<D> {
                 })
             }
         }
-        self.set_comm(Arc::new(sliced));
+        self.set_comm(sliced);
         if let Some(v) = &mut self.viscosity {
             let d = self.decomposition.as_ref().expect("just cut");
             v.spread_over(Some(crate::viscosity::Slab {

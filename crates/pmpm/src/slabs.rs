@@ -58,12 +58,15 @@ pub struct Decomposition {
 }
 
 /// The cell layers past its slab that a rank of the projection sees ([`Decomposition::window`]):
-/// the bubble closing's reach (a gap of up to `bubble_cells` cells spans as many layers; one
-/// that runs out of the window is larger, and stays open, as it does on one process) and
-/// [`PROJECTION_REACH`] more for the stages that read the free surface: the level set, the
-/// Gauss points of the cells next to an unknown, the assembly, the corrector.
+/// the farther of the bubble closing's reach and [`PROJECTION_REACH`], the stages' that read
+/// the free surface (the level set, the Gauss points of the cells next to an unknown, the
+/// assembly, the corrector). A gap of up to `bubble_cells` cells that holds one of the rank's
+/// own cells spans at most as many layers, so it lies in the window; one that runs out of the
+/// window is larger, and stays open, as it does on one process. The window's own cells take
+/// their closing from their owners (`free_surface::Surface::spread_over`), so the window need
+/// not also hold a gap past each of them (it was `bubble_cells + PROJECTION_REACH` before).
 pub fn window_of(bubble_cells: usize) -> usize {
-    bubble_cells + PROJECTION_REACH
+    bubble_cells.max(PROJECTION_REACH)
 }
 
 /// The cell layers the projection's stages after the bubble closing read past a node: its

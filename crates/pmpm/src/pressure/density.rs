@@ -138,8 +138,7 @@ impl<const D: usize> Packing<D> {
     /// Makes this the packing of a rank of `comm`'s, the grid cut at `cuts` along `axis`, as
     /// [`super::Projection::spread_over`].
     pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
-        self.shared.ranks =
-            ranks.map(|(comm, axis, cuts)| super::ranks::Ranks::new(comm, axis, cuts));
+        self.shared.spread_over(ranks);
     }
 
     /// Over ranks, how many of the particles are this rank's own: those after them are the

@@ -63,6 +63,27 @@ pub struct Surface {
     /// Role of each node.
     pub kinds: Vec<NodeKind>,
     flood: FloodFill,
+    /// Over ranks, the slabs' comm and this rank's own cell layers along the cut axis
+    /// ([`Surface::spread_over`]); `None` on one process.
+    owners: Option<Owners>,
+}
+
+/// Over ranks: the comm whose sums onto the nodes also copy the window's layers
+/// ([`crate::slabs::Sliced`]), the cut axis, and this rank's own layers along it.
+#[derive(Clone)]
+pub struct Owners {
+    /// The slabs' comm.
+    pub comm: std::sync::Arc<dyn crate::comm::Comm>,
+    /// The cut axis.
+    pub axis: usize,
+    /// This rank's own cell layers along `axis`.
+    pub layers: std::ops::Range<usize>,
+}
+
+impl std::fmt::Debug for Owners {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Owners(axis {}, layers {:?})", self.axis, self.layers)
+    }
 }
 
 impl Surface {
@@ -116,7 +137,14 @@ impl Surface {
             phi: Vec::new(),
             kinds: Vec::new(),
             flood: FloodFill::default(),
+            owners: None,
         }
+    }
+
+    /// Makes this the free surface of a rank whose own cells are `owners`' (the gaps of the
+    /// window's cells then closed as their owners close them); `None`: one process's.
+    pub fn spread_over(&mut self, owners: Option<Owners>) {
+        self.owners = owners;
     }
 
     /// The level set, where the method has one.
@@ -148,6 +176,8 @@ impl Surface {
             self.fraction.par_iter_mut().for_each(|f| *f = f.max(1.0));
         } else if self.bubble_cells > 0 {
             std::mem::swap(&mut self.fraction, &mut self.raw);
+            // (over ranks each rank closes the gaps that reach its own cells, and takes the
+            // window's cells as their owners closed them: [`owners_closing`])
             // a cell is under-filled below the level at which the method puts the surface: the
             // level set puts it where the nodes' mean fraction is 1/2 (two half-filled cells
             // on a floor, their particles drawn apart, read as air and dropped the whole
@@ -165,6 +195,9 @@ impl Surface {
                 &mut self.flood,
                 &mut self.fraction,
             );
+            if let Some(owners) = &self.owners {
+                owners_closing(geo, owners, &mut self.fraction);
+            }
             if self.cracks {
                 let low = match self.method {
                     FreeSurface::LevelSet => self.tolerance.max(0.5),
@@ -226,6 +259,25 @@ impl Surface {
             );
         }
     }
+}
+
+/// Over ranks, after each rank closed the gaps on its view (its slab and the window): every
+/// cell's fraction as the rank that owns it closed it. A rank's own cells are right: a gap of
+/// at most `bubble_cells` cells that holds one of them lies within `bubble_cells` layers of
+/// its slab, inside the window ([`crate::slabs::window_of`]), whose fractions the lent
+/// particles make exact; a larger one reaches past the window into the empty cells beyond,
+/// and stays open as it should. A window cell's gap may reach past the window, where this
+/// rank cannot see it: its owner's fraction is taken instead (the cells outside the slab
+/// zeroed, then the sums onto the nodes, which copy the window's layers). So the window need
+/// not hold a whole gap past each of its own cells, only as far as the later stages read.
+fn owners_closing<const D: usize>(geo: &GridGeometry<D>, owners: &Owners, fraction: &mut [f64]) {
+    let (axis, layers) = (owners.axis, &owners.layers);
+    fraction.par_iter_mut().enumerate().for_each(|(c, f)| {
+        if !layers.contains(&geo.multi(c)[axis]) {
+            pages::store(f, 0.0);
+        }
+    });
+    owners.comm.add_nodes(&mut [fraction]);
 }
 
 /// Particle volume fraction of every cell: sum of the particles' volumes / h^D.
@@ -1196,6 +1248,85 @@ mod tests {
             }
         }
         vf
+    }
+
+    #[test]
+    fn over_ranks_a_window_cell_takes_its_gap_closed_as_its_owner_closed_it() {
+        use crate::comm::{threads, Comm};
+        use crate::slabs::{Decomposition, Sliced};
+        use std::sync::Arc;
+        // 12 x 40 cells of water cut along y at cell row 20 for two ranks, a window of 8
+        // rows; a gap of 6 cells up x = 5 from row 25 to 30. Rank 0's window ends at row 27:
+        // its part of the gap runs into the empty rows past the window and reads as open
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [12, 40]);
+        let gap = |cx: usize, cy: usize| cx == 5 && (25..31).contains(&cy);
+        let whole = fractions(&geo, |cx, cy| if gap(cx, cy) { 0.0 } else { 1.0 });
+        let (low, bound) = (0.3, 8);
+        let mut one = Vec::new();
+        close_bubbles(
+            &geo,
+            &whole,
+            low,
+            &[false; 4],
+            bound,
+            &mut FloodFill::default(),
+            &mut one,
+        );
+        let at = |v: &[f64], cx: usize, cy: usize| v[geo.flat(&[cx + PAD, cy + PAD])];
+        assert!(
+            (25..31).all(|cy| at(&one, 5, cy) == 1.0),
+            "one process closes the gap"
+        );
+        let w = 8;
+        let d = Decomposition {
+            axis: 1,
+            cuts: vec![0, 20 + PAD, geo.nodes[1]],
+            window: w,
+        };
+        let out = threads::run(2, |world| {
+            let r = world.rank();
+            let (lo, hi) = (d.cuts[r], d.cuts[r + 1]);
+            let view = lo.saturating_sub(w)..(hi + w).min(geo.nodes[1]);
+            // the fractions its own particles and the lent ones give: its slab's and window's
+            let seen: Vec<f64> = (0..geo.node_count())
+                .map(|c| {
+                    if view.contains(&geo.multi(c)[1]) {
+                        whole[c]
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            let mut closed = Vec::new();
+            close_bubbles(
+                &geo,
+                &seen,
+                low,
+                &[false; 4],
+                bound,
+                &mut FloodFill::default(),
+                &mut closed,
+            );
+            let alone = closed.clone();
+            let comm: Arc<dyn Comm> = Arc::new(Sliced::new(world, &geo, &d));
+            let owners = Owners {
+                comm,
+                axis: 1,
+                layers: lo..hi,
+            };
+            owners_closing(&geo, &owners, &mut closed);
+            (alone, closed, view)
+        });
+        assert_eq!(
+            at(&out[0].0, 5, 25),
+            0.0,
+            "rank 0 alone leaves its part open"
+        );
+        for (_, closed, view) in &out {
+            for c in (0..geo.node_count()).filter(|&c| view.contains(&geo.multi(c)[1])) {
+                assert_eq!(closed[c], one[c], "cell {:?}", geo.multi(c));
+            }
+        }
     }
 
     #[test]

@@ -166,6 +166,19 @@ pub struct Shared<const D: usize> {
 }
 
 impl<const D: usize> Shared<D> {
+    /// Makes these the stages of a rank of `comm`'s (the slabs' comm,
+    /// [`crate::slabs::Sliced`]), the grid cut at `cuts` along `axis`; `None`: one process's.
+    pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
+        let ranks = ranks.map(|(comm, axis, cuts)| ranks::Ranks::new(comm, axis, cuts));
+        let owners = ranks.as_ref().map(|r| free_surface::Owners {
+            comm: r.partition.comm.clone(),
+            axis: r.axis,
+            layers: r.layers(),
+        });
+        self.surface.spread_over(owners);
+        self.ranks = ranks;
+    }
+
     /// Empty buffers, with the free surface of `[pressure]` and the boundary's open faces.
     pub fn new(pd: &PressureSettings, boundary: &Boundary<D>) -> Self {
         Self {
@@ -462,7 +475,7 @@ impl<const D: usize> Projection<D> {
     /// Makes this the projection of a rank of `comm`'s, the grid cut at `cuts` along `axis`
     /// ([`crate::slabs::Decomposition`]); `None` makes it one process's again.
     pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
-        self.shared.ranks = ranks.map(|(comm, axis, cuts)| ranks::Ranks::new(comm, axis, cuts));
+        self.shared.spread_over(ranks);
     }
 
     /// Over ranks, the neighbours' particles from `own` on in `ps` are ghosts
