@@ -176,8 +176,6 @@ impl Surface {
             self.fraction.par_iter_mut().for_each(|f| *f = f.max(1.0));
         } else if self.bubble_cells > 0 {
             std::mem::swap(&mut self.fraction, &mut self.raw);
-            // (over ranks each rank closes the gaps that reach its own cells, and takes the
-            // window's cells as their owners closed them: [`owners_closing`])
             // a cell is under-filled below the level at which the method puts the surface: the
             // level set puts it where the nodes' mean fraction is 1/2 (two half-filled cells
             // on a floor, their particles drawn apart, read as air and dropped the whole
@@ -195,6 +193,7 @@ impl Surface {
                 &mut self.flood,
                 &mut self.fraction,
             );
+            // over ranks, the window's cells as their owners closed them
             if let Some(owners) = &self.owners {
                 owners_closing(geo, owners, &mut self.fraction);
             }

@@ -1118,7 +1118,6 @@ fn aim_at_volume<const D: usize>(
     }
 }
 
-/// The linear solver `[pressure]` asks for.
 /// The deck's key that keeps `solver` from running over ranks (the direct solver and ic0
 /// factor the whole matrix on one process); `None` where its solves spread.
 fn unspread(solver: &LinearSolver) -> Option<&'static str> {
@@ -1131,6 +1130,7 @@ fn unspread(solver: &LinearSolver) -> Option<&'static str> {
     }
 }
 
+/// The linear solver `[pressure]` asks for.
 fn linear_solver(pd: &PressureSettings, cells: usize) -> LinearSolver {
     match (pd.solver, pd.preconditioner(cells)) {
         (Solver::Direct, _) => LinearSolver::Direct(Direct::default()),
