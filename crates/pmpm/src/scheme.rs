@@ -859,7 +859,9 @@ impl<const D: usize> Simulation<D> {
             self.drain_outflow();
             // over ranks, a particle moved past its slab's edge goes to the rank that owns
             // it now: the next sums onto the grid reach only the shared layers past the edge
-            self.migrate()?;
+            if corrects {
+                self.migrate()?;
+            }
             self.timers.lap(Phase::Density);
         }
         Ok(())

@@ -537,9 +537,8 @@ impl<const D: usize> ImplicitViscosity<D> {
         let Some(slab) = &self.ranks else {
             return;
         };
-        // the material as numbers whose sums tell one material from several (a particle the
-        // density correction moved past the cut is still its rank's until the next move):
-        // for each rank with particles in the cell, 1, k = m + 1 and k^2 (MIXED + 1 for
+        // the material as numbers whose sums tell one material from several (a cell near the
+        // cut holds particles of both ranks): for each rank with particles in the cell, 1, k = m + 1 and k^2 (MIXED + 1 for
         // several); the ranks agree on one material where n sum k^2 = (sum k)^2
         let [fill, ranks, codes, squares] = &mut self.cell_fill;
         for a in [&mut *fill, &mut *ranks, &mut *codes, &mut *squares] {

@@ -193,10 +193,6 @@ impl Surface {
                 &mut self.flood,
                 &mut self.fraction,
             );
-            // over ranks, the window's cells as their owners closed them
-            if let Some(owners) = &self.owners {
-                owners_closing(geo, owners, &mut self.fraction);
-            }
             if self.cracks {
                 let low = match self.method {
                     FreeSurface::LevelSet => self.tolerance.max(0.5),
@@ -204,6 +200,11 @@ impl Surface {
                 };
                 let cracks = &mut self.flood.component;
                 close_cracks(geo, low, &self.behind, &mut self.fraction, cracks);
+            }
+            // over ranks, the window's cells as their owners closed them (after the cracks,
+            // which read a cell's face neighbours: those next to the slab are right here)
+            if let Some(owners) = &self.owners {
+                owners_closing(geo, owners, &mut self.fraction);
             }
         }
         // the share of each cell the rigid bodies cover
