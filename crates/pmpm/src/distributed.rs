@@ -45,8 +45,8 @@ pub fn check<const D: usize>(sim: &Simulation<D>, size: usize) -> Result<(), Err
             key: key.to_string(),
             message: format!(
                 "{value} not supported yet in a run over {} MPI ranks (not yet spread: outflow \
-                 faces, inflows, body-force fields, the cell pressure unknowns, the direct solver and the ic0 preconditioner; \
-                 docs/distributed.md). Run it on one process (without mpirun), or change the \
+                 faces, inflows, body-force fields, the cell pressure unknowns, the direct \
+                 solver and the ic0 preconditioner; docs/distributed.md). Run it on one process (without mpirun), or change the \
                  key",
                 size
             ),
@@ -180,28 +180,25 @@ fn too_short<const D: usize>(sim: &Simulation<D>, size: usize) -> Error {
     let layers = axes.map(|a| geo.nodes[a]).max().unwrap_or(0);
     let least = crate::slabs::least_width(sim.window());
     let explicit = sim.stepper.scheme() == crate::scheme::Scheme::Explicit;
+    let wide = format!(
+        "(its slabs as wide as the larger of pressure.bubble_cells and {})",
+        crate::slabs::PROJECTION_REACH
+    );
     let (key, what) = match (sim.window() > 0, explicit) {
-        (true, false) => ("simulation.scheme", "\"projection\""),
-        (true, true) => ("pressure.density_correction", "\"particles\""),
-        (false, _) => ("simulation.viscosity", "\"implicit\""),
+        (true, false) => ("simulation.scheme", format!("\"projection\" {wide}")),
+        (true, true) => (
+            "pressure.density_correction",
+            format!("\"particles\" {wide}"),
+        ),
+        (false, _) => ("simulation.viscosity", "\"implicit\"".to_string()),
     };
     Error::Unsupported {
         file: String::new(),
         key: key.into(),
         message: format!(
-            "{} over {} MPI ranks needs the grid cut into slabs along an axis that is \
-             not periodic, at least {} cell layers each, and this grid's longest has \
+            "{what} over {size} MPI ranks needs the grid cut into slabs along an axis that is \
+             not periodic, at least {least} cell layers each, and this grid's longest has \
              {layers} with its padding: run it on at most {} ranks",
-            if sim.window() > 0 {
-                format!(
-                    "{what} (its slabs as wide as the larger of pressure.bubble_cells and {})",
-                    crate::slabs::PROJECTION_REACH
-                )
-            } else {
-                what.to_string()
-            },
-            size,
-            least,
             (layers / least).max(1)
         ),
     }

@@ -89,17 +89,32 @@ impl<const D: usize> Stepper<D> {
         }
     }
 
-    /// Over ranks, how many of the particles are this rank's own, the others lent as ghosts
-    /// for the stages that need them ([`Projection::ghosts_from`], [`Projection::ghosts_gone`]).
-    fn own_particles(&mut self, ps: &Particles<D>, own: usize, lent: bool) {
+    /// Makes the projection's or the packing's stages a rank's, the grid cut at `cuts` along
+    /// `axis` ([`Projection::spread_over`]); `None`: one process's.
+    fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
         match self {
-            Stepper::Explicit(packing) => {
-                if let Some(p) = packing {
-                    p.own_particles(own);
-                }
-            }
-            Stepper::Projection(p) if lent => p.ghosts_from(ps, own),
+            Stepper::Projection(p) => p.spread_over(ranks),
+            Stepper::Explicit(Some(p)) => p.spread_over(ranks),
+            Stepper::Explicit(None) => {}
+        }
+    }
+
+    /// Over ranks, the neighbours' particles from `own` on in `ps` are lent as ghosts for
+    /// the stages that need them ([`Projection::ghosts_from`]).
+    fn ghosts_lent(&mut self, ps: &Particles<D>, own: usize) {
+        match self {
+            Stepper::Projection(p) => p.ghosts_from(ps, own),
+            Stepper::Explicit(Some(p)) => p.own_particles(own),
+            Stepper::Explicit(None) => {}
+        }
+    }
+
+    /// The ghosts dropped: `own` particles again ([`Projection::ghosts_gone`]).
+    fn ghosts_dropped(&mut self, own: usize) {
+        match self {
             Stepper::Projection(p) => p.ghosts_gone(own),
+            Stepper::Explicit(Some(p)) => p.own_particles(own),
+            Stepper::Explicit(None) => {}
         }
     }
 }
@@ -421,11 +436,7 @@ impl<const D: usize> Simulation<D> {
         self.boundary.rigid.owned_layers = Some((d.axis, d.cuts[rank]..d.cuts[rank + 1]));
         // (the stages' comm is the slabs': its sums onto the nodes copy the window's layers)
         let ranks = (d.window > 0).then(|| (sliced.clone(), d.axis, d.cuts.clone()));
-        match &mut self.stepper {
-            Stepper::Projection(p) => p.spread_over(ranks),
-            Stepper::Explicit(Some(p)) => p.spread_over(ranks),
-            Stepper::Explicit(None) => {}
-        }
+        self.stepper.spread_over(ranks);
         self.decomposition = Some(d);
         match &mut self.slabs {
             Some(s) => s.world = world,
@@ -482,7 +493,7 @@ impl<const D: usize> Simulation<D> {
             .lend_ghosts(&*self.comm, &self.grid.geo, d, &mut self.particles)
             .map_err(|why| Error::Usage(format!("run stopped at step {}: {why}", self.steps)))?;
         s.own = Some(own);
-        self.stepper.own_particles(&self.particles, own, true);
+        self.stepper.ghosts_lent(&self.particles, own);
         Ok(())
     }
 
@@ -844,7 +855,7 @@ impl<const D: usize> Simulation<D> {
             Stepper::Explicit(None) => Ok(false),
         };
         if let Some(own) = self.drop_ghosts() {
-            self.stepper.own_particles(&self.particles, own, false);
+            self.stepper.ghosts_dropped(own);
         }
         let moved = moved.map_err(|e| {
             Error::BlowUp(format!(

@@ -461,8 +461,7 @@ impl<const D: usize> ImplicitViscosity<D> {
                 continue;
             }
             // over ranks a deep cell's Gauss points are the rank's whose slab holds it; the
-            // particles elsewhere are their rank's wherever they are (the density correction
-            // moves some past the cut until the next migration)
+            // particles elsewhere are their own rank's
             let owned = ranks.is_none_or(|r| r.owns(geo, c));
             let idx = geo.multi(c);
             if (0..D).any(|d| idx[d] < PAD || idx[d] >= PAD + geo.cells[d]) {
@@ -538,8 +537,9 @@ impl<const D: usize> ImplicitViscosity<D> {
             return;
         };
         // the material as numbers whose sums tell one material from several (a cell near the
-        // cut holds particles of both ranks): for each rank with particles in the cell, 1, k = m + 1 and k^2 (MIXED + 1 for
-        // several); the ranks agree on one material where n sum k^2 = (sum k)^2
+        // cut holds particles of both ranks): for each rank with particles in the cell, 1,
+        // k = m + 1 and k^2 (MIXED + 1 for several); the ranks agree on one material where
+        // n sum k^2 = (sum k)^2
         let [fill, ranks, codes, squares] = &mut self.cell_fill;
         for a in [&mut *fill, &mut *ranks, &mut *codes, &mut *squares] {
             a.clear();

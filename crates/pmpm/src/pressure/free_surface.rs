@@ -271,12 +271,7 @@ impl Surface {
 /// zeroed, then the sums onto the nodes, which copy the window's layers). So the window need
 /// not hold a whole gap past each of its own cells, only as far as the later stages read.
 fn owners_closing<const D: usize>(geo: &GridGeometry<D>, owners: &Owners, fraction: &mut [f64]) {
-    let (axis, layers) = (owners.axis, &owners.layers);
-    fraction.par_iter_mut().enumerate().for_each(|(c, f)| {
-        if !layers.contains(&geo.multi(c)[axis]) {
-            pages::store(f, 0.0);
-        }
-    });
+    super::ranks::keep_layers(geo, owners.axis, &owners.layers, fraction);
     owners.comm.add_nodes(&mut [fraction]);
 }
 

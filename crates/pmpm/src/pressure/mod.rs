@@ -505,13 +505,8 @@ impl<const D: usize> Projection<D> {
         let Some(r) = &self.shared.ranks else {
             return;
         };
-        let (axis, layers) = (r.axis, r.layers());
         pages::fit(&mut self.previous, geo.node_count());
-        self.previous.par_iter_mut().enumerate().for_each(|(i, p)| {
-            if !layers.contains(&geo.multi(i)[axis]) {
-                pages::store(p, 0.0);
-            }
-        });
+        ranks::keep_layers(geo, r.axis, &r.layers(), &mut self.previous);
         r.partition.comm.sum(&mut self.previous);
     }
 

@@ -28,6 +28,22 @@ use std::sync::Arc;
 /// coarse rows' children, a layer or two past the slab), well inside the window.
 pub const BESIDE: usize = 4;
 
+/// Zero in `values` (one a node, or a cell numbered like its lower-corner node) outside the
+/// node layers `layers` along `axis`: a rank's own share, before a sum over the ranks gives
+/// each node its owner's value.
+pub fn keep_layers<const D: usize>(
+    geo: &GridGeometry<D>,
+    axis: usize,
+    layers: &Range<usize>,
+    values: &mut [f64],
+) {
+    values.par_iter_mut().enumerate().for_each(|(i, v)| {
+        if !layers.contains(&geo.multi(i)[axis]) {
+            crate::pages::store(v, 0.0);
+        }
+    });
+}
+
 /// How the projection of a rank of a run spread over ranks shares its work.
 pub struct Ranks {
     /// The ranks, and the node layers along `axis` each one owns (its slab's).
