@@ -92,6 +92,9 @@ pub struct NodalAveraging<const D: usize> {
     average: Vec<f64>,
     /// The ranks whose particles' sums are added up before the average ([`crate::comm`]).
     pub comm: crate::comm::Ranks,
+    /// Over ranks while the neighbours' particles are lent as ghosts: how many are this
+    /// rank's own, the only ones its sums count (the ghosts' own ranks count them).
+    pub own: Option<usize>,
 }
 
 impl<const D: usize> NodalAveraging<D> {
@@ -102,6 +105,7 @@ impl<const D: usize> NodalAveraging<D> {
             weight: crate::pages::zeroed(nodes),
             average: crate::pages::zeroed(nodes),
             comm: crate::comm::Ranks::default(),
+            own: None,
         }
     }
 
@@ -257,21 +261,29 @@ impl<const D: usize> NodalAveraging<D> {
         value: impl Fn(usize) -> f64 + Sync,
     ) {
         let shape = ShapeFunction::from_code(S);
-        // particles -> nodes: volume-weighted sums, per thread
-        scatter_bands(&mut self.bands, [0.0; 2], geo, &ps.x, |band, range| {
-            let (start, acc) = band.sums_mut();
-            for p in range {
-                let vol = weight(p);
-                let v = value(p);
-                let st = Stencil::<D>::new(shape, &geo.to_cells(&ps.x[p]), geo.h, ps.half_width[p]);
-                st.for_each(|nw| {
-                    let a = &mut acc[geo.flat(&nw.node) - start];
-                    let w = nw.n * vol;
-                    a[0] += w;
-                    a[1] += w * v;
-                });
-            }
-        });
+        // particles -> nodes: volume-weighted sums, per thread (of this rank's own)
+        let own = self.own.map_or(ps.len(), |own| own.min(ps.len()));
+        scatter_bands(
+            &mut self.bands,
+            [0.0; 2],
+            geo,
+            &ps.x[..own],
+            |band, range| {
+                let (start, acc) = band.sums_mut();
+                for p in range {
+                    let vol = weight(p);
+                    let v = value(p);
+                    let st =
+                        Stencil::<D>::new(shape, &geo.to_cells(&ps.x[p]), geo.h, ps.half_width[p]);
+                    st.for_each(|nw| {
+                        let a = &mut acc[geo.flat(&nw.node) - start];
+                        let w = nw.n * vol;
+                        a[0] += w;
+                        a[1] += w * v;
+                    });
+                }
+            },
+        );
         // the threads' sums in a fixed order, then the average; with periodic axes the images
         // are folded onto their nodes first, and over several ranks the ranks' sums added up,
         // so the division waits for that

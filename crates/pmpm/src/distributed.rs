@@ -538,6 +538,18 @@ mod tests {
     }
 
     #[test]
+    fn the_dam_break_with_the_particles_as_quadrature_points_over_three_ranks_agrees() {
+        // the paper's free surface and quadrature: the Poisson rows sum over the particles
+        // themselves, so each rank is lent the whole window's particles as ghosts (with the
+        // Gauss points two layers of them do)
+        let text = include_str!("../../../examples/dam_break_2d.toml").replace(
+            "beta = 0.0 ",
+            "beta = 0.0\nquadrature = \"particle\"\nfree_surface = \"volume_fraction\"\n",
+        );
+        agrees::<2>(&text, 0.05, &[3], [1e-9, 1e-7, 1e-5], 0.0);
+    }
+
+    #[test]
     fn a_cubic_dam_break_with_a_narrow_window_over_three_ranks_agrees_with_one() {
         // the cubic B-spline reaches two cells from a particle, and with bubble_cells = 0 the
         // window is 8 layers: a particle the density correction moved past its slab's edge

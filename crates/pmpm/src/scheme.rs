@@ -80,6 +80,18 @@ impl<const D: usize> Stepper<D> {
         }
     }
 
+    /// The cell layers past its slab whose particles a rank is lent as ghosts
+    /// ([`crate::slabs::GHOST_LAYERS`]): the projection's, the explicit packing's (its points
+    /// are the cells' Gauss points), 0 for the explicit scheme without packing.
+    fn ghost_layers(&self) -> usize {
+        match self {
+            Stepper::Explicit(packing) => {
+                packing.as_ref().map_or(0, |_| crate::slabs::GHOST_LAYERS)
+            }
+            Stepper::Projection(p) => p.ghost_layers(),
+        }
+    }
+
     /// The deck's key that keeps the pressure's or the packing's solver from running over
     /// ranks; `None` where it spreads.
     fn unsupported_over_ranks(&self) -> Option<&'static str> {
@@ -490,7 +502,12 @@ impl<const D: usize> Simulation<D> {
         }
         let own = s
             .migration
-            .lend_ghosts(&*self.comm, &self.grid.geo, d, &mut self.particles)
+            .lend_ghosts(
+                &*self.comm,
+                &self.grid.geo,
+                (d, self.stepper.ghost_layers()),
+                &mut self.particles,
+            )
             .map_err(|why| Error::Usage(format!("run stopped at step {}: {why}", self.steps)))?;
         s.own = Some(own);
         self.stepper.ghosts_lent(&self.particles, own);

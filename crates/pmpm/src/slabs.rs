@@ -69,6 +69,17 @@ pub fn window_of(bubble_cells: usize) -> usize {
     bubble_cells.max(PROJECTION_REACH)
 }
 
+/// The cell layers past its slab whose particles a rank is lent as ghosts where the stages
+/// read particles there only one by one: the packing's pushes between pairs of particles
+/// closer than their rest spacing (at most a cell), with a layer to spare. Every sum of
+/// particles onto the grid the stages take (the cells' fractions and densities, the
+/// corrector's and the packing's node sums) is one of each rank's own particles, added up
+/// over the ranks and copied onto the window's nodes ([`Sliced`]), so the window's cells
+/// need no particles. Where the quadrature's points are the particles (`quadrature =
+/// "particle"` without the level set) or a solid's surface stress is averaged from its
+/// particles, the ghosts fill the whole window ([`Decomposition::window`]).
+pub const GHOST_LAYERS: usize = 2;
+
 /// The cell layers the projection's stages after the bubble closing read past a node: its
 /// level set (a cell), the cells whose Gauss points reach an unknown (two with the wider
 /// shape functions), their particles' stencils (two), and a layer to spare.
@@ -526,8 +537,8 @@ impl Migration {
         Ok(true)
     }
 
-    /// Copies to each neighbour the particles of this rank's slab in the `d.window` cell
-    /// layers next to their cut (its window: [`Decomposition::window`]), and appends the
+    /// Copies to each neighbour the particles of this rank's slab in the `layers` cell
+    /// layers next to their cut (at most its window: [`Decomposition::window`]), and appends the
     /// neighbours' copies to `ps`, in the senders' rank order: ghosts, which the projection's
     /// stages read as the particles around the slab and which are dropped after them
     /// (`ps.truncate` to the count returned, this rank's own particles, which stay first).
@@ -535,18 +546,19 @@ impl Migration {
         &mut self,
         comm: &dyn Comm,
         geo: &GridGeometry<D>,
-        d: &Decomposition,
+        (d, layers): (&Decomposition, usize),
         ps: &mut Particles<D>,
     ) -> Result<usize, String> {
         let (rank, size) = (comm.rank(), comm.size());
+        let layers = layers.min(d.window);
         self.clear_leaving(size);
         let (lo, hi) = (d.cuts[rank], d.cuts[rank + 1]);
         for (p, x) in ps.x.iter().enumerate() {
             let layer = layer_of(geo, d.axis, x);
-            if rank > 0 && layer < lo + d.window {
+            if rank > 0 && layer < lo + layers {
                 self.leaving[rank - 1].push(p as u32);
             }
-            if rank + 1 < size && layer + d.window >= hi {
+            if rank + 1 < size && layer + layers >= hi {
                 self.leaving[rank + 1].push(p as u32);
             }
         }

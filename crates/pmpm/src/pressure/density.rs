@@ -28,6 +28,7 @@
 //! the correction could ever give back.
 
 use super::free_surface::{self, NodeKind};
+use super::ranks::Ranks;
 use super::{describe_layout, FluidDomain, Shared};
 use super::{DensityCorrection, PressureSettings};
 use crate::boundary::Boundary;
@@ -312,6 +313,7 @@ impl<const D: usize> PositionCorrection<D> {
         // the particles' volumes evened out below the grid's resolution first: the solve below
         // sees J only through its nodal averages, and cannot give one particle's volume back
         // against its neighbour's in the same cell
+        self.average_over(shared.ranks.as_ref());
         if self.volumes {
             self.averaging.smooth_jacobian(ps, geo, shape, rate);
         }
@@ -327,14 +329,9 @@ impl<const D: usize> PositionCorrection<D> {
             ranks,
         } = shared;
         bins.sort(geo, &ps.x);
-        self.gather_volumes(ps, geo, rate);
+        self.gather_volumes(ps, geo, rate, ranks.as_ref());
         // free surface and unknowns, from where the particles are now
-        let own = ranks.as_ref().map_or(ps.len(), |r| r.own.min(ps.len()));
-        let least = ps.volume0[..own]
-            .iter()
-            .copied()
-            .fold(f64::INFINITY, f64::min);
-        let epsilon = 1e-9 * ranks.as_ref().map_or(least, |r| r.min(least));
+        let epsilon = mass_epsilon(&ps.volume0, ranks.as_ref());
         surface.detect(
             geo,
             bins,
@@ -366,7 +363,7 @@ impl<const D: usize> PositionCorrection<D> {
             (bins, v0, v0, mean),
             &surface.fraction,
             shape,
-            Some(domain),
+            (Some(domain), ranks.as_ref()),
         );
         gauss.divergence.fill(0.0);
         gauss.velocity.fill(Vector::<D>::zeros());
@@ -403,7 +400,8 @@ impl<const D: usize> PositionCorrection<D> {
             let linear = (&mut *solver, &*system, &mut *solution);
             self.stats = self.solve(&stage, linear, [scratch, first_layer])?;
             // correction: u on the nodes, then the particles moved and deformed by it
-            self.node_displacement(ps, geo, boundary, (vector_bands, displacement));
+            let nodal = (&mut *vector_bands, &mut *displacement);
+            self.node_displacement(ps, geo, (boundary, stage.ranks), nodal);
             self.move_particles(ps, geo, &surface.kinds, displacement);
         }
         if self.from_positions {
@@ -478,7 +476,7 @@ impl<const D: usize> PositionCorrection<D> {
         ghost: [&mut Vec<f64>; 2],
     ) -> Result<SolveStats, SolveError> {
         let (geo, shape) = (stage.geo, self.shape);
-        self.gather_rest_volumes(ps, geo);
+        self.gather_rest_volumes(ps, geo, stage.ranks);
         self.fill_excess(geo, points, stage.kinds, pace.packing);
         for (b, &i) in system.rhs.iter_mut().zip(&system.unknowns.node_of_row) {
             *b = self.excess[i as usize];
@@ -534,22 +532,39 @@ impl<const D: usize> PositionCorrection<D> {
         Ok(stats)
     }
 
+    /// Over ranks, the nodal averages add up every rank's own particles, as P2G's sums do.
+    fn average_over(&mut self, ranks: Option<&Ranks>) {
+        if let Some(r) = ranks {
+            self.averaging.comm = crate::comm::Ranks(r.partition.comm.clone());
+            self.averaging.own = Some(r.own);
+        }
+    }
+
     /// sum_p V0_p N_ip per node, into the excess ([`Self::fill_excess`] takes the covered
-    /// volume off).
-    fn gather_rest_volumes(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>) {
+    /// volume off); over ranks of every rank's own particles ([`Ranks::add_sums`]).
+    fn gather_rest_volumes(
+        &mut self,
+        ps: &Particles<D>,
+        geo: &GridGeometry<D>,
+        ranks: Option<&Ranks>,
+    ) {
         let v0 = &ps.volume0;
+        let own = ranks.map_or(ps.len(), |r| r.own_of(ps.len()));
         scatter_to_nodes(
             &mut self.bands,
             Points {
                 geo,
                 shape: ShapeFunction::Linear,
-                x: &ps.x,
-                half_width: &ps.half_width,
+                x: &ps.x[..own],
+                half_width: &ps.half_width[..own],
             },
             nalgebra::Vector2::zeros(),
             |p| nalgebra::Vector2::new(v0[p], 0.0),
             &mut self.sums,
         );
+        if let Some(r) = ranks {
+            r.add_sums(&mut self.sums);
+        }
         crate::pages::fit(&mut self.excess, geo.node_count());
         let sums = &self.sums;
         self.excess
@@ -559,17 +574,24 @@ impl<const D: usize> PositionCorrection<D> {
     }
 
     /// sum_p V_p N_ip and rate sum_p V0_p (1 - J_p) N_ip per node, scattered from the
-    /// particles ([`scatter_to_nodes`]).
-    fn gather_volumes(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>, rate: f64) {
+    /// particles ([`scatter_to_nodes`]; over ranks from every rank's own, [`Ranks::add_sums`]).
+    fn gather_volumes(
+        &mut self,
+        ps: &Particles<D>,
+        geo: &GridGeometry<D>,
+        rate: f64,
+        ranks: Option<&Ranks>,
+    ) {
         let shape = self.shape;
         let (v0, jac) = (&ps.volume0, &ps.jacobian);
+        let own = ranks.map_or(ps.len(), |r| r.own_of(ps.len()));
         scatter_to_nodes(
             &mut self.bands,
             Points {
                 geo,
                 shape,
-                x: &ps.x,
-                half_width: &ps.half_width,
+                x: &ps.x[..own],
+                half_width: &ps.half_width[..own],
             },
             nalgebra::Vector2::zeros(),
             |p| {
@@ -579,6 +601,9 @@ impl<const D: usize> PositionCorrection<D> {
             },
             &mut self.sums,
         );
+        if let Some(r) = ranks {
+            r.add_sums(&mut self.sums);
+        }
         let n = geo.node_count();
         crate::pages::fit(&mut self.weight, n);
         crate::pages::fit(&mut self.excess, n);
@@ -667,17 +692,20 @@ impl<const D: usize> PositionCorrection<D> {
     }
 
     /// u_i = -sum_p V_p N_ip (grad q)_p / sum_p V_p N_ip, held at the walls (no normal
-    /// displacement) and on rigid bodies, and bounded by [`MAX_SHIFT`] cells.
+    /// displacement) and on rigid bodies, and bounded by [`MAX_SHIFT`] cells; over ranks the
+    /// sums of every rank's own particles ([`Ranks::add_sums`]).
     fn node_displacement(
         &mut self,
         ps: &Particles<D>,
         geo: &GridGeometry<D>,
-        b: &Boundary<D>,
+        (b, ranks): (&Boundary<D>, Option<&Ranks>),
         (bands, displacement): (&mut Vec<Band<Vector<D>>>, &mut Vec<Vector<D>>),
     ) {
         let shape = self.shape;
         let q = &self.potential;
-        let (x, half_width, v0, jac) = (&ps.x, &ps.half_width, &ps.volume0, &ps.jacobian);
+        let own = ranks.map_or(ps.len(), |r| r.own_of(ps.len()));
+        let (x, half_width) = (&ps.x[..own], &ps.half_width[..own]);
+        let (v0, jac) = (&ps.volume0, &ps.jacobian);
         // (grad q)_p = sum_i G_ip q_i, taken where the scatter asks for the particle's value
         let grad = |p: usize| {
             let st = Stencil::<D>::new(shape, &geo.to_cells(&x[p]), geo.h, half_width[p]);
@@ -697,6 +725,9 @@ impl<const D: usize> PositionCorrection<D> {
             |p| grad(p) * (v0[p] * jac[p]),
             displacement,
         );
+        if let Some(r) = ranks {
+            r.add_sums(displacement);
+        }
         let weight = &self.weight;
         let limit = MAX_SHIFT * geo.h;
         displacement
@@ -806,6 +837,14 @@ struct Stage<'a, const D: usize> {
     free: usize,
     /// Over ranks, how the solves are spread.
     ranks: Option<&'a super::ranks::Ranks>,
+}
+
+/// The node mass below which the correction's free surface reads a node as empty: 1e-9 of
+/// the least particle volume (the volumes are the masses here), over every rank's own.
+fn mass_epsilon(volume0: &[f64], ranks: Option<&Ranks>) -> f64 {
+    let own = ranks.map_or(volume0.len(), |r| r.own_of(volume0.len()));
+    let least = volume0[..own].iter().copied().fold(f64::INFINITY, f64::min);
+    1e-9 * ranks.map_or(least, |r| r.min(least))
 }
 
 /// Whether a node within one node of node `i` along every axis (the corners of the cells its

@@ -170,6 +170,12 @@ impl Surface {
         rigid: &crate::rigid::RigidBodies<D>,
     ) {
         volume_fractions(geo, bins, volume, &mut self.fraction);
+        // over ranks, each cell's fraction as its owner found it from its own particles: the
+        // ghosts reach only a layer or two past the slab ([`crate::slabs::GHOST_LAYERS`]), the
+        // window's cells further than that hold only what the owners give them
+        if let Some(owners) = &self.owners {
+            take_owners(geo, owners, &mut self.fraction);
+        }
         if self.method == FreeSurface::None {
             // the fluid fills its container: every cell full (the cells past the walls are
             // left to the classification, which reads the faces)
@@ -204,7 +210,7 @@ impl Surface {
             // over ranks, the window's cells as their owners closed them (after the cracks,
             // which read a cell's face neighbours: those next to the slab are right here)
             if let Some(owners) = &self.owners {
-                owners_closing(geo, owners, &mut self.fraction);
+                take_owners(geo, owners, &mut self.fraction);
             }
         }
         // the share of each cell the rigid bodies cover
@@ -261,16 +267,17 @@ impl Surface {
     }
 }
 
-/// Over ranks, after each rank closed the gaps on its view (its slab and the window): every
-/// cell's fraction as the rank that owns it closed it. A rank's own cells are right: a gap of
-/// at most `bubble_cells` cells that holds one of them lies within `bubble_cells` layers of
-/// its slab, inside the window ([`crate::slabs::window_of`]), whose fractions the lent
-/// particles make exact; a larger one reaches past the window into the empty cells beyond,
-/// and stays open as it should. A window cell's gap may reach past the window, where this
-/// rank cannot see it: its owner's fraction is taken instead (the cells outside the slab
-/// zeroed, then the sums onto the nodes, which copy the window's layers). So the window need
-/// not hold a whole gap past each of its own cells, only as far as the later stages read.
-fn owners_closing<const D: usize>(geo: &GridGeometry<D>, owners: &Owners, fraction: &mut [f64]) {
+/// Over ranks, every cell's fraction as the rank that owns it found it (the cells outside
+/// the slab zeroed, then the sums onto the nodes, which copy the window's layers): before the
+/// gaps are closed, the fractions of the cells' own particles, so that the window's cells
+/// need no ghosts; after, the fractions as their owners closed them. A rank's own cells are
+/// closed right: a gap of at most `bubble_cells` cells that holds one of them lies within
+/// `bubble_cells` layers of its slab, inside the window ([`crate::slabs::window_of`]); a
+/// larger one reaches past the window into the empty cells beyond, and stays open as it
+/// should. A window cell's gap may reach past the window, where this rank cannot see it, so
+/// its owner's closing is taken: the window need not hold a whole gap past each of its own
+/// cells, only as far as the later stages read.
+fn take_owners<const D: usize>(geo: &GridGeometry<D>, owners: &Owners, fraction: &mut [f64]) {
     super::ranks::keep_layers(geo, owners.axis, &owners.layers, fraction);
     owners.comm.add_nodes(&mut [fraction]);
 }
@@ -1282,7 +1289,7 @@ mod tests {
             let r = world.rank();
             let (lo, hi) = (d.cuts[r], d.cuts[r + 1]);
             let view = lo.saturating_sub(w)..(hi + w).min(geo.nodes[1]);
-            // the fractions its own particles and the lent ones give: its slab's and window's
+            // the fractions on its view: its slab's own and the window's from their owners
             let seen: Vec<f64> = (0..geo.node_count())
                 .map(|c| {
                     if view.contains(&geo.multi(c)[1]) {
@@ -1309,7 +1316,7 @@ mod tests {
                 axis: 1,
                 layers: lo..hi,
             };
-            owners_closing(&geo, &owners, &mut closed);
+            take_owners(&geo, &owners, &mut closed);
             (alone, closed, view)
         });
         assert_eq!(

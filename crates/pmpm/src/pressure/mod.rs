@@ -472,6 +472,18 @@ impl<const D: usize> Projection<D> {
         self.settings.window
     }
 
+    /// The cell layers past its slab whose particles a rank is lent as ghosts: a layer or two
+    /// ([`crate::slabs::GHOST_LAYERS`]) where the stages read the window's cells only through
+    /// the owners' sums; the whole window where the particles are the quadrature's points or a
+    /// solid's surface stress is averaged from them.
+    pub fn ghost_layers(&self) -> usize {
+        if self.cell_quadrature() && !self.settings.traction_free {
+            crate::slabs::GHOST_LAYERS
+        } else {
+            self.settings.window
+        }
+    }
+
     /// Makes this the projection of a rank of `comm`'s, the grid cut at `cuts` along `axis`
     /// ([`crate::slabs::Decomposition`]); `None` makes it one process's again.
     pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
@@ -742,7 +754,7 @@ impl<const D: usize> Projection<D> {
                 (&self.shared.bins, &ps.mass, &ps.volume0, mean),
                 &self.shared.surface.fraction,
                 shape,
-                domain,
+                (domain, self.shared.ranks.as_ref()),
             );
         }
         let (qx, qhw, qdiv, qw, qcell) = if cell {
@@ -771,7 +783,8 @@ impl<const D: usize> Projection<D> {
             // fraction alpha of the drift per step.
             let rate = self.settings.volume_correction / dt;
             let cj = &mut self.work.cell_deficit;
-            aim_at_volume(geo, &self.shared.bins, ps, qcell, rate, cj, qdiv);
+            let (bins, ranks) = (&self.shared.bins, self.shared.ranks.as_ref());
+            aim_at_volume(geo, (bins, ranks), ps, qcell, rate, cj, qdiv);
         }
         if flux {
             boundary.apply(&mut grid.velocity_new);
@@ -1042,23 +1055,29 @@ impl<const D: usize> Projection<D> {
 
     /// v_i -= (scale / m_i) sum_p V_p N_ip (grad p)_p on every node with mass.
     ///
-    /// A scatter from the particles, like P2G ([`scatter_to_nodes`]).
+    /// A scatter from the particles, like P2G ([`scatter_to_nodes`]); over ranks from this
+    /// rank's own, the sums then added up with the neighbours' as P2G's are.
     fn correct(&mut self, ps: &Particles<D>, grid: &mut Grid<D>, scale: f64) {
         let mass_epsilon = self.settings.mass_epsilon;
         let (vol, gp) = (&ps.volume0, &self.work.pressure_gradient);
         let force = &mut self.shared.nodal;
+        let ranks = self.shared.ranks.as_ref();
+        let own = ranks.map_or(ps.len(), |r| r.own_of(ps.len()));
         scatter_to_nodes(
             &mut self.shared.vector_bands,
             Points {
                 geo: &grid.geo,
                 shape: self.settings.shape,
-                x: &ps.x,
-                half_width: &ps.half_width,
+                x: &ps.x[..own],
+                half_width: &ps.half_width[..own],
             },
             Vector::<D>::zeros(),
             |p| gp[p] * vol[p],
             force,
         );
+        if let Some(r) = ranks {
+            r.add_sums(force);
+        }
         grid.velocity_new
             .par_iter_mut()
             .zip(grid.mass.par_iter())
@@ -1076,7 +1095,7 @@ impl<const D: usize> Projection<D> {
 /// points (`cells`), the volume-weighted J of the cell's particles.
 fn aim_at_volume<const D: usize>(
     geo: &crate::grid::GridGeometry<D>,
-    bins: &CellBins,
+    (bins, ranks): (&CellBins, Option<&ranks::Ranks>),
     ps: &Particles<D>,
     cells: Option<&[[u32; D]]>,
     rate: f64,
@@ -1099,6 +1118,10 @@ fn aim_at_volume<const D: usize>(
                 let j = if sv > 0.0 { sj / sv } else { 1.0 };
                 pages::store(deficit, 1.0 - j);
             });
+        // over ranks, the window's cells as their owners found them (from their particles)
+        if let Some(r) = ranks {
+            r.take_owners(geo, cell_deficit);
+        }
         let deficit = &*cell_deficit;
         div.par_iter_mut()
             .zip(cells.par_iter())
@@ -1358,6 +1381,9 @@ struct GaussPoints<const D: usize> {
     /// Whether some points are not at the places of the templates (cut cells).
     sub_cells: bool,
     bins: CellBins,
+    /// Over ranks, each cell's particles' mass and volume as the cell's owner summed them
+    /// (the window's cells past the ghosts have no particles here).
+    cell_sums: [Vec<f64>; 2],
 }
 
 impl<const D: usize> GaussPoints<D> {
@@ -1385,9 +1411,29 @@ impl<const D: usize> GaussPoints<D> {
         (bins, mass, volume, mean_density): (&CellBins, &[f64], &[f64], f64),
         fraction: &[f64],
         shape: ShapeFunction,
-        domain: Option<FluidDomain<'_, D>>,
+        (domain, ranks): (Option<FluidDomain<'_, D>>, Option<&ranks::Ranks>),
     ) {
         use crate::shape::PAD;
+        let sums = |c: usize| {
+            bins.particles(c).iter().fold((0.0, 0.0), |(m, v), &p| {
+                (m + mass[p as usize], v + volume[p as usize])
+            })
+        };
+        if let Some(r) = ranks {
+            let [m, v] = &mut self.cell_sums;
+            pages::fit(m, geo.node_count());
+            pages::fit(v, geo.node_count());
+            (m.par_iter_mut(), v.par_iter_mut())
+                .into_par_iter()
+                .enumerate()
+                .for_each(|(c, (m, v))| {
+                    let (cm, cv) = sums(c);
+                    pages::store(m, cm);
+                    pages::store(v, cv);
+                });
+            r.take_owners(geo, m);
+            r.take_owners(geo, v);
+        }
         self.sub_cells = false;
         self.x.clear();
         self.volume.clear();
@@ -1414,10 +1460,10 @@ impl<const D: usize> GaussPoints<D> {
                 None if w <= 0.0 => continue,
                 None => w,
             };
-            let ps = bins.particles(c);
-            let (m, v) = ps.iter().fold((0.0, 0.0), |(m, v), &p| {
-                (m + mass[p as usize], v + volume[p as usize])
-            });
+            let (m, v) = match ranks {
+                Some(_) => (self.cell_sums[0][c], self.cell_sums[1][c]),
+                None => sums(c),
+            };
             let rho = if v > 0.0 { m / v } else { mean_density };
             let lower = geo.node_position(&idx);
             if let Some(rigid) = domain.as_ref().and_then(|d| d.cut) {

@@ -2,7 +2,9 @@
 //!
 //! Each rank runs the projection's stages on its slab and on the window around it
 //! ([`crate::slabs::Decomposition::window`]): its own particles, the neighbours' particles in
-//! the window (ghosts) and the node sums its neighbours copied onto the window's nodes. The
+//! the layers next to the cut (ghosts, [`crate::slabs::GHOST_LAYERS`]), and the sums of the
+//! neighbours' own particles copied onto the window's nodes and cells
+//! ([`Ranks::add_sums`], [`Ranks::take_owners`]). The
 //! stages read no further than the window from a node of the slab, so on the slab's nodes
 //! every rank finds the free surface, the Gauss points and the rows of the system that one
 //! process finds. Each rank numbers the unknowns of its own node layers; every rank's rows in
@@ -182,6 +184,29 @@ impl Ranks {
     pub fn norm(&self, b: &[f64]) -> f64 {
         let own: f64 = b[self.own_rows()].iter().map(|b| b * b).sum();
         self.comm().sum_scalar(own).sqrt()
+    }
+
+    /// How many of `n` particles are this rank's own: the ghosts after them count in no sum
+    /// over the particles.
+    pub fn own_of(&self, n: usize) -> usize {
+        self.own.min(n)
+    }
+
+    /// Sums of this rank's own particles onto the nodes (one `T` a node) added up with its
+    /// neighbours' on the layers they share, and copied onto the window's nodes from their
+    /// owners, as P2G's sums are ([`crate::slabs::Sliced`]): every node of the slab and the
+    /// window then holds the sum over every rank's particles.
+    pub fn add_sums<T: bytemuck::Pod>(&self, sums: &mut [T]) {
+        self.comm().add_nodes(&mut [bytemuck::cast_slice_mut(sums)]);
+    }
+
+    /// Values of the cells (one a cell, numbered like its lower-corner node) that each rank
+    /// finds exactly on its own layers (a cell's value from the particles in it), taken on
+    /// every cell of the slab and the window from the rank that owns it: the others zeroed,
+    /// then the sums onto the nodes, which copy the window's layers.
+    pub fn take_owners<const D: usize>(&self, geo: &GridGeometry<D>, values: &mut [f64]) {
+        keep_layers(geo, self.axis, &self.layers(), values);
+        self.comm().add_nodes(&mut [values]);
     }
 
     /// The sum over every rank of `value`.
