@@ -32,7 +32,9 @@ use rayon::prelude::*;
 const CHUNK: usize = 2048;
 
 /// A symmetric sparse matrix with `width` slots per row; an unused slot has column = its row
-/// and value 0.
+/// and value 0. Over ranks a rank fills only the rows it assembles (its slab's and those
+/// beside it, [`spread`]); the others hold what they held, zeros where never written, and
+/// are not read.
 #[derive(Debug, Clone, Default)]
 pub struct EllMatrix {
     /// Number of rows (and columns).
@@ -40,19 +42,55 @@ pub struct EllMatrix {
     /// Slots per row.
     pub width: usize,
     /// Column of each slot, row-major: slot k of row r is at r * width + k.
-    pub cols: Vec<u32>,
+    pub cols: Slots<u32>,
     /// Value of each slot.
-    pub vals: Vec<f64>,
+    pub vals: Slots<f64>,
+}
+
+/// The slots of a matrix: `len` values in use at the front of a buffer of zeroed pages
+/// ([`crate::pages::zeroed`]), which commit memory only where a row is written. Over ranks the
+/// matrix has the whole system's rows on every rank, and each rank writes only its own and
+/// those beside them, so its memory follows its share. Reads as the slice of the values in
+/// use.
+#[derive(Debug, Clone, Default)]
+pub struct Slots<T> {
+    buf: Vec<T>,
+    len: usize,
+}
+
+impl<T: bytemuck::Zeroable> Slots<T> {
+    /// `len` values in use: those already held are kept, and a buffer too short is replaced by
+    /// zeroed pages for a quarter more (the rows' count moves a little from step to step), the
+    /// values it held dropped (an assembly fills every row it reads).
+    fn fit(&mut self, len: usize) {
+        if len > self.buf.len() {
+            self.buf = crate::pages::zeroed(len + len / 4);
+        }
+        self.len = len;
+    }
+}
+
+impl<T> std::ops::Deref for Slots<T> {
+    type Target = [T];
+    fn deref(&self) -> &[T] {
+        &self.buf[..self.len]
+    }
+}
+
+impl<T> std::ops::DerefMut for Slots<T> {
+    fn deref_mut(&mut self) -> &mut [T] {
+        &mut self.buf[..self.len]
+    }
 }
 
 impl EllMatrix {
     /// Resizes to `n` rows of `width` slots (contents unspecified; the assembly fills every
-    /// slot). Keeps the capacity.
+    /// slot it reads). Keeps the buffers where they are long enough.
     pub fn reshape(&mut self, n: usize, width: usize) {
         self.n = n;
         self.width = width;
-        self.cols.resize(n * width, 0);
-        self.vals.resize(n * width, 0.0);
+        self.cols.fit(n * width);
+        self.vals.fit(n * width);
     }
 
     /// y = A x.

@@ -335,8 +335,7 @@ pub fn assemble<const D: usize>(
         .for_each(|(((cols, vals), b), &i)| {
             let row = unknowns.row(i as usize);
             if !assembles(unknowns, row) {
-                cols.fill(row);
-                vals.fill(0.0);
+                // another rank's row: not written, so that its pages stay uncommitted
                 *b = 0.0;
                 return;
             }

@@ -379,7 +379,8 @@ impl<const D: usize> PositionCorrection<D> {
         let quadrature = gauss.quadrature(false);
         super::assemble::assemble(geo, shape, &quadrature, &system_rows, 1.0, matrix, rhs);
         if let Some(r) = ranks.as_ref() {
-            r.order_slots::<D>(matrix, 2 * shape.width() - 1);
+            let assembled = system.unknowns.assembled_rows();
+            r.order_slots::<D>(matrix, 2 * shape.width() - 1, assembled);
         }
         if self.volumes {
             for (b, &i) in rhs.iter_mut().zip(&system.unknowns.node_of_row) {

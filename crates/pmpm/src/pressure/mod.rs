@@ -836,7 +836,8 @@ impl<const D: usize> Projection<D> {
             let (matrix, rhs) = (&mut self.shared.system.matrix, &mut self.shared.system.rhs);
             assemble::assemble(geo, shape, &quadrature, &rows, dt, matrix, rhs);
             if let Some(r) = &self.shared.ranks {
-                r.order_slots::<D>(matrix, 2 * shape.width() - 1);
+                let assembled = self.shared.system.unknowns.assembled_rows();
+                r.order_slots::<D>(matrix, 2 * shape.width() - 1, assembled);
             }
         } else {
             assemble::right_hand_side(
@@ -1209,11 +1210,16 @@ pub struct Unknowns {
     /// Where the rows sit on the grid, for the solver.
     pub layout: GridLayout,
     /// Over ranks, the rows this rank assembles (its own and those the solver reads beside
-    /// them, numbered over the ranks); the others are left empty. `None`: every row.
+    /// them, numbered over the ranks); the others are not written. `None`: every row.
     pub assembled: Option<std::ops::Range<usize>>,
 }
 
 impl Unknowns {
+    /// The rows this rank assembles ([`Unknowns::assembled`]).
+    pub fn assembled_rows(&self) -> std::ops::Range<usize> {
+        self.assembled.clone().unwrap_or(0..self.node_of_row.len())
+    }
+
     /// Node i's row, or `u32::MAX` where it is not an unknown.
     #[inline]
     pub fn row(&self, i: usize) -> u32 {

@@ -129,8 +129,10 @@ impl Ranks {
     /// offset a slot, the first axis fastest: [`super::assemble::assemble`]; the solver reads
     /// this rank's rows and those of its halo, which it assembled as well) put
     /// in the axis order of the solver's layout, the cut axis last (`describe_layout`): the
-    /// multigrid reads a slot's offset along the layout's axes.
-    pub fn order_slots<const D: usize>(&self, a: &mut EllMatrix, span: usize) {
+    /// multigrid reads a slot's offset along the layout's axes. Only the rows `rows` this
+    /// rank assembled (`Unknowns::assembled`) are touched: the others' pages stay
+    /// uncommitted.
+    pub fn order_slots<const D: usize>(&self, a: &mut EllMatrix, span: usize, rows: Range<usize>) {
         if self.axis == D - 1 {
             return;
         }
@@ -146,9 +148,10 @@ impl Ranks {
             })
             .collect();
         let w = a.width;
-        a.cols
+        let slots = rows.start * w..rows.end * w;
+        a.cols[slots.clone()]
             .par_chunks_mut(w)
-            .zip(a.vals.par_chunks_mut(w))
+            .zip(a.vals[slots].par_chunks_mut(w))
             .for_each(|(c, v)| {
                 // (copies on the stack: no allocation a row)
                 let (mut c0, mut v0) = ([0u32; MAX_SLOTS], [0.0f64; MAX_SLOTS]);
