@@ -650,14 +650,15 @@ impl<const D: usize> Boundary<D> {
                 if kind == BoundaryKind::NoSlip {
                     // the grip along the wall, on the axes no wall at the node released
                     for c in (0..D).filter(|&c| self.released[k] & (1 << c) == 0) {
-                        mask[i][c] = 0.0;
+                        store(&mut mask[i][c], 0.0);
                     }
                 }
                 continue;
             }
+            // (written only where it changes: a wall node without mass stays uncommitted)
             match kind {
-                BoundaryKind::Slip | BoundaryKind::Symmetry => mask[i][f / 2] = 0.0,
-                BoundaryKind::NoSlip => mask[i] = Vector::<D>::zeros(),
+                BoundaryKind::Slip | BoundaryKind::Symmetry => store(&mut mask[i][f / 2], 0.0),
+                BoundaryKind::NoSlip => store(&mut mask[i], Vector::<D>::zeros()),
                 BoundaryKind::Open | BoundaryKind::Outflow | BoundaryKind::Periodic => {}
             }
         }

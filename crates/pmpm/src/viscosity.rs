@@ -38,6 +38,7 @@ use crate::comm::Comm;
 use crate::grid::{CellBins, Grid, GridGeometry, Vector};
 use crate::linalg::{dot, CgWork, Operator, Precondition, SolveError, SolveParams};
 use crate::material::{deviatoric_strain_rate, in_mask, Law, MaterialParams};
+use crate::pages::store;
 use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
 use crate::transfer::{scatter_weighted, Band, Points};
@@ -299,7 +300,7 @@ impl<const D: usize> ImplicitViscosity<D> {
             ..
         } = self;
         // |b| = |M v*| and r = b - (M + dt K) v* = -dt K v*, on the free components
-        cg.resize(n);
+        cg.fit_nodes(n);
         u.par_chunks(CHUNK)
             .zip(mass.par_chunks(CHUNK).zip(mask.par_chunks(CHUNK)))
             .map(|(u, (m, k))| {
@@ -312,7 +313,7 @@ impl<const D: usize> ImplicitViscosity<D> {
         if let Some(slab) = ranks.as_ref() {
             // (r is written below: here it holds M v on the free components)
             cg.r.par_iter_mut().enumerate().for_each(|(i, r)| {
-                *r = (u[i] * mass[i]).component_mul(&mask[i]);
+                store(r, (u[i] * mass[i]).component_mul(&mask[i]));
             });
             b_norm = slab.dot(geo, (&cg.r, &cg.r), &mut cg.partials).sqrt();
         }
@@ -330,7 +331,16 @@ impl<const D: usize> ImplicitViscosity<D> {
         };
         op.viscous(u, &mut cg.r);
         cg.r.par_iter_mut().enumerate().for_each(|(i, r)| {
-            *r = -r.component_mul(&mask[i]);
+            // (a node held or without mass keeps r = +0, and its page uncommitted)
+            let free = mask[i] != Vector::<D>::zeros();
+            store(
+                r,
+                if free {
+                    -r.component_mul(&mask[i])
+                } else {
+                    Vector::<D>::zeros()
+                },
+            );
         });
         // relative to |M v| on the free components, or to the first residual where the free
         // nodes are at rest and only the held ones (a lid, a body) drive the flow
@@ -388,15 +398,16 @@ impl<const D: usize> ImplicitViscosity<D> {
                 };
             });
         self.quadrature(ps, grid, boundary, materials, shape, dt);
-        self.mask.clear();
+        // 1 on the nodes with mass, written only there (the air's pages stay uncommitted)
+        crate::pages::fit(&mut self.mask, grid.geo.node_count());
         self.mask
-            .resize(grid.geo.node_count(), Vector::<D>::repeat(1.0));
+            .par_iter_mut()
+            .zip(grid.mass.par_iter())
+            .for_each(|(m, &mass)| {
+                let free = if mass > mass_epsilon { 1.0 } else { 0.0 };
+                store(m, Vector::<D>::repeat(free));
+            });
         boundary.mask_held(&mut self.mask);
-        for (m, &mass) in self.mask.iter_mut().zip(grid.mass.iter()) {
-            if mass <= mass_epsilon {
-                *m = Vector::<D>::zeros();
-            }
-        }
         self.diagonal(&grid.geo, shape, &grid.mass);
     }
 
@@ -576,8 +587,7 @@ impl<const D: usize> ImplicitViscosity<D> {
     fn diagonal(&mut self, geo: &GridGeometry<D>, shape: ShapeFunction, mass: &[f64]) {
         let coefficient = &self.coefficient;
         let shear = 1.0 - 2.0 / D as f64;
-        self.inverse_diagonal
-            .resize(geo.node_count(), Vector::<D>::zeros());
+        crate::pages::fit(&mut self.inverse_diagonal, geo.node_count());
         scatter_weighted(
             &mut self.bands,
             Points {
@@ -602,7 +612,7 @@ impl<const D: usize> ImplicitViscosity<D> {
             .par_iter_mut()
             .enumerate()
             .for_each(|(i, d)| {
-                *d = Vector::<D>::from_fn(|k, _| {
+                let inverse = Vector::<D>::from_fn(|k, _| {
                     let a = mass[i] + d[k];
                     if mask[i][k] > 0.0 && a > 0.0 {
                         1.0 / a
@@ -610,6 +620,7 @@ impl<const D: usize> ImplicitViscosity<D> {
                         0.0
                     }
                 });
+                store(d, inverse);
             });
     }
 }
@@ -679,7 +690,7 @@ impl<const D: usize> Operator<Vector<D>> for ViscousOperator<'_, D> {
         self.viscous(x, q);
         let (mass, mask) = (self.mass, self.mask);
         q.par_iter_mut().enumerate().for_each(|(i, q)| {
-            *q = (*q + x[i] * mass[i]).component_mul(&mask[i]);
+            store(q, (*q + x[i] * mass[i]).component_mul(&mask[i]));
         });
     }
 
@@ -698,7 +709,7 @@ impl<const D: usize> Precondition<Vector<D>> for Diagonal<'_, D> {
     fn apply(&mut self, r: &[Vector<D>], z: &mut [Vector<D>]) {
         z.par_iter_mut()
             .zip(self.0.par_iter().zip(r.par_iter()))
-            .for_each(|(z, (d, r))| *z = d.component_mul(r));
+            .for_each(|(z, (d, r))| store(z, d.component_mul(r)));
     }
 }
 

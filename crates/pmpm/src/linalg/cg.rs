@@ -13,11 +13,12 @@
 //! [`EllMatrix`]: super::EllMatrix
 
 use super::{SolveError, SolveParams, SolveStats};
+use crate::pages::store;
 use rayon::prelude::*;
 
 /// An entry of the vectors the conjugate gradient works on: a number, or a small vector of
 /// them (a node's velocity).
-pub trait Entry: Copy + Send + Sync {
+pub trait Entry: Copy + Send + Sync + bytemuck::NoUninit {
     /// The zero entry.
     const ZERO: Self;
     /// Entries per chunk of the reductions, summed in order.
@@ -105,6 +106,19 @@ impl<T: Entry> CgWork<T> {
         }
     }
 
+    /// Work vectors of `n` entries, one a node ([`crate::pages::fit`]): a vector the length of
+    /// the grid commits memory only where its entries leave zero, and the loops below write
+    /// an entry only where it changes, so the nodes no material reaches (the box's air, the
+    /// other ranks' slabs) stay uncommitted.
+    pub fn fit_nodes(&mut self, n: usize)
+    where
+        T: bytemuck::Zeroable,
+    {
+        for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
+            crate::pages::fit(v, n);
+        }
+    }
+
     /// Solves A x = b to |r| <= tolerance * `b_norm`, `self.r` holding b - A x for the
     /// initial x on entry. Stops with [`SolveError::NotConverged`] after
     /// `params.max_iterations`, and with [`SolveError::Breakdown`] on a residual that is not
@@ -142,7 +156,9 @@ impl<T: Entry> CgWork<T> {
         }
         m.apply(r, z);
         a.project(z, partials);
-        p.copy_from_slice(z);
+        p.par_iter_mut()
+            .zip(z.par_iter())
+            .for_each(|(p, z)| store(p, *z));
         let mut rz = a.dot(r, z, partials);
         for it in 1..=max_iterations {
             a.apply(p, q);
@@ -157,8 +173,8 @@ impl<T: Entry> CgWork<T> {
                 .zip(r.par_iter_mut())
                 .zip(p.par_iter().zip(q.par_iter()))
                 .for_each(|((x, r), (p, q))| {
-                    *x = x.add_scaled(alpha, *p);
-                    *r = r.add_scaled(-alpha, *q);
+                    store(x, x.add_scaled(alpha, *p));
+                    store(r, r.add_scaled(-alpha, *q));
                 });
             a.project(r, partials);
             r_norm = a.dot(r, r, partials).sqrt();
@@ -182,7 +198,7 @@ impl<T: Entry> CgWork<T> {
             rz = rz_new;
             p.par_iter_mut()
                 .zip(z.par_iter())
-                .for_each(|(p, z)| *p = z.add_scaled(beta, *p));
+                .for_each(|(p, z)| store(p, z.add_scaled(beta, *p)));
         }
         Err(SolveError::NotConverged {
             iterations: max_iterations,
