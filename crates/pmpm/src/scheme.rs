@@ -125,7 +125,7 @@ impl<const D: usize> Stepper<D> {
     fn ghosts_dropped(&mut self, own: usize) {
         match self {
             Stepper::Projection(p) => p.ghosts_gone(own),
-            Stepper::Explicit(Some(p)) => p.own_particles(own),
+            Stepper::Explicit(Some(p)) => p.ghosts_gone(),
             Stepper::Explicit(None) => {}
         }
     }
@@ -392,7 +392,7 @@ impl<const D: usize> Simulation<D> {
         self.boundary.rigid.begin_step(&self.grid, dt);
         self.timers.lap(Phase::P2g);
         // 3a. the projection's free surface, from where the particles are (over ranks with
-        //     the neighbours' particles in this rank's window lent to it until the corrector)
+        //     the neighbours' particles next to the cut lent to it until the corrector)
         if self.stepper.scheme() == Scheme::Projection {
             self.lend_ghosts()?;
         }
@@ -490,9 +490,10 @@ impl<const D: usize> Simulation<D> {
         Ok(())
     }
 
-    /// Over ranks under the projection, the neighbours' particles in this rank's window
-    /// appended to its own as ghosts ([`crate::slabs::Migration::lend_ghosts`]), for the
-    /// projection's stages; nothing on one process.
+    /// Over ranks under the projection or the explicit packing, the neighbours' particles
+    /// next to the cut appended to its own as ghosts, as deep as the stages read them one by
+    /// one ([`Stepper::ghost_layers`], [`crate::slabs::Migration::lend_ghosts`]); nothing on
+    /// one process.
     fn lend_ghosts(&mut self) -> Result<(), Error> {
         let (Some(d), Some(s)) = (&self.decomposition, &mut self.slabs) else {
             return Ok(());
@@ -854,7 +855,8 @@ impl<const D: usize> Simulation<D> {
         } else {
             crate::pressure::density::Pace::whole(0.0)
         };
-        // over ranks, the neighbours' particles in the window lent for it, as for the projection
+        // over ranks, the neighbours' particles next to the cut lent for it, as for the
+        // projection
         let explicit = self.stepper.scheme() == Scheme::Explicit;
         if corrects && !(explicit && Packing::<D>::share(pace.packing).is_none()) {
             self.lend_ghosts()?;

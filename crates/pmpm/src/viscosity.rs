@@ -331,16 +331,15 @@ impl<const D: usize> ImplicitViscosity<D> {
         };
         op.viscous(u, &mut cg.r);
         cg.r.par_iter_mut().enumerate().for_each(|(i, r)| {
-            // (a node held or without mass keeps r = +0, and its page uncommitted)
-            let free = mask[i] != Vector::<D>::zeros();
-            store(
-                r,
-                if free {
-                    -r.component_mul(&mask[i])
-                } else {
-                    Vector::<D>::zeros()
-                },
-            );
+            // (a node held or without mass keeps r = +0, and its page uncommitted; a sum
+            // that is not finite stays, for the solve to stop on)
+            let held = mask[i] == Vector::<D>::zeros() && r.iter().all(|v| v.is_finite());
+            let value = if held {
+                Vector::<D>::zeros()
+            } else {
+                -r.component_mul(&mask[i])
+            };
+            store(r, value);
         });
         // relative to |M v| on the free components, or to the first residual where the free
         // nodes are at rest and only the held ones (a lid, a body) drive the flow
@@ -404,7 +403,8 @@ impl<const D: usize> ImplicitViscosity<D> {
             .par_iter_mut()
             .zip(grid.mass.par_iter())
             .for_each(|(m, &mass)| {
-                let free = if mass > mass_epsilon { 1.0 } else { 0.0 };
+                // (a mass that is not a number stays free, as before, for the solve to see)
+                let free = if mass <= mass_epsilon { 0.0 } else { 1.0 };
                 store(m, Vector::<D>::repeat(free));
             });
         boundary.mask_held(&mut self.mask);

@@ -33,8 +33,10 @@ const CHUNK: usize = 2048;
 
 /// A symmetric sparse matrix with `width` slots per row; an unused slot has column = its row
 /// and value 0. Over ranks a rank fills only the rows it assembles (its slab's and those
-/// beside it, [`spread`]); the others hold what they held, zeros where never written, and
-/// are not read.
+/// beside it, [`spread`]); the others hold what they held (zeros, column 0, where never
+/// written): the spread solve computes with its own rows and its halo's only, and the passes
+/// over every row (pinning the empty ones, the Jacobi diagonal) read the others to no
+/// effect.
 #[derive(Debug, Clone, Default)]
 pub struct EllMatrix {
     /// Number of rows (and columns).

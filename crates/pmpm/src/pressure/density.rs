@@ -150,6 +150,13 @@ impl<const D: usize> Packing<D> {
         }
     }
 
+    /// Over ranks, the ghosts dropped: every particle is this rank's own again.
+    pub fn ghosts_gone(&mut self) {
+        if let Some(r) = &mut self.shared.ranks {
+            r.ghosts_gone();
+        }
+    }
+
     /// The share of the way to rest density the packing goes in a step where the projection's
     /// packing would go the share `rate` (`PositionCorrection::crossing_rate`):
     /// `EXPLICIT_PACKS` times that, at most the whole. Every step, not in whole shares every

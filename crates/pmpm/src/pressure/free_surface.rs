@@ -141,8 +141,9 @@ impl Surface {
         }
     }
 
-    /// Makes this the free surface of a rank whose own cells are `owners`' (the gaps of the
-    /// window's cells then closed as their owners close them); `None`: one process's.
+    /// Makes this the free surface of a rank whose own cells are `owners`' (the window's
+    /// cells then take their fractions, and the closing of their gaps, from their owners);
+    /// `None`: one process's.
     pub fn spread_over(&mut self, owners: Option<Owners>) {
         self.owners = owners;
     }

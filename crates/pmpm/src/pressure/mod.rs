@@ -492,7 +492,9 @@ impl<const D: usize> Projection<D> {
 
     /// Over ranks, the neighbours' particles from `own` on in `ps` are ghosts
     /// ([`crate::slabs::Migration::lend_ghosts`]) until [`Projection::ghosts_gone`]: the
-    /// per-particle state follows them, and no sum over the particles counts them.
+    /// per-particle state follows them, and no sum that is added up over the ranks counts
+    /// them (the particle quadrature's rows and a solid's surface stress, summed on this
+    /// rank alone, read them).
     pub fn ghosts_from(&mut self, ps: &Particles<D>, own: usize) {
         if let Some(r) = &mut self.shared.ranks {
             r.own = own;
@@ -527,7 +529,7 @@ impl<const D: usize> Projection<D> {
         self.work.volume_over_density.truncate(own);
         self.fit_particles(own);
         if let Some(r) = &mut self.shared.ranks {
-            r.own = own;
+            r.ghosts_gone();
         }
     }
 
@@ -1121,7 +1123,7 @@ fn aim_at_volume<const D: usize>(
             });
         // over ranks, the window's cells as their owners found them (from their particles)
         if let Some(r) = ranks {
-            r.take_owners(geo, cell_deficit);
+            r.take_owners(geo, &mut [cell_deficit]);
         }
         let deficit = &*cell_deficit;
         div.par_iter_mut()
@@ -1410,7 +1412,9 @@ impl<const D: usize> GaussPoints<D> {
 
     /// The points of the cells with fluid (volume fractions `fraction`), or with a level set
     /// of the cells next to an unknown (`domain`), each cell's density from the masses and
-    /// volumes of the particles `bins` holds in it (`mean_density` in a cell without any).
+    /// volumes of the particles `bins` holds in it (`mean_density` in a cell without any);
+    /// over ranks (`ranks`) those sums as the cell's owner found them
+    /// ([`ranks::Ranks::take_owners`]).
     fn build(
         &mut self,
         geo: &crate::grid::GridGeometry<D>,
@@ -1437,8 +1441,7 @@ impl<const D: usize> GaussPoints<D> {
                     pages::store(m, cm);
                     pages::store(v, cv);
                 });
-            r.take_owners(geo, m);
-            r.take_owners(geo, v);
+            r.take_owners(geo, &mut [m, v]);
         }
         self.sub_cells = false;
         self.x.clear();

@@ -52,8 +52,10 @@ pub struct Ranks {
     pub partition: Partition,
     /// The axis the grid is cut along.
     pub axis: usize,
-    /// While the stages run, how many of the particles are this rank's own: those after
-    /// them are ghosts, which count in no sum over the particles.
+    /// While ghosts are lent, how many of the particles are this rank's own: those after
+    /// them are ghosts, which count in no sum that is added up over the ranks. `usize::MAX`
+    /// while none are lent ([`Ranks::ghosts_gone`]): every particle is the rank's own, also
+    /// those a migration brought in.
     pub own: usize,
     /// The first row of each rank, and the row count (ranks + 1 bounds).
     starts: Vec<usize>,
@@ -66,7 +68,7 @@ impl Ranks {
         Self {
             partition: Partition { comm, cuts },
             axis,
-            own: 0,
+            own: usize::MAX,
             starts: Vec::new(),
         }
     }
@@ -195,6 +197,11 @@ impl Ranks {
         self.own.min(n)
     }
 
+    /// The ghosts dropped: every particle is this rank's own until the next are lent.
+    pub fn ghosts_gone(&mut self) {
+        self.own = usize::MAX;
+    }
+
     /// Sums of this rank's own particles onto the nodes (one `T` a node) added up with its
     /// neighbours' on the layers they share, and copied onto the window's nodes from their
     /// owners, as P2G's sums are ([`crate::slabs::Sliced`]): every node of the slab and the
@@ -206,10 +213,14 @@ impl Ranks {
     /// Values of the cells (one a cell, numbered like its lower-corner node) that each rank
     /// finds exactly on its own layers (a cell's value from the particles in it), taken on
     /// every cell of the slab and the window from the rank that owns it: the others zeroed,
-    /// then the sums onto the nodes, which copy the window's layers.
-    pub fn take_owners<const D: usize>(&self, geo: &GridGeometry<D>, values: &mut [f64]) {
-        keep_layers(geo, self.axis, &self.layers(), values);
-        self.comm().add_nodes(&mut [values]);
+    /// then the sums onto the nodes, which copy the window's layers (one exchange for all of
+    /// `arrays`).
+    pub fn take_owners<const D: usize>(&self, geo: &GridGeometry<D>, arrays: &mut [&mut [f64]]) {
+        let layers = self.layers();
+        for values in arrays.iter_mut() {
+            keep_layers(geo, self.axis, &layers, values);
+        }
+        self.comm().add_nodes(arrays);
     }
 
     /// The sum over every rank of `value`.
