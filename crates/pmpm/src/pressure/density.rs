@@ -557,7 +557,7 @@ impl<const D: usize> PositionCorrection<D> {
         ranks: Option<&Ranks>,
     ) {
         let v0 = &ps.volume0;
-        let own = ranks.map_or(ps.len(), |r| r.own_of(ps.len()));
+        let own = super::ranks::own_of(ranks, ps.len());
         scatter_to_nodes(
             &mut self.bands,
             Points {
@@ -592,7 +592,7 @@ impl<const D: usize> PositionCorrection<D> {
     ) {
         let shape = self.shape;
         let (v0, jac) = (&ps.volume0, &ps.jacobian);
-        let own = ranks.map_or(ps.len(), |r| r.own_of(ps.len()));
+        let own = super::ranks::own_of(ranks, ps.len());
         scatter_to_nodes(
             &mut self.bands,
             Points {
@@ -711,7 +711,7 @@ impl<const D: usize> PositionCorrection<D> {
     ) {
         let shape = self.shape;
         let q = &self.potential;
-        let own = ranks.map_or(ps.len(), |r| r.own_of(ps.len()));
+        let own = super::ranks::own_of(ranks, ps.len());
         let (x, half_width) = (&ps.x[..own], &ps.half_width[..own]);
         let (v0, jac) = (&ps.volume0, &ps.jacobian);
         // (grad q)_p = sum_i G_ip q_i, taken where the scatter asks for the particle's value
@@ -850,7 +850,7 @@ struct Stage<'a, const D: usize> {
 /// The node mass below which the correction's free surface reads a node as empty: 1e-9 of
 /// the least particle volume (the volumes are the masses here), over every rank's own.
 fn mass_epsilon(volume0: &[f64], ranks: Option<&Ranks>) -> f64 {
-    let own = ranks.map_or(volume0.len(), |r| r.own_of(volume0.len()));
+    let own = super::ranks::own_of(ranks, volume0.len());
     let least = volume0[..own].iter().copied().fold(f64::INFINITY, f64::min);
     1e-9 * ranks.map_or(least, |r| r.min(least))
 }

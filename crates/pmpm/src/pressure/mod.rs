@@ -1065,7 +1065,7 @@ impl<const D: usize> Projection<D> {
         let (vol, gp) = (&ps.volume0, &self.work.pressure_gradient);
         let force = &mut self.shared.nodal;
         let ranks = self.shared.ranks.as_ref();
-        let own = ranks.map_or(ps.len(), |r| r.own_of(ps.len()));
+        let own = ranks::own_of(ranks, ps.len());
         scatter_to_nodes(
             &mut self.shared.vector_bands,
             Points {

@@ -46,6 +46,12 @@ pub fn keep_layers<const D: usize>(
     });
 }
 
+/// How many of `n` particles a sum added up over the ranks counts: on one process all, over
+/// ranks this rank's own (the ghosts after them are counted by their own ranks).
+pub fn own_of(ranks: Option<&Ranks>, n: usize) -> usize {
+    ranks.map_or(n, |r| r.own.min(n))
+}
+
 /// How the projection of a rank of a run spread over ranks shares its work.
 pub struct Ranks {
     /// The ranks, and the node layers along `axis` each one owns (its slab's).
@@ -191,12 +197,6 @@ impl Ranks {
         self.comm().sum_scalar(own).sqrt()
     }
 
-    /// How many of `n` particles are this rank's own: the ghosts after them count in no sum
-    /// over the particles.
-    pub fn own_of(&self, n: usize) -> usize {
-        self.own.min(n)
-    }
-
     /// The ghosts dropped: every particle is this rank's own until the next are lent.
     pub fn ghosts_gone(&mut self) {
         self.own = usize::MAX;
@@ -242,7 +242,7 @@ pub fn mean_density(mass: &[f64], volume: &[f64], ranks: Option<&Ranks>) -> f64 
     match ranks {
         None => mass.iter().sum::<f64>() / volume.iter().sum::<f64>(),
         Some(r) => {
-            let own = r.own.min(mass.len());
+            let own = own_of(Some(r), mass.len());
             let m = r.sum(mass[..own].iter().sum());
             m / r.sum(volume[..own].iter().sum())
         }
