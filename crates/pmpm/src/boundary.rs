@@ -589,7 +589,7 @@ impl<const D: usize> Boundary<D> {
             if self.released(k) {
                 Self::one_sided(&mut v[i][axis], f, wall[axis]);
             } else if kind.is_wall() {
-                v[i][axis] = wall[axis];
+                store(&mut v[i][axis], wall[axis]);
             }
         }
         // a rigid body's velocity, the components its nodes hold: a node inside it is on no

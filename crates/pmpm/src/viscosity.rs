@@ -155,8 +155,10 @@ pub struct ImplicitViscosity<const D: usize> {
     widths: Vec<f64>,
     coefficient: Vec<f64>,
     /// Per cell (numbered like its lower-corner node): sum_p V_p of the implicit particles in
-    /// it, and their material ([`MIXED`] where they are of several).
-    cell_sums: Vec<(f64, u16)>,
+    /// it, and their material ([`MIXED`] where they are of several; 0 in an empty cell, which
+    /// nothing reads). Both are written only where the fluid is ([`crate::pages`]).
+    cell_volume: Vec<f64>,
+    cell_material: Vec<u16>,
     /// Per point: the material whose law gives a Gauss point's viscosity, [`MIXED`] for a
     /// particle (whose weight is final).
     point_material: Vec<u16>,
@@ -439,11 +441,11 @@ impl<const D: usize> ImplicitViscosity<D> {
         self.sum_cells(ps, geo);
         let (bins, weight) = (&self.bins, &self.particle_weight);
         let open: [bool; 6] = std::array::from_fn(|f| f < 2 * D && boundary.is_open(f));
-        let sums = &self.cell_sums;
+        let (volume, material) = (&self.cell_volume, &self.cell_material);
         // whether cell c is of one material, and it and the 3^D cells around it hold the fluid
         let deep = |c: usize| {
             let idx = geo.multi(c);
-            sums[c].1 != MIXED
+            material[c] != MIXED
                 && (0..3usize.pow(D as u32)).all(|k| {
                     let mut rem = k;
                     let mut cell = [0usize; D];
@@ -457,7 +459,7 @@ impl<const D: usize> ImplicitViscosity<D> {
                         }
                         cell[d] = v as usize;
                     }
-                    sums[geo.canonical(geo.flat(&cell))].0 > 0.0
+                    volume[geo.canonical(geo.flat(&cell))] > 0.0
                 })
         };
         self.points.clear();
@@ -468,7 +470,7 @@ impl<const D: usize> ImplicitViscosity<D> {
         let gauss_weight = geo.h.powi(D as i32) / corners as f64;
         let ranks = self.ranks.as_ref();
         for c in 0..n {
-            if sums[c].0 <= 0.0 {
+            if volume[c] <= 0.0 {
                 continue;
             }
             // over ranks a deep cell's Gauss points are the rank's whose slab holds it; the
@@ -490,7 +492,7 @@ impl<const D: usize> ImplicitViscosity<D> {
                         .push(Vector::<D>::from_fn(|d, _| lower[d] + s[d] * geo.h));
                     self.widths.push(0.0);
                     self.coefficient.push(dt * gauss_weight);
-                    self.point_material.push(sums[c].1);
+                    self.point_material.push(material[c]);
                 }
             } else {
                 for &p in bins.particles(c) {
@@ -525,13 +527,15 @@ impl<const D: usize> ImplicitViscosity<D> {
     /// they are of several); over ranks added up with the neighbours' cells, as their particles
     /// lie in them.
     fn sum_cells(&mut self, ps: &Particles<D>, geo: &GridGeometry<D>) {
+        use crate::pages::{fit, store};
         let n = geo.node_count();
         let (bins, weight) = (&self.bins, &self.particle_weight);
-        self.cell_sums.resize(n, (0.0, MIXED));
-        self.cell_sums
-            .par_iter_mut()
+        fit(&mut self.cell_volume, n);
+        fit(&mut self.cell_material, n);
+        (&mut self.cell_volume, &mut self.cell_material)
+            .into_par_iter()
             .enumerate()
-            .for_each(|(c, sums)| {
+            .for_each(|(c, (volume, code))| {
                 let mut material = None;
                 let mut one = true;
                 let mut v = 0.0;
@@ -542,7 +546,9 @@ impl<const D: usize> ImplicitViscosity<D> {
                         one &= *material.get_or_insert(ps.material[p]) == ps.material[p];
                     }
                 }
-                *sums = (v, material.filter(|_| one).unwrap_or(MIXED));
+                let m = material.filter(|_| one).unwrap_or(MIXED);
+                store(volume, v);
+                store(code, if v > 0.0 { m } else { 0 });
             });
         let Some(slab) = &self.ranks else {
             return;
@@ -553,19 +559,23 @@ impl<const D: usize> ImplicitViscosity<D> {
         // n sum k^2 = (sum k)^2
         let [fill, ranks, codes, squares] = &mut self.cell_fill;
         for a in [&mut *fill, &mut *ranks, &mut *codes, &mut *squares] {
-            a.clear();
+            fit(a, n);
         }
-        for &(v, m) in &self.cell_sums {
-            let (r, k) = if v > 0.0 {
-                (1.0, f64::from(m) + 1.0)
-            } else {
-                (0.0, 0.0)
-            };
-            fill.push(v);
-            ranks.push(r);
-            codes.push(k);
-            squares.push(k * k);
-        }
+        (&mut *fill, &mut *ranks, &mut *codes, &mut *squares)
+            .into_par_iter()
+            .zip(&self.cell_volume)
+            .zip(&self.cell_material)
+            .for_each(|(((f, r, k, k2), &v), &m)| {
+                let (one, code) = if v > 0.0 {
+                    (1.0, f64::from(m) + 1.0)
+                } else {
+                    (0.0, 0.0)
+                };
+                store(f, v);
+                store(r, one);
+                store(k, code);
+                store(k2, code * code);
+            });
         let mut arrays = [
             &mut fill[..],
             &mut ranks[..],
@@ -573,11 +583,16 @@ impl<const D: usize> ImplicitViscosity<D> {
             &mut squares[..],
         ];
         slab.comm.add_nodes(&mut arrays);
-        for (c, sums) in self.cell_sums.iter_mut().enumerate() {
-            let (r, k) = (ranks[c], codes[c]);
-            let one = r > 0.0 && r * squares[c] == k * k;
-            *sums = (fill[c], if one { (k / r - 1.0) as u16 } else { MIXED });
-        }
+        (&mut self.cell_volume, &mut self.cell_material)
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(c, (volume, code))| {
+                let (r, k) = (ranks[c], codes[c]);
+                let one = r > 0.0 && r * squares[c] == k * k;
+                store(volume, fill[c]);
+                let m = if one { (k / r - 1.0) as u16 } else { MIXED };
+                store(code, if r > 0.0 { m } else { 0 });
+            });
     }
 
     /// The inverse diagonal of M + dt K on the free components (0 elsewhere): component d of

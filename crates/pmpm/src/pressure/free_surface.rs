@@ -293,11 +293,12 @@ pub fn volume_fractions<const D: usize>(
     let inv = 1.0 / geo.h.powi(D as i32);
     pages::fit(out, geo.node_count());
     out.par_iter_mut().enumerate().for_each(|(c, f)| {
+        // (a fold from +0: `sum` starts from -0, which an empty cell would keep, and its
+        // store would commit the air's pages)
         let fraction = bins
             .particles(c)
             .iter()
-            .map(|&p| volume[p as usize])
-            .sum::<f64>()
+            .fold(0.0, |sum, &p| sum + volume[p as usize])
             * inv;
         pages::store(f, fraction);
     });
