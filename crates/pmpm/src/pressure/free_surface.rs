@@ -882,10 +882,19 @@ pub(crate) fn surface_normal_stress<const D: usize>(
 /// Work buffers of [`close_bubbles`], kept between steps.
 #[derive(Debug, Default)]
 pub struct FloodFill {
-    seen: Vec<bool>,
+    /// Per cell: [`UNSEEN`], [`SEEN`] or [`LARGE`] (written only where a fill reached, so the
+    /// air's pages stay uncommitted).
+    seen: Vec<u8>,
     component: Vec<usize>,
     stack: Vec<usize>,
 }
+
+/// A cell no fill has reached ([`FloodFill::seen`]).
+const UNSEEN: u8 = 0;
+/// A cell of the fill under way, or of a finished one that was closed.
+const SEEN: u8 = 1;
+/// A low cell of a set too large to close, or that reaches an open face.
+const LARGE: u8 = 2;
 
 /// Closes bubbles: every face-connected set of cells at or below the volume-fraction tolerance
 /// that has at most `max_cells` cells and does not reach an open face gets the fraction 1
@@ -893,6 +902,13 @@ pub struct FloodFill {
 /// between particles that the flow has spread apart, not air: left open, its nodes become
 /// p = 0 nodes inside the fluid, the pressure around them collapses for a step and rebounds
 /// the next.
+///
+/// A fill starts only from a low cell beside a cell above the tolerance (every low set but
+/// that of a grid with no such cell at all holds one), and stops once its set has grown past
+/// `max_cells` cells or reached an open face or a set known to be too large; that set's cells
+/// are marked too large, so a later fill that meets them stops too. The air above the water
+/// is then visited only a few cells deep along the surface, and `out` is written only where it
+/// changes: the fill's work and memory follow the water, not the box.
 pub fn close_bubbles<const D: usize>(
     geo: &GridGeometry<D>,
     fraction: &[f64],
@@ -902,49 +918,74 @@ pub fn close_bubbles<const D: usize>(
     scratch: &mut FloodFill,
     out: &mut Vec<f64>,
 ) {
-    out.clear();
-    out.extend_from_slice(fraction);
-    let inside = |idx: &[usize; D]| (0..D).all(|d| idx[d] >= PAD && idx[d] < PAD + geo.cells[d]);
+    pages::copy(out, fraction);
     let FloodFill {
         seen,
         component,
         stack,
     } = scratch;
-    seen.clear();
-    seen.resize(fraction.len(), false);
+    pages::fit(seen, fraction.len());
+    pages::reset(seen);
+    // the face neighbour of cell `c` along axis `d` (side 0 below, 1 above): Ok(cell), or
+    // Err(whether that face is open) past the grid's edge
+    let neighbour = |c: usize, d: usize, side: usize| -> Result<usize, bool> {
+        let mut idx = geo.multi(c);
+        let mut n = idx[d] as isize + if side == 0 { -1 } else { 1 };
+        if geo.periodic[d] {
+            n = PAD as isize + (n - PAD as isize).rem_euclid(geo.cells[d] as isize);
+        }
+        if n < PAD as isize || n >= (PAD + geo.cells[d]) as isize {
+            return Err(open[2 * d + side]);
+        }
+        idx[d] = n as usize;
+        Ok(geo.flat(&idx))
+    };
+    let low = |c: usize| fraction[c] <= tolerance;
+    let inside = |idx: &[usize; D]| (0..D).all(|d| idx[d] >= PAD && idx[d] < PAD + geo.cells[d]);
+    let beside_fluid =
+        |c: usize| (0..D).any(|d| (0..2).any(|side| neighbour(c, d, side).is_ok_and(|f| !low(f))));
     for start in 0..fraction.len() {
-        if seen[start] || fraction[start] > tolerance || !inside(&geo.multi(start)) {
+        if seen[start] != UNSEEN || !low(start) || !inside(&geo.multi(start)) {
+            continue;
+        }
+        if !beside_fluid(start) {
             continue;
         }
         // flood fill the low cells connected to `start` through faces
         component.clear();
+        stack.clear();
         stack.push(start);
-        seen[start] = true;
-        let mut reaches_open = false;
-        while let Some(c) = stack.pop() {
+        seen[start] = SEEN;
+        let mut large = false;
+        'fill: while let Some(c) = stack.pop() {
             component.push(c);
-            let idx = geo.multi(c);
+            if component.len() > max_cells {
+                large = true;
+                break;
+            }
             for d in 0..D {
-                for (side, step) in [(0usize, -1isize), (1, 1)] {
-                    let mut n = idx[d] as isize + step;
-                    if geo.periodic[d] {
-                        n = PAD as isize + (n - PAD as isize).rem_euclid(geo.cells[d] as isize);
+                for side in 0..2 {
+                    match neighbour(c, d, side) {
+                        Err(true) => large = true,
+                        Err(false) => {}
+                        Ok(f) if seen[f] == LARGE => large = true,
+                        Ok(f) if seen[f] == UNSEEN && low(f) => {
+                            seen[f] = SEEN;
+                            stack.push(f);
+                        }
+                        Ok(_) => {}
                     }
-                    if n < PAD as isize || n >= (PAD + geo.cells[d]) as isize {
-                        reaches_open |= open[2 * d + side];
-                        continue;
-                    }
-                    let mut m = idx;
-                    m[d] = n as usize;
-                    let f = geo.flat(&m);
-                    if !seen[f] && fraction[f] <= tolerance {
-                        seen[f] = true;
-                        stack.push(f);
+                    if large {
+                        break 'fill;
                     }
                 }
             }
         }
-        if !reaches_open && component.len() <= max_cells {
+        if large {
+            for &c in component.iter().chain(stack.iter()) {
+                seen[c] = LARGE;
+            }
+        } else {
             for &c in component.iter() {
                 out[c] = 1.0;
             }
@@ -1369,6 +1410,30 @@ mod tests {
         assert_eq!(at(&out, 5, 3), 0.0);
         close_bubbles(&geo, &vf, 0.3, &[false; 4], 4, &mut ff, &mut out);
         assert_eq!(at(&out, 5, 3), 1.0);
+    }
+
+    #[test]
+    fn a_fill_stopped_by_the_bound_leaves_the_rest_of_its_gap_open() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::zeros(), 1.0, [12, 12]);
+        // water in the lower 6 rows with a gap of 4 cells in a row (row 2, columns 3 to 6),
+        // air above
+        let vf = fractions(&geo, |cx, cy| match (cx, cy) {
+            (3..=6, 2) => 0.0,
+            (_, y) if y < 6 => 1.0,
+            _ => 0.0,
+        });
+        let at = |v: &[f64], cx: usize, cy: usize| v[geo.flat(&[cx + PAD, cy + PAD])];
+        let (mut out, mut ff) = (Vec::new(), FloodFill::default());
+        // the first fill stops after 3 cells; the fill from the fourth meets them and stops
+        close_bubbles(&geo, &vf, 0.3, &[false; 4], 2, &mut ff, &mut out);
+        assert!((3..=6).all(|cx| at(&out, cx, 2) == 0.0));
+        close_bubbles(&geo, &vf, 0.3, &[false; 4], 4, &mut ff, &mut out);
+        assert!((3..=6).all(|cx| at(&out, cx, 2) == 1.0));
+        // the fills reach only the air next to the surface: at most one stopped fill's cells
+        // (max_cells + 1, the stack's at most 2 D more each) per surface cell
+        let reached = ff.seen.iter().filter(|&&s| s != UNSEEN).count();
+        assert!(reached < 6 * 12, "{reached} cells reached");
+        assert!((0..12).all(|cx| ff.seen[geo.flat(&[cx + PAD, 11 + PAD])] == UNSEEN));
     }
 
     #[test]
