@@ -36,6 +36,16 @@ pub trait Comm: Send + Sync {
     fn gather(&self, bytes: &[u8]) -> Vec<Vec<u8>>;
     /// Rank 0's bytes on every rank (what the others passed in is replaced).
     fn broadcast(&self, bytes: &mut Vec<u8>);
+    /// Every rank's bytes on every rank, in rank order, into `all` (whose allocation is kept
+    /// from call to call): an all-gather of pieces of any length.
+    fn all_gather(&self, bytes: &[u8], all: &mut Vec<u8>) {
+        let pieces = self.gather(bytes);
+        all.clear();
+        for piece in &pieces {
+            all.extend_from_slice(piece);
+        }
+        self.broadcast(all);
+    }
     /// Sums of particles onto the grid's node arrays (each the grid's whole length, a node's
     /// components together) over the ranks: after it every node this rank's particles reach
     /// holds every rank's sum. Where each rank holds the whole grid that is [`Comm::sum_all`]
@@ -138,6 +148,10 @@ impl Comm for Serial {
         vec![bytes.to_vec()]
     }
     fn broadcast(&self, _: &mut Vec<u8>) {}
+    fn all_gather(&self, bytes: &[u8], all: &mut Vec<u8>) {
+        all.clear();
+        all.extend_from_slice(bytes);
+    }
     fn swap(&self, _: usize, send: &[f64], recv: &mut [f64]) {
         recv.copy_from_slice(send);
     }
@@ -212,6 +226,9 @@ mod mpi_comm {
         /// The reductions' buffers (the values packed, the sums), kept from step to step: no
         /// allocation in the step loop.
         buffers: Mutex<(Vec<f64>, Vec<f64>)>,
+        /// [`Comm::all_gather`]'s every rank's length, and its pieces' lengths and offsets as
+        /// MPI counts them, kept likewise.
+        pieces: Mutex<(Vec<u64>, Vec<i32>, Vec<i32>)>,
         // dropped last: finalises MPI
         _universe: mpi::environment::Universe,
     }
@@ -246,6 +263,7 @@ mod mpi_comm {
             Some(Ok(Self {
                 world,
                 buffers: Mutex::new((Vec::new(), Vec::new())),
+                pieces: Mutex::new((Vec::new(), Vec::new(), Vec::new())),
                 _universe: universe,
             }))
         }
@@ -342,6 +360,25 @@ mod mpi_comm {
                 at += c as usize;
             }
             out
+        }
+        fn all_gather(&self, bytes: &[u8], all: &mut Vec<u8>) {
+            let mut guard = self.pieces.lock().unwrap_or_else(|e| e.into_inner());
+            let (lengths, counts, displs) = &mut *guard;
+            lengths.resize(self.size(), 0);
+            self.world
+                .all_gather_into(&(bytes.len() as u64), &mut lengths[..]);
+            counts.clear();
+            displs.clear();
+            let mut at = 0;
+            for &n in lengths.iter() {
+                counts.push(n as i32);
+                displs.push(at);
+                at += n as i32;
+            }
+            all.resize(at as usize, 0);
+            let mut partition =
+                mpi::datatype::PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
+            self.world.all_gather_varcount_into(bytes, &mut partition);
         }
         fn broadcast(&self, bytes: &mut Vec<u8>) {
             let root = self.world.process_at_rank(0);
@@ -589,6 +626,9 @@ mod tests {
         assert_eq!(v, [1.0, -2.0]);
         assert!(c.any(true) && !c.any(false));
         assert_eq!(c.gather(b"ab"), vec![b"ab".to_vec()]);
+        let mut all = b"old".to_vec();
+        c.all_gather(b"ab", &mut all);
+        assert_eq!(all, b"ab");
         assert!(c.is_root() && !c.is_distributed());
     }
 }

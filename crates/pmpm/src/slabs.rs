@@ -391,6 +391,9 @@ impl Comm for Sliced {
     fn broadcast(&self, bytes: &mut Vec<u8>) {
         self.world.broadcast(bytes)
     }
+    fn all_gather(&self, bytes: &[u8], all: &mut Vec<u8>) {
+        self.world.all_gather(bytes, all)
+    }
     fn swap(&self, peer: usize, send: &[f64], recv: &mut [f64]) {
         self.world.swap(peer, send, recv)
     }

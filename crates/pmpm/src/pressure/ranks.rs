@@ -65,6 +65,10 @@ pub struct Ranks {
     pub own: usize,
     /// The first row of each rank, and the row count (ranks + 1 bounds).
     starts: Vec<usize>,
+    /// Each rank's row count, and every rank's rows gathered ([`Ranks::join`],
+    /// [`Ranks::gather`]): buffers kept from step to step.
+    counts: Vec<f64>,
+    gathered: std::sync::Mutex<Vec<u8>>,
 }
 
 impl Ranks {
@@ -76,6 +80,8 @@ impl Ranks {
             axis,
             own: usize::MAX,
             starts: Vec::new(),
+            counts: Vec::new(),
+            gathered: std::sync::Mutex::new(Vec::new()),
         }
     }
 
@@ -101,16 +107,15 @@ impl Ranks {
     ) -> usize {
         let comm = self.partition.comm.clone();
         let mine = unknowns.node_of_row.len();
-        let mut all: Vec<u8> = comm
-            .gather(bytemuck::cast_slice(&unknowns.node_of_row))
-            .concat();
-        comm.broadcast(&mut all);
-        let mut counts = vec![0.0; comm.size()];
-        counts[comm.rank()] = mine as f64;
-        comm.sum(&mut counts);
+        let mut all = self.gathered.lock().unwrap_or_else(|e| e.into_inner());
+        comm.all_gather(bytemuck::cast_slice(&unknowns.node_of_row), &mut all);
+        self.counts.clear();
+        self.counts.resize(comm.size(), 0.0);
+        self.counts[comm.rank()] = mine as f64;
+        comm.sum(&mut self.counts);
         self.starts.clear();
         self.starts.push(0);
-        for c in counts {
+        for &c in &self.counts {
             let last = *self.starts.last().unwrap_or(&0);
             self.starts.push(last + c as usize);
         }
@@ -118,6 +123,7 @@ impl Ranks {
         unknowns
             .node_of_row
             .extend(all.chunks_exact(4).map(bytemuck::pod_read_unaligned::<u32>));
+        drop(all);
         crate::pages::reset(&mut unknowns.row_of);
         for (r, &i) in unknowns.node_of_row.iter().enumerate() {
             unknowns.row_of[i as usize] = r as u32 + 1;
@@ -184,8 +190,9 @@ impl Ranks {
     /// Every rank's rows of `x` on every rank (each rank holds its own on entry).
     pub fn gather(&self, x: &mut [f64]) {
         let own = self.own_rows();
-        let mut all: Vec<u8> = self.comm().gather(bytemuck::cast_slice(&x[own])).concat();
-        self.comm().broadcast(&mut all);
+        let mut all = self.gathered.lock().unwrap_or_else(|e| e.into_inner());
+        self.comm()
+            .all_gather(bytemuck::cast_slice(&x[own]), &mut all);
         for (v, b) in x.iter_mut().zip(all.chunks_exact(8)) {
             *v = bytemuck::pod_read_unaligned::<f64>(b);
         }
