@@ -385,9 +385,10 @@ impl<const D: usize> PositionCorrection<D> {
         let (matrix, rhs) = (&mut system.matrix, &mut system.rhs);
         let quadrature = gauss.quadrature(false);
         super::assemble::assemble(geo, shape, &quadrature, &system_rows, 1.0, matrix, rhs);
-        if let Some(r) = ranks.as_ref() {
-            let assembled = system.unknowns.assembled_rows();
-            r.order_slots::<D>(matrix, 2 * shape.width() - 1, assembled);
+        if let Some(r) = ranks.as_mut() {
+            let unknowns = &system.unknowns;
+            r.order_slots::<D>(matrix, 2 * shape.width() - 1, unknowns.assembled_rows());
+            r.swap_beside(geo, unknowns, matrix);
         }
         if self.volumes {
             for (b, &i) in rhs.iter_mut().zip(&system.unknowns.node_of_row) {

@@ -837,9 +837,10 @@ impl<const D: usize> Projection<D> {
             };
             let (matrix, rhs) = (&mut self.shared.system.matrix, &mut self.shared.system.rhs);
             assemble::assemble(geo, shape, &quadrature, &rows, dt, matrix, rhs);
-            if let Some(r) = &self.shared.ranks {
-                let assembled = self.shared.system.unknowns.assembled_rows();
-                r.order_slots::<D>(matrix, 2 * shape.width() - 1, assembled);
+            if let Some(r) = &mut self.shared.ranks {
+                let unknowns = &self.shared.system.unknowns;
+                r.order_slots::<D>(matrix, 2 * shape.width() - 1, unknowns.assembled_rows());
+                r.swap_beside(geo, unknowns, matrix);
             }
         } else {
             assemble::right_hand_side(

@@ -7,7 +7,9 @@
 //! ([`Ranks::add_sums`], [`Ranks::take_owners`]). The
 //! stages read no further than the window from a node of the slab, so on the slab's nodes
 //! every rank finds the free surface, the Gauss points and the rows of the system that one
-//! process finds. Each rank numbers the unknowns of its own node layers; every rank's rows in
+//! process finds. Each rank numbers the unknowns of its own node layers and assembles their
+//! rows; the rows beside its slab that the solver reads come from the neighbours that
+//! assembled them ([`Ranks::swap_beside`]). Every rank's rows in
 //! rank order are the system's (node order, the last axis slowest), the solve is spread over
 //! the ranks ([`crate::linalg::spread`]), and its solution comes back whole to every rank, so
 //! that the stages after it read the pressure on the window's nodes too.
@@ -25,9 +27,11 @@ use rayon::prelude::*;
 use std::ops::Range;
 use std::sync::Arc;
 
-/// Node layers beside a rank's own whose rows it assembles too: the solver reads its
-/// neighbours' rows that far (the multigrid's Galerkin product reads the fine rows of its
-/// coarse rows' children, a layer or two past the slab), well inside the window.
+/// Node layers beside a rank's own whose rows of the matrix it takes from its neighbours
+/// ([`Ranks::swap_beside`]): the solver reads its neighbours' rows that far (the multigrid's
+/// Galerkin product reads the fine rows of its coarse rows' children, a layer or two past
+/// the slab). A rank assembles only its own rows, so the stages that feed the assembly need
+/// see no further past the slab than its own rows read.
 pub const BESIDE: usize = 4;
 
 /// Zero in `values` (one a node, or a cell numbered like its lower-corner node) outside the
@@ -69,6 +73,8 @@ pub struct Ranks {
     /// [`Ranks::gather`]): buffers kept from step to step.
     counts: Vec<f64>,
     gathered: std::sync::Mutex<Vec<u8>>,
+    /// [`Ranks::swap_beside`]'s rows sent and received, kept likewise.
+    swapped: (Vec<f64>, Vec<f64>),
 }
 
 impl Ranks {
@@ -82,6 +88,7 @@ impl Ranks {
             starts: Vec::new(),
             counts: Vec::new(),
             gathered: std::sync::Mutex::new(Vec::new()),
+            swapped: (Vec::new(), Vec::new()),
         }
     }
 
@@ -97,8 +104,8 @@ impl Ranks {
 
     /// After this rank numbered the unknowns of its own layers (with `free` free-surface
     /// nodes there): every rank's rows, in rank order, become the numbering on every rank,
-    /// of which this rank assembles those of its layers and [`BESIDE`] more either side
-    /// (`Unknowns::assembled`). Returns the free-surface nodes of every rank.
+    /// of which this rank assembles those of its layers (`Unknowns::assembled`). Returns the
+    /// free-surface nodes of every rank.
     pub fn join<const D: usize>(
         &mut self,
         geo: &GridGeometry<D>,
@@ -128,20 +135,76 @@ impl Ranks {
         for (r, &i) in unknowns.node_of_row.iter().enumerate() {
             unknowns.row_of[i as usize] = r as u32 + 1;
         }
-        // the rows are in layer order along the cut
         let layers = self.layers();
-        let (lo, hi) = (layers.start.saturating_sub(BESIDE), layers.end + BESIDE);
+        unknowns.assembled = Some(self.rows_on(geo, unknowns, layers));
+        comm.sum_scalar(free as f64) as usize
+    }
+
+    /// The rows of `unknowns` on the node layers `layers` along the cut (the rows are in
+    /// layer order along it).
+    fn rows_on<const D: usize>(
+        &self,
+        geo: &GridGeometry<D>,
+        unknowns: &Unknowns,
+        layers: Range<usize>,
+    ) -> Range<usize> {
         let below = |l: usize| {
             let layer = |&i: &u32| geo.multi(i as usize)[self.axis];
             unknowns.node_of_row.partition_point(|i| layer(i) < l)
         };
-        unknowns.assembled = Some(below(lo)..below(hi));
-        comm.sum_scalar(free as f64) as usize
+        below(layers.start)..below(layers.end.max(layers.start))
+    }
+
+    /// The rows of `a` on the [`BESIDE`] node layers either side of this rank's, columns
+    /// and values, from the neighbours that assembled them (after [`Ranks::order_slots`]):
+    /// the same bits as this rank would assemble there, without the stages' data that far
+    /// past its slab. Two rounds, pairs of neighbours swapping at once, as the slabs' sums.
+    pub fn swap_beside<const D: usize>(
+        &mut self,
+        geo: &GridGeometry<D>,
+        unknowns: &Unknowns,
+        a: &mut EllMatrix,
+    ) {
+        let (rank, size) = (self.comm().rank(), self.comm().size());
+        let (lo, hi) = (self.layers().start, self.layers().end);
+        let w = a.width;
+        for round in 0..2 {
+            let upper = (rank % 2 == 0) == (round == 0);
+            let peer = if upper {
+                Some(rank + 1).filter(|&p| p < size)
+            } else {
+                rank.checked_sub(1)
+            };
+            let Some(peer) = peer else {
+                continue;
+            };
+            let (send, recv) = if upper {
+                (hi.saturating_sub(BESIDE).max(lo)..hi, hi..hi + BESIDE)
+            } else {
+                (lo..(lo + BESIDE).min(hi), lo.saturating_sub(BESIDE)..lo)
+            };
+            let (send, recv) = (
+                self.rows_on(geo, unknowns, send),
+                self.rows_on(geo, unknowns, recv),
+            );
+            let slots = |rows: &Range<usize>| rows.start * w..rows.end * w;
+            let (out, back) = &mut self.swapped;
+            out.clear();
+            out.extend(a.cols[slots(&send)].iter().map(|&c| f64::from(c)));
+            out.extend_from_slice(&a.vals[slots(&send)]);
+            let n = recv.len() * w;
+            back.resize(2 * n, 0.0);
+            self.partition.comm.swap(peer, out, back);
+            for (c, t) in a.cols[slots(&recv)].iter_mut().zip(&back[..n]) {
+                *c = *t as u32;
+            }
+            a.vals[slots(&recv)].copy_from_slice(&back[n..]);
+        }
     }
 
     /// Over ranks cut along another axis than the last, the slots of every row of `a` (an
     /// offset a slot, the first axis fastest: [`super::assemble::assemble`]; the solver reads
-    /// this rank's rows and those of its halo, which it assembled as well) put
+    /// this rank's rows and those of its halo, which come from the neighbours ordered) put
     /// in the axis order of the solver's layout, the cut axis last (`describe_layout`): the
     /// multigrid reads a slot's offset along the layout's axes. Only the rows `rows` this
     /// rank assembled (`Unknowns::assembled`) are touched: the others' pages stay
