@@ -54,6 +54,12 @@ pub trait Comm: Send + Sync {
     fn add_nodes(&self, arrays: &mut [&mut [f64]]) {
         self.sum_all(arrays);
     }
+    /// [`Comm::add_nodes`] for the one sum that is read deeper past a slab than the others
+    /// (the cells' raw volume fractions, which the bubble closing reads `bubble_cells` layers
+    /// deep): copied onto the slabs' whole window, where the others stop short of it.
+    fn add_nodes_wide(&self, arrays: &mut [&mut [f64]]) {
+        self.add_nodes(arrays);
+    }
     /// Sends `send` to rank `peer` and receives as many values from it into `recv` (both
     /// ranks call it with each other as `peer`).
     fn swap(&self, peer: usize, send: &[f64], recv: &mut [f64]);

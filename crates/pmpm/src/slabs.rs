@@ -65,6 +65,8 @@ pub struct Decomposition {
 /// window is larger, and stays open, as it does on one process. The window's own cells take
 /// their closing from their owners (`free_surface::Surface::spread_over`), so the window need
 /// not also hold a gap past each of them (it was `bubble_cells + PROJECTION_REACH` before).
+/// Only the cells' raw volume fractions come onto the whole window; every other sum stops at
+/// the stages' reach ([`Decomposition::sums_window`]).
 pub fn window_of(bubble_cells: usize) -> usize {
     bubble_cells.max(PROJECTION_REACH)
 }
@@ -80,10 +82,14 @@ pub fn window_of(bubble_cells: usize) -> usize {
 /// particles, the ghosts fill the whole window ([`Decomposition::window`]).
 pub const GHOST_LAYERS: usize = 2;
 
-/// The cell layers the projection's stages after the bubble closing read past a node: its
-/// level set (a cell), the cells whose Gauss points reach an unknown (two with the wider
-/// shape functions), their particles' stencils (two), and a layer to spare.
-pub const PROJECTION_REACH: usize = 8;
+/// The cell layers the projection's stages after the bubble closing read past a rank's slab
+/// to assemble its own rows (the neighbours' rows the solver reads come from them:
+/// `pressure::ranks::Ranks::swap_beside`): the columns' level set and kinds (three layers
+/// with the cubic B-spline), the cells whose Gauss points reach an own node (two), the
+/// velocities and level set those points read, and a layer to spare. With the cubic
+/// B-spline, 5 is the least at which a dam break over three ranks agrees with one process to
+/// round-off, 4 is not (`distributed::tests`).
+pub const PROJECTION_REACH: usize = 6;
 
 impl Decomposition {
     /// How many ranks it is cut for.
@@ -203,15 +209,23 @@ impl Decomposition {
         [lower.unwrap_or_default(), upper.unwrap_or_default()]
     }
 
-    /// The window's nodes (flat) that rank `rank` sends its lower and its upper neighbour
-    /// (the `window` node layers of its own slab next to each cut) and those it receives from
-    /// them (as many of theirs past the cut); all empty without a window.
+    /// The layers of the window onto which every sum onto the nodes is copied
+    /// ([`Sliced`]): the stages' reach, [`PROJECTION_REACH`], where the window is wider for
+    /// the bubble closing, which alone reads that far (the cells' raw volume fractions,
+    /// [`Comm::add_nodes_wide`]).
+    pub fn sums_window(&self) -> usize {
+        self.window.min(PROJECTION_REACH)
+    }
+
+    /// The nodes (flat) of a window `w` layers deep that rank `rank` sends its lower and its
+    /// upper neighbour (the `w` node layers of its own slab next to each cut) and those it
+    /// receives from them (as many of theirs past the cut); all empty for `w` = 0.
     pub fn window_nodes<const D: usize>(
         &self,
         geo: &GridGeometry<D>,
         rank: usize,
+        w: usize,
     ) -> [[Vec<u32>; 2]; 2] {
-        let w = self.window;
         let nodes_in = |range: std::ops::Range<usize>| -> Vec<u32> {
             (0..geo.node_count())
                 .filter(|&f| range.contains(&geo.multi(f)[self.axis]))
@@ -340,10 +354,13 @@ pub struct Sliced {
     world: Arc<dyn Comm>,
     /// The nodes shared with the lower and the upper neighbour.
     shared: [Vec<u32>; 2],
-    /// With a window ([`Decomposition::window`]), the nodes sent to and received from the
-    /// lower and the upper neighbour after the sums, so that every node of the window holds
-    /// its owner's sum.
+    /// With a window ([`Decomposition::sums_window`]), the nodes sent to and received from
+    /// the lower and the upper neighbour after the sums, so that every node of the window
+    /// holds its owner's sum.
     window: [[Vec<u32>; 2]; 2],
+    /// Where the whole window ([`Decomposition::window`]) is deeper, its nodes likewise
+    /// ([`Comm::add_nodes_wide`]); else empty.
+    wide: [[Vec<u32>; 2]; 2],
     nodes: usize,
     /// The swap's buffers (out, in), kept from step to step.
     buffers: Mutex<(Vec<f64>, Vec<f64>)>,
@@ -358,7 +375,12 @@ impl Sliced {
     ) -> Self {
         Self {
             shared: d.shared_nodes(geo, world.rank()),
-            window: d.window_nodes(geo, world.rank()),
+            window: d.window_nodes(geo, world.rank(), d.sums_window()),
+            wide: if d.window > d.sums_window() {
+                d.window_nodes(geo, world.rank(), d.window)
+            } else {
+                Default::default()
+            },
             world,
             nodes: geo.node_count(),
             buffers: Mutex::new((Vec::new(), Vec::new())),
@@ -418,6 +440,21 @@ impl Comm for Sliced {
     /// layers they share. With a window, two more rounds copy each neighbour's sums onto the
     /// window's nodes (those of the shared layers come back the same bits).
     fn add_nodes(&self, arrays: &mut [&mut [f64]]) {
+        self.add_over(arrays, &self.window);
+    }
+
+    fn add_nodes_wide(&self, arrays: &mut [&mut [f64]]) {
+        let wide = self
+            .wide
+            .iter()
+            .any(|w| !w[0].is_empty() || !w[1].is_empty());
+        self.add_over(arrays, if wide { &self.wide } else { &self.window });
+    }
+}
+
+impl Sliced {
+    /// [`Comm::add_nodes`], the sums copied onto the nodes of `window`.
+    fn add_over(&self, arrays: &mut [&mut [f64]], window: &[[Vec<u32>; 2]; 2]) {
         let mut guard = self.buffers.lock().unwrap_or_else(|e| e.into_inner());
         let (out, into) = &mut *guard;
         for (upper, peer) in self.rounds() {
@@ -446,7 +483,7 @@ impl Comm for Sliced {
             }
         }
         for (upper, peer) in self.rounds() {
-            let [send, receive] = &self.window[usize::from(upper)];
+            let [send, receive] = &window[usize::from(upper)];
             if send.is_empty() && receive.is_empty() {
                 continue;
             }
@@ -474,9 +511,7 @@ impl Comm for Sliced {
             }
         }
     }
-}
 
-impl Sliced {
     /// The two rounds of a swap with the neighbours, as (whether with the upper one, its
     /// rank): the upper neighbour in the even ranks' first round and the odd ranks' second.
     fn rounds(&self) -> impl Iterator<Item = (bool, usize)> {

@@ -175,7 +175,7 @@ impl Surface {
         // ghosts reach only a layer or two past the slab ([`crate::slabs::GHOST_LAYERS`]), the
         // window's cells further than that hold only what the owners give them
         if let Some(owners) = &self.owners {
-            take_owners(geo, owners, &mut self.fraction);
+            take_owners(geo, owners, &mut self.fraction, true);
         }
         if self.method == FreeSurface::None {
             // the fluid fills its container: every cell full (the cells past the walls are
@@ -211,7 +211,7 @@ impl Surface {
             // over ranks, the window's cells as their owners closed them (after the cracks,
             // which read a cell's face neighbours: those next to the slab are right here)
             if let Some(owners) = &self.owners {
-                take_owners(geo, owners, &mut self.fraction);
+                take_owners(geo, owners, &mut self.fraction, false);
             }
         }
         // the share of each cell the rigid bodies cover
@@ -277,10 +277,21 @@ impl Surface {
 /// larger one reaches past the window into the empty cells beyond, and stays open as it
 /// should. A window cell's gap may reach past the window, where this rank cannot see it, so
 /// its owner's closing is taken: the window need not hold a whole gap past each of its own
-/// cells, only as far as the later stages read.
-fn take_owners<const D: usize>(geo: &GridGeometry<D>, owners: &Owners, fraction: &mut [f64]) {
+/// cells, only as far as the later stages read. So the raw fractions (`wide`) come onto the
+/// whole window, `bubble_cells` layers deep, and the closed ones onto the stages' reach
+/// ([`crate::slabs::Decomposition::sums_window`]).
+fn take_owners<const D: usize>(
+    geo: &GridGeometry<D>,
+    owners: &Owners,
+    fraction: &mut [f64],
+    wide: bool,
+) {
     super::ranks::keep_layers(geo, owners.axis, &owners.layers, fraction);
-    owners.comm.add_nodes(&mut [fraction]);
+    if wide {
+        owners.comm.add_nodes_wide(&mut [fraction]);
+    } else {
+        owners.comm.add_nodes(&mut [fraction]);
+    }
 }
 
 /// Particle volume fraction of every cell: sum of the particles' volumes / h^D.
@@ -1359,8 +1370,11 @@ mod tests {
                 axis: 1,
                 layers: lo..hi,
             };
-            take_owners(&geo, &owners, &mut closed);
-            (alone, closed, view)
+            take_owners(&geo, &owners, &mut closed, false);
+            // the closed fractions come from their owners as deep as the stages read
+            let reach = d.sums_window();
+            let read = lo.saturating_sub(reach)..(hi + reach).min(geo.nodes[1]);
+            (alone, closed, read)
         });
         assert_eq!(
             at(&out[0].0, 5, 25),
