@@ -178,10 +178,22 @@ impl Ranks {
             let Some(peer) = peer else {
                 continue;
             };
+            // each side clipped to the slab of the rank that sends it, so that both agree on
+            // its length however thin a slab is (slabs are at least the window wide, wider
+            // than BESIDE, so nothing is clipped in a run)
+            let cuts = &self.partition.cuts;
             let (send, recv) = if upper {
-                (hi.saturating_sub(BESIDE).max(lo)..hi, hi..hi + BESIDE)
+                let theirs = cuts[peer + 1];
+                (
+                    hi.saturating_sub(BESIDE).max(lo)..hi,
+                    hi..(hi + BESIDE).min(theirs),
+                )
             } else {
-                (lo..(lo + BESIDE).min(hi), lo.saturating_sub(BESIDE)..lo)
+                let theirs = cuts[peer];
+                (
+                    lo..(lo + BESIDE).min(hi),
+                    lo.saturating_sub(BESIDE).max(theirs)..lo,
+                )
             };
             let (send, recv) = (
                 self.rows_on(geo, unknowns, send),
