@@ -225,17 +225,19 @@ impl Ranks {
         if self.axis == D - 1 {
             return;
         }
-        let order: Vec<usize> = (0..D)
-            .filter(|&d| d != self.axis)
-            .chain([self.axis])
-            .collect();
+        // the axes in the layout's order, the cut axis last (on the stack, as the targets: no
+        // allocation a step)
+        let mut order = [self.axis; D];
+        for (k, d) in (0..D).filter(|&d| d != self.axis).enumerate() {
+            order[k] = d;
+        }
         // slot s (offsets o_d, axis d with stride span^d) goes to sum_k o_(order k) span^k
-        let target: Vec<usize> = (0..a.width)
-            .map(|s| {
-                let offset = |d: usize| (s / span.pow(d as u32)) % span;
-                (0..D).map(|k| offset(order[k]) * span.pow(k as u32)).sum()
-            })
-            .collect();
+        let mut target = [0usize; MAX_SLOTS];
+        for (s, t) in target[..a.width].iter_mut().enumerate() {
+            let offset = |d: usize| (s / span.pow(d as u32)) % span;
+            *t = (0..D).map(|k| offset(order[k]) * span.pow(k as u32)).sum();
+        }
+        let target = &target[..a.width];
         let w = a.width;
         let slots = rows.start * w..rows.end * w;
         a.cols[slots.clone()]
