@@ -310,7 +310,13 @@ def test_threads_beyond_the_limit_are_refused():
 
 
 def interrupt_after(seconds: float) -> threading.Timer:
-    """A timer that sends SIGINT to this process, as Ctrl-C does, after `seconds`."""
+    """A timer that sends SIGINT to this process, as Ctrl-C does, after `seconds`.
+
+    Python's own handler (KeyboardInterrupt) is put in place first: a process started in the
+    background of a non-interactive shell (`cmd &`) inherits SIGINT ignored, and Python then
+    leaves it ignored, so the signal would never reach pmpm's loop.
+    """
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(seconds, os.kill, (os.getpid(), signal.SIGINT))
     timer.start()
     return timer
