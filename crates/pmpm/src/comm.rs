@@ -174,6 +174,22 @@ impl Comm for Serial {
     }
 }
 
+/// The two rounds in which rank `rank` of `size` swaps with its neighbours along a line of
+/// slabs, as (whether with the upper one, its rank): the upper neighbour in the even ranks'
+/// first round and the odd ranks' second, so that the pairs (0, 1), (2, 3), ... swap at once,
+/// then (1, 2), (3, 4), ..., and no rank waits on a chain.
+pub fn neighbour_rounds(rank: usize, size: usize) -> impl Iterator<Item = (bool, usize)> {
+    (0..2).filter_map(move |round| {
+        let upper = (rank % 2 == 0) == (round == 0);
+        let peer = if upper {
+            rank.checked_add(1).filter(|&p| p < size)
+        } else {
+            rank.checked_sub(1)
+        };
+        peer.map(|p| (upper, p))
+    })
+}
+
 /// The ranks a run is spread over, as the run's options carry them (shared, and one process by
 /// default).
 #[derive(Clone)]

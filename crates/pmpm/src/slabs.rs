@@ -512,19 +512,9 @@ impl Sliced {
         }
     }
 
-    /// The two rounds of a swap with the neighbours, as (whether with the upper one, its
-    /// rank): the upper neighbour in the even ranks' first round and the odd ranks' second.
+    /// The two rounds of a swap with the neighbours ([`crate::comm::neighbour_rounds`]).
     fn rounds(&self) -> impl Iterator<Item = (bool, usize)> {
-        let (rank, size) = (self.rank(), self.size());
-        (0..2).filter_map(move |round| {
-            let upper = (rank % 2 == 0) == (round == 0);
-            let peer = if upper {
-                rank.checked_add(1).filter(|&p| p < size)
-            } else {
-                rank.checked_sub(1)
-            };
-            peer.map(|p| (upper, p))
-        })
+        crate::comm::neighbour_rounds(self.rank(), self.size())
     }
 }
 

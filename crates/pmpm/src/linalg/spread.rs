@@ -245,20 +245,9 @@ impl Halo {
 
     /// The rows of `a` in `share`'s halo (columns and values), from the neighbours.
     pub fn swap_matrix(&mut self, share: &Share, a: &mut EllMatrix) {
-        let w = a.width;
         for (peer, send, recv) in pairs(self.comm.rank(), share) {
-            let slots = |rows: &Range<usize>| rows.start * w..rows.end * w;
-            self.send.clear();
-            self.send
-                .extend(a.cols[slots(send)].iter().map(|&c| f64::from(c)));
-            self.send.extend_from_slice(&a.vals[slots(send)]);
-            let n = recv.len() * w;
-            self.recv.resize(2 * n, 0.0);
-            self.comm.swap(*peer, &self.send, &mut self.recv);
-            for (c, t) in a.cols[slots(recv)].iter_mut().zip(&self.recv[..n]) {
-                *c = *t as u32;
-            }
-            a.vals[slots(recv)].copy_from_slice(&self.recv[n..]);
+            let buffers = (&mut self.send, &mut self.recv);
+            swap_rows(&*self.comm, *peer, a, (send, recv), buffers);
         }
     }
 
@@ -295,6 +284,30 @@ impl Halo {
             *c = *s as u32;
         }
     }
+}
+
+/// Sends rank `peer` the rows `send` of `a` (columns and values) and puts the rows `recv` it
+/// sends back in their place (both ranks call it with each other as `peer`, each's `recv`
+/// the other's `send`); `buffers` (out, in) are kept by the caller.
+pub fn swap_rows(
+    comm: &dyn Comm,
+    peer: usize,
+    a: &mut EllMatrix,
+    (send, recv): (&Range<usize>, &Range<usize>),
+    (out, back): (&mut Vec<f64>, &mut Vec<f64>),
+) {
+    let w = a.width;
+    let slots = |rows: &Range<usize>| rows.start * w..rows.end * w;
+    out.clear();
+    out.extend(a.cols[slots(send)].iter().map(|&c| f64::from(c)));
+    out.extend_from_slice(&a.vals[slots(send)]);
+    let n = recv.len() * w;
+    back.resize(2 * n, 0.0);
+    comm.swap(peer, out, back);
+    for (c, t) in a.cols[slots(recv)].iter_mut().zip(&back[..n]) {
+        *c = *t as u32;
+    }
+    a.vals[slots(recv)].copy_from_slice(&back[n..]);
 }
 
 /// A slab level's swaps in the order of their two rounds, as the particles' sums swap

@@ -167,17 +167,7 @@ impl Ranks {
     ) {
         let (rank, size) = (self.comm().rank(), self.comm().size());
         let (lo, hi) = (self.layers().start, self.layers().end);
-        let w = a.width;
-        for round in 0..2 {
-            let upper = (rank % 2 == 0) == (round == 0);
-            let peer = if upper {
-                Some(rank + 1).filter(|&p| p < size)
-            } else {
-                rank.checked_sub(1)
-            };
-            let Some(peer) = peer else {
-                continue;
-            };
+        for (upper, peer) in crate::comm::neighbour_rounds(rank, size) {
             // each side clipped to the slab of the rank that sends it, so that both agree on
             // its length however thin a slab is (slabs are at least the window wide, wider
             // than BESIDE, so nothing is clipped in a run)
@@ -199,18 +189,9 @@ impl Ranks {
                 self.rows_on(geo, unknowns, send),
                 self.rows_on(geo, unknowns, recv),
             );
-            let slots = |rows: &Range<usize>| rows.start * w..rows.end * w;
             let (out, back) = &mut self.swapped;
-            out.clear();
-            out.extend(a.cols[slots(&send)].iter().map(|&c| f64::from(c)));
-            out.extend_from_slice(&a.vals[slots(&send)]);
-            let n = recv.len() * w;
-            back.resize(2 * n, 0.0);
-            self.partition.comm.swap(peer, out, back);
-            for (c, t) in a.cols[slots(&recv)].iter_mut().zip(&back[..n]) {
-                *c = *t as u32;
-            }
-            a.vals[slots(&recv)].copy_from_slice(&back[n..]);
+            let comm = &*self.partition.comm;
+            crate::linalg::spread::swap_rows(comm, peer, a, (&send, &recv), (out, back));
         }
     }
 
