@@ -109,6 +109,44 @@ impl<const R: usize, const C: usize> FieldValue for SMatrix<f64, R, C> {
     }
 }
 
+/// One particle field as raw bytes ([`Particles::for_each_stored_field`]): an exchange between
+/// ranks packs the values of the particles that leave, and appends those that arrive, a field
+/// at a time, so that its buffers hold one field of the moving particles, not all of them.
+pub trait ParticleField {
+    /// The bytes of one value.
+    fn value_size(&self) -> usize;
+    /// Appends the values at the places `at` to `out`. No allocation once `out` has room.
+    fn pack(&self, at: &[u32], out: &mut Vec<u8>);
+    /// Keeps the values at the places `kept` (increasing), in that order.
+    fn keep(&mut self, kept: &[u32]);
+    /// Appends the values that [`ParticleField::pack`] wrote into `bytes` on a rank of the same
+    /// run, a whole number of them.
+    fn unpack(&mut self, bytes: &[u8]);
+}
+
+impl<T: bytemuck::Pod> ParticleField for Vec<T> {
+    fn value_size(&self) -> usize {
+        std::mem::size_of::<T>()
+    }
+    fn pack(&self, at: &[u32], out: &mut Vec<u8>) {
+        for &p in at {
+            out.extend_from_slice(bytemuck::bytes_of(&self[p as usize]));
+        }
+    }
+    fn keep(&mut self, kept: &[u32]) {
+        keep(self, kept);
+    }
+    fn unpack(&mut self, bytes: &[u8]) {
+        let size = std::mem::size_of::<T>();
+        debug_assert_eq!(bytes.len() % size, 0);
+        self.extend(
+            bytes
+                .chunks_exact(size)
+                .map(bytemuck::pod_read_unaligned::<T>),
+        );
+    }
+}
+
 /// Declares the particle fields once: the struct of arrays [`Particles`], its reordering and
 /// trimming, and [`FlatParticles`], the same arrays as plain numbers for the checkpoint, with
 /// their length and finiteness checks. A field added here is sorted, checkpointed and checked
@@ -202,38 +240,13 @@ macro_rules! particle_fields {
                 })+
             }
 
-            /// Appends the particles at the places `at` to `out` as raw bytes, field by field
-            /// (the fields the run stores): what [`Particles::unpack`] reads back on a rank of
-            /// the same run. No allocation once `out` has room.
-            pub fn pack(&self, at: &[u32], out: &mut Vec<u8>) {
+            /// Calls `f` on each field the run stores, in the order of [`Particles`], as raw
+            /// bytes ([`ParticleField`]): what the exchanges between ranks of the same run
+            /// send, one field at a time.
+            pub fn for_each_stored_field(&mut self, mut f: impl FnMut(&mut dyn ParticleField)) {
                 $(if self.stored.holds(stringify!($name)) {
-                    for &p in at {
-                        out.extend_from_slice(bytemuck::bytes_of(&self.$name[p as usize]));
-                    }
+                    f(&mut self.$name);
                 })+
-            }
-
-            /// Bytes one particle packs to ([`Particles::pack`]).
-            pub fn packed_size(&self) -> usize {
-                0 $(+ if self.stored.holds(stringify!($name)) {
-                    std::mem::size_of::<$ty>()
-                } else {
-                    0
-                })+
-            }
-
-            /// Appends the particles that [`Particles::pack`] wrote into `bytes`, a whole
-            /// number of them.
-            pub fn unpack(&mut self, bytes: &[u8]) {
-                let n = bytes.len() / self.packed_size();
-                let mut at = 0;
-                $(if self.stored.holds(stringify!($name)) {
-                    let size = std::mem::size_of::<$ty>();
-                    let field = bytes[at..at + n * size].chunks_exact(size);
-                    self.$name.extend(field.map(bytemuck::pod_read_unaligned::<$ty>));
-                    at += n * size;
-                })+
-                debug_assert_eq!(at, bytes.len());
             }
 
             fn append_fields(&mut self, other: &mut Self) {
@@ -532,14 +545,20 @@ mod tests {
         });
         ps.tau = (0..n).map(|_| Matrix::<3>::from_fn(|_, _| rnd())).collect();
         let at = [5u32, 1, 6];
-        let mut bytes = Vec::new();
-        ps.pack(&at, &mut bytes);
-        assert_eq!(bytes.len(), at.len() * ps.packed_size());
         let mut back = Particles::<3> {
             stored: ps.stored,
             ..Particles::default()
         };
-        back.unpack(&bytes);
+        let mut fields = Vec::new();
+        ps.for_each_stored_field(|f| {
+            let mut bytes = Vec::new();
+            f.pack(&at, &mut bytes);
+            assert_eq!(bytes.len(), at.len() * f.value_size());
+            fields.push(bytes);
+        });
+        let mut next = fields.iter();
+        back.for_each_stored_field(|f| f.unpack(next.next().unwrap()));
+        assert!(next.next().is_none());
         let want = ps.pick(&at);
         assert_eq!(back.len(), 3);
         assert!(back.deformation.is_empty());

@@ -556,12 +556,8 @@ impl Migration {
         if !comm.any(moving > 0) {
             return Ok(false);
         }
-        self.send_out(comm, ps, "crossed between ranks")?;
-        if moving > 0 {
-            ps.keep(&self.staying);
-        }
-        // each sender's particles, in rank order
-        self.take_in(ps);
+        // those that stay kept, each sender's particles appended in rank order
+        self.swap(comm, ps, moving > 0, "crossed between ranks")?;
         Ok(true)
     }
 
@@ -591,8 +587,7 @@ impl Migration {
             }
         }
         let own = ps.len();
-        self.send_out(comm, ps, "lie near the ranks' cuts")?;
-        self.take_in(ps);
+        self.swap(comm, ps, false, "lie near the ranks' cuts")?;
         Ok(own)
     }
 
@@ -604,48 +599,54 @@ impl Migration {
         }
     }
 
-    /// Appends the particles received, sender by sender (each sender's are packed field by
-    /// field: [`Particles::pack`]).
-    fn take_in<const D: usize>(&self, ps: &mut Particles<D>) {
-        let mut at = 0;
-        for &n in &self.recv_counts {
-            ps.unpack(&self.recv[at..at + n]);
-            at += n;
-        }
-    }
-
-    /// Packs the particles of `leaving` for each rank and exchanges them (all to all) into
-    /// `recv`; an error (on every rank alike) where one exchange cannot carry them, naming
-    /// the particles sent as those that `what`.
-    fn send_out<const D: usize>(
+    /// Sends the particles of `leaving` to each rank and appends those the others send, in
+    /// the senders' rank order, keeping first only the places `staying` where `keep` holds
+    /// (all to all, one field at a time: [`Particles::for_each_stored_field`]). An error, on
+    /// every rank alike and before anything moves, where one exchange cannot carry them,
+    /// naming the particles sent as those that `what`.
+    fn swap<const D: usize>(
         &mut self,
         comm: &dyn Comm,
-        ps: &Particles<D>,
+        ps: &mut Particles<D>,
+        keep: bool,
         what: &str,
     ) -> Result<(), String> {
-        self.send.clear();
-        self.counts.clear();
-        for l in &self.leaving {
-            let before = self.send.len();
-            ps.pack(l, &mut self.send);
-            self.counts.push(self.send.len() - before);
-        }
-        // MPI's counts are 32-bit: what a rank sends and receives in one step stays under
+        let mut widest = 0;
+        ps.for_each_stored_field(|f| widest = widest.max(f.value_size()));
+        // MPI's counts are 32-bit: what a rank sends and receives of one field stays under
         // 2 GiB (each rank sends at most `largest`, and receives from every other at most that)
-        let largest = comm.max_scalar(self.send.len() as f64);
+        let leaving: usize = self.leaving.iter().map(Vec::len).sum();
+        let largest = comm.max_scalar((leaving * widest) as f64);
         if largest * (comm.size() - 1) as f64 > i32::MAX as f64 {
             return Err(format!(
-                "the particles that {what} in one step are up to {:.1} GB a rank, more than \
-                 one exchange carries (2 GiB): run over more ranks, or with a smaller step",
+                "the particles that {what} in one step are up to {:.1} GB a rank and field, \
+                 more than one exchange carries (2 GiB): run over more ranks, or with a \
+                 smaller step",
                 largest / 1e9
             ));
         }
-        comm.exchange(
-            &self.send,
-            &self.counts,
-            &mut self.recv,
-            &mut self.recv_counts,
-        );
+        let Self {
+            staying,
+            leaving,
+            send,
+            counts,
+            recv,
+            recv_counts,
+        } = self;
+        ps.for_each_stored_field(|field| {
+            send.clear();
+            counts.clear();
+            for l in leaving.iter() {
+                let before = send.len();
+                field.pack(l, send);
+                counts.push(send.len() - before);
+            }
+            comm.exchange(send, counts, recv, recv_counts);
+            if keep {
+                field.keep(staying);
+            }
+            field.unpack(recv);
+        });
         Ok(())
     }
 }
