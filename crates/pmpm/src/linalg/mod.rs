@@ -49,11 +49,11 @@ pub struct EllMatrix {
     pub vals: Slots<f64>,
 }
 
-/// The slots of a matrix: `len` values in use at the front of a buffer of zeroed pages
-/// ([`crate::pages::zeroed`]), which commit memory only where a row is written. Over ranks the
-/// matrix has the whole system's rows on every rank, and each rank writes only its own and
-/// those beside them, so its memory follows its share. Reads as the slice of the values in
-/// use.
+/// The slots of a matrix, or a vector of the multigrid's or the spread solve's with a value
+/// (or several) per row: `len` values in use at the front of a buffer of zeroed pages
+/// ([`crate::pages::zeroed`]), which commit memory only where a row is written. Over ranks these
+/// have the whole system's rows on every rank, and each rank writes only its own and those
+/// beside them, so its memory follows its share. Reads as the slice of the values in use.
 #[derive(Debug, Clone, Default)]
 pub struct Slots<T> {
     buf: Vec<T>,
@@ -63,7 +63,8 @@ pub struct Slots<T> {
 impl<T: bytemuck::Zeroable> Slots<T> {
     /// `len` values in use: those already held are kept, and a buffer too short is replaced by
     /// zeroed pages for a quarter more (the rows' count moves a little from step to step), the
-    /// values it held dropped (an assembly fills every row it reads).
+    /// values it held dropped (what reads a row writes it first: the assembly, the levels'
+    /// links, the solves).
     fn fit(&mut self, len: usize) {
         if len > self.buf.len() {
             self.buf = crate::pages::zeroed(len + len / 4);
@@ -402,8 +403,8 @@ pub enum SolveError {
 pub struct Pcg {
     preconditioner: Box<dyn Preconditioner>,
     work: CgWork<f64>,
-    /// Its work over ranks ([`spread`]).
-    spread: spread::SpreadWork,
+    /// Its work over ranks ([`spread`]), boxed: a one-process solve leaves it empty.
+    spread: Box<spread::SpreadWork>,
 }
 
 /// A system's matrix as the conjugate gradient's operator, the constant removed where the

@@ -20,7 +20,7 @@
 //! have come ([`super::spread`]); on one process a level's share is every row.
 
 use super::spread::{Halo, Share};
-use super::{EllMatrix, Preconditioner, System};
+use super::{EllMatrix, Preconditioner, Slots, System};
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -125,15 +125,15 @@ impl GridLayout {
 struct Level {
     layout: GridLayout,
     a: EllMatrix,
-    inverse_diagonal: Vec<f64>,
+    inverse_diagonal: Slots<f64>,
     /// Row of each node (u32::MAX: not an unknown).
     row_of: Vec<u32>,
     /// Per row of the finer level, its 2^D parents here and their weights (weight 0: unused).
-    parents: Vec<u32>,
-    parent_weights: Vec<f64>,
+    parents: Slots<u32>,
+    parent_weights: Slots<f64>,
     /// Per row here, its 3^D children on the finer level and their weights.
-    children: Vec<u32>,
-    child_weights: Vec<f64>,
+    children: Slots<u32>,
+    child_weights: Slots<f64>,
     /// The Galerkin product's slot table ([`slot_table`]), and the dimension and the fine and
     /// coarse reaches it was built for (it depends on nothing else).
     slots: Vec<u32>,
@@ -149,8 +149,8 @@ struct Level {
 #[derive(Debug, Default)]
 pub struct Multigrid {
     fine_n: usize,
-    fine_inverse_diagonal: Vec<f64>,
-    fine_r: Vec<f64>,
+    fine_inverse_diagonal: Slots<f64>,
+    fine_r: Slots<f64>,
     fine_row_of: Vec<u32>,
     levels: Vec<Level>,
     used: usize,
@@ -192,8 +192,8 @@ impl Multigrid {
 }
 
 /// D^-1 on the rows `rows` (those a rank smooths; the others are left as they were).
-fn inverse_diagonal(a: &EllMatrix, d: &mut Vec<f64>, rows: Range<usize>) {
-    d.resize(a.n, 0.0);
+fn inverse_diagonal(a: &EllMatrix, d: &mut Slots<f64>, rows: Range<usize>) {
+    d.fit(a.n);
     d[rows.clone()]
         .par_iter_mut()
         .enumerate()
@@ -337,8 +337,8 @@ fn link_parents(
 ) {
     let corners = 1usize << lay.dim;
     let n_fine = fine_layout.index.len();
-    coarse.parents.resize(n_fine * corners, 0);
-    coarse.parent_weights.resize(n_fine * corners, 0.0);
+    coarse.parents.fit(n_fine * corners);
+    coarse.parent_weights.fit(n_fine * corners);
     let row_of = &coarse.row_of;
     let slots = rows.start * corners..rows.end * corners;
     coarse.parents[slots.clone()]
@@ -372,8 +372,8 @@ fn link_children(
     let dim = lay.dim;
     let n_coarse = lay.index.len();
     let kids = 3usize.pow(dim as u32);
-    coarse.children.resize(n_coarse * kids, 0);
-    coarse.child_weights.resize(n_coarse * kids, 0.0);
+    coarse.children.fit(n_coarse * kids);
+    coarse.child_weights.fit(n_coarse * kids);
     let own = coarse.share.owned.clone();
     let slots = own.start * kids..own.end * kids;
     coarse.children[slots.clone()]
@@ -757,7 +757,7 @@ impl Preconditioner for Multigrid {
         self.spread_over(system);
         let span = self.fine_share.span.clone();
         inverse_diagonal(a, &mut self.fine_inverse_diagonal, span);
-        self.fine_r.resize(a.n, 0.0);
+        self.fine_r.fit(a.n);
         self.used = self.coarsen_all(a, layout);
         self.factorise_coarsest(a);
     }

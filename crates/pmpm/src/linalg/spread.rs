@@ -22,7 +22,7 @@
 //! the fluid's node rows and needs only the halo exchange the particles' sums already use.
 
 use super::{dot, EllMatrix, Operator, Pcg, Precondition, Preconditioner};
-use super::{SolveError, SolveParams, SolveStats, System};
+use super::{Slots, SolveError, SolveParams, SolveStats, System};
 use crate::comm::Comm;
 use rayon::prelude::*;
 use std::ops::Range;
@@ -326,7 +326,7 @@ struct SpreadOperator<'a> {
     share: &'a Share,
     halo: &'a mut Halo,
     /// x on every row (this rank's and its halo valid).
-    full: &'a mut Vec<f64>,
+    full: &'a mut [f64],
     singular: bool,
 }
 
@@ -356,8 +356,8 @@ struct SpreadPrecondition<'a> {
     preconditioner: &'a mut dyn Preconditioner,
     matrix: &'a EllMatrix,
     own: Range<usize>,
-    r: &'a mut Vec<f64>,
-    z: &'a mut Vec<f64>,
+    r: &'a mut [f64],
+    z: &'a mut [f64],
 }
 
 impl Precondition<f64> for SpreadPrecondition<'_> {
@@ -372,9 +372,11 @@ impl Precondition<f64> for SpreadPrecondition<'_> {
 #[derive(Default)]
 pub(super) struct SpreadWork {
     halo: Option<Halo>,
-    full: Vec<f64>,
-    r: Vec<f64>,
-    z: Vec<f64>,
+    /// Whole-system vectors of which a rank writes and reads its own rows and their halo:
+    /// zeroed pages, so that the rest stays uncommitted.
+    full: Slots<f64>,
+    r: Slots<f64>,
+    z: Slots<f64>,
 }
 
 /// [`Pcg`]'s solve of a system spread over ranks: each rank runs the conjugate gradient on its
@@ -415,7 +417,7 @@ pub(super) fn solve(
     } = pcg;
     let halo = Halo::over(&mut spread.halo, &partition.comm);
     for v in [&mut spread.full, &mut spread.r, &mut spread.z] {
-        v.resize(a.n, 0.0);
+        v.fit(a.n);
     }
     work.resize(own.len());
     if setup {
