@@ -1451,11 +1451,24 @@ impl<const D: usize> GaussPoints<D> {
         self.volume_over_density.clear();
         let corners = 1usize << D;
         let cell_volume = geo.h.powi(D as i32);
+        // over ranks, only the cells whose points reach a row this rank assembles, those of its
+        // own layers (`assemble::cell_range`): the rest of the window adds to no row here
+        let reach = ranks.map(|r| {
+            let (layers, n) = (r.layers(), geo.nodes[r.axis]);
+            let first = assemble::cell_range(shape, layers.start, n).0;
+            let last = assemble::cell_range(shape, layers.end.saturating_sub(1), n).1;
+            (r.axis, first..=last)
+        });
         for (c, &phi) in fraction.iter().enumerate() {
             let w = phi.min(1.0);
             let idx = geo.multi(c);
             if (0..D).any(|d| idx[d] < PAD || idx[d] >= PAD + geo.cells[d]) {
                 continue;
+            }
+            if let Some((axis, cells)) = &reach {
+                if !cells.contains(&idx[*axis]) {
+                    continue;
+                }
             }
             // the matrix's share of the cell: its fraction of fluid, or with a level set the
             // whole cell less what a rigid body covers (the ghost-fluid condition needs the
