@@ -450,9 +450,8 @@ impl<const D: usize> PositionCorrection<D> {
         if let Some(r) = stage.ranks {
             r.gather(solution);
         }
-        for (r, &i) in system.unknowns.node_of_row.iter().enumerate() {
-            self.potential[i as usize] = solution[r];
-        }
+        let potential = &mut self.potential;
+        super::ranks::scatter_rows(stage.ranks, geo, &system.unknowns, solution, potential);
         geo.copy_to_images(&mut self.potential);
         if let Some(phi) = stage.phi {
             let kinds = stage.kinds;

@@ -947,14 +947,9 @@ impl<const D: usize> Projection<D> {
     /// solids' extension), and p^{n+1} kept for the next step.
     fn store_pressure(&mut self, geo: &crate::grid::GridGeometry<D>, first: bool, level_set: bool) {
         {
-            let (sol, node_of_row) = (
-                &self.shared.solution,
-                &self.shared.system.unknowns.node_of_row,
-            );
+            let (sol, unknowns) = (&self.shared.solution, &self.shared.system.unknowns);
             let dp = &mut self.node_pressure;
-            for (r, &i) in node_of_row.iter().enumerate() {
-                dp[i as usize] = sol[r];
-            }
+            ranks::scatter_rows(self.shared.ranks.as_ref(), geo, unknowns, sol, dp);
             geo.copy_to_images(dp);
             if level_set {
                 // the free-surface nodes take the ghost values that put p = 0 on the surface

@@ -50,6 +50,31 @@ pub fn keep_layers<const D: usize>(
     });
 }
 
+/// The solution `x` (every rank's rows, after [`Ranks::gather`]) on the nodes of its rows:
+/// over ranks only those within [`crate::slabs::PROJECTION_REACH`] layers of this rank's own,
+/// as far as the stages read past the slab, and zero farther out ([`keep_layers`]), so that
+/// a rank writes its share of the fluid's nodes, not all of them.
+pub fn scatter_rows<const D: usize>(
+    ranks: Option<&Ranks>,
+    geo: &GridGeometry<D>,
+    unknowns: &Unknowns,
+    x: &[f64],
+    nodes: &mut [f64],
+) {
+    let rows = match ranks {
+        None => 0..unknowns.node_of_row.len(),
+        Some(r) => {
+            let (own, reach) = (r.layers(), crate::slabs::PROJECTION_REACH);
+            let layers = own.start.saturating_sub(reach)..own.end + reach;
+            keep_layers(geo, r.axis, &layers, nodes);
+            r.rows_on(geo, unknowns, layers)
+        }
+    };
+    for r in rows {
+        nodes[unknowns.node_of_row[r] as usize] = x[r];
+    }
+}
+
 /// How many of `n` particles a sum added up over the ranks counts: on one process all, over
 /// ranks this rank's own (the ghosts after them are counted by their own ranks).
 pub fn own_of(ranks: Option<&Ranks>, n: usize) -> usize {
