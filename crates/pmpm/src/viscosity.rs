@@ -175,9 +175,10 @@ pub struct ImplicitViscosity<const D: usize> {
     cg: CgWork<Vector<D>>,
     /// Over ranks with the grid in slabs, this rank's share; `None` on one process.
     ranks: Option<Slab>,
-    /// Over ranks, the cells' fill and material as sums onto the nodes
-    /// ([`ImplicitViscosity::sum_cells`]).
-    cell_fill: [Vec<f64>; 4],
+    /// Over ranks, the cells' material as sums onto the nodes: the ranks with particles in
+    /// a cell, and the sums of their codes and squared codes ([`ImplicitViscosity::sum_cells`];
+    /// the volume is summed in place).
+    cell_ranks: [Vec<f64>; 3],
 }
 
 /// A rank's share of the solve: the ranks, and the cell (node) layers along `axis` it owns.
@@ -557,39 +558,37 @@ impl<const D: usize> ImplicitViscosity<D> {
         // cut holds particles of both ranks): for each rank with particles in the cell, 1,
         // k = m + 1 and k^2 (MIXED + 1 for several); the ranks agree on one material where
         // n sum k^2 = (sum k)^2
-        let [fill, ranks, codes, squares] = &mut self.cell_fill;
-        for a in [&mut *fill, &mut *ranks, &mut *codes, &mut *squares] {
+        let [ranks, codes, squares] = &mut self.cell_ranks;
+        for a in [&mut *ranks, &mut *codes, &mut *squares] {
             fit(a, n);
         }
-        (&mut *fill, &mut *ranks, &mut *codes, &mut *squares)
+        (&mut *ranks, &mut *codes, &mut *squares)
             .into_par_iter()
             .zip(&self.cell_volume)
             .zip(&self.cell_material)
-            .for_each(|(((f, r, k, k2), &v), &m)| {
+            .for_each(|(((r, k, k2), &v), &m)| {
                 let (one, code) = if v > 0.0 {
                     (1.0, f64::from(m) + 1.0)
                 } else {
                     (0.0, 0.0)
                 };
-                store(f, v);
                 store(r, one);
                 store(k, code);
                 store(k2, code * code);
             });
         let mut arrays = [
-            &mut fill[..],
+            &mut self.cell_volume[..],
             &mut ranks[..],
             &mut codes[..],
             &mut squares[..],
         ];
         slab.comm.add_nodes(&mut arrays);
-        (&mut self.cell_volume, &mut self.cell_material)
-            .into_par_iter()
+        self.cell_material
+            .par_iter_mut()
             .enumerate()
-            .for_each(|(c, (volume, code))| {
+            .for_each(|(c, code)| {
                 let (r, k) = (ranks[c], codes[c]);
                 let one = r > 0.0 && r * squares[c] == k * k;
-                store(volume, fill[c]);
                 let m = if one { (k / r - 1.0) as u16 } else { MIXED };
                 store(code, if r > 0.0 { m } else { 0 });
             });
