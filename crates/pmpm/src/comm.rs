@@ -190,6 +190,27 @@ pub fn neighbour_rounds(rank: usize, size: usize) -> impl Iterator<Item = (bool,
     })
 }
 
+/// The most values one [`Comm::swap`] of a long exchange carries: a longer one goes in pieces
+/// ([`pieces`]), so that its buffers stay at 2 MiB each way however large the face between
+/// two slabs grows.
+pub const PIECE: usize = 1 << 18;
+
+/// The pieces of a swap of `send` items out and `recv` items in, `width` values an item, as
+/// the ranges of the items each piece sends and receives: at most [`PIECE`] values each way,
+/// and as many pieces on both ranks (each one's `send` is the other's `recv`).
+pub fn pieces(
+    send: usize,
+    recv: usize,
+    width: usize,
+) -> impl Iterator<Item = (std::ops::Range<usize>, std::ops::Range<usize>)> {
+    let per = (PIECE / width.max(1)).max(1);
+    let count = send.div_ceil(per).max(recv.div_ceil(per));
+    (0..count).map(move |k| {
+        let part = |n: usize| (k * per).min(n)..((k + 1) * per).min(n);
+        (part(send), part(recv))
+    })
+}
+
 /// The ranks a run is spread over, as the run's options carry them (shared, and one process by
 /// default).
 #[derive(Clone)]
@@ -621,6 +642,30 @@ pub(crate) mod threads {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_pieces_of_a_swap_cover_both_ways_and_agree_on_both_ranks() {
+        for (send, recv, width) in [(0, 0, 9), (0, 3, 9), (10_000, 5_000, 54), (1, 1, PIECE * 2)] {
+            let mine: Vec<_> = pieces(send, recv, width).collect();
+            let theirs: Vec<_> = pieces(recv, send, width).collect();
+            assert_eq!(mine.len(), theirs.len());
+            for ((s, r), (their_s, their_r)) in mine.iter().zip(&theirs) {
+                // what one rank sends in a piece, the other receives in the same piece
+                assert_eq!((s.clone(), r.clone()), (their_r.clone(), their_s.clone()));
+                assert!(s.len().max(r.len()) * width <= PIECE.max(width));
+            }
+            type Piece = (std::ops::Range<usize>, std::ops::Range<usize>);
+            let ends = |way: fn(&Piece) -> &std::ops::Range<usize>| {
+                mine.iter().map(way).fold(0, |at, piece| {
+                    assert_eq!(piece.start, at);
+                    piece.end
+                })
+            };
+            assert_eq!(ends(|p| &p.0), send);
+            assert_eq!(ends(|p| &p.1), recv);
+        }
+        assert_eq!(pieces(10_000, 5_000, 54).count(), 3);
+    }
 
     #[test]
     fn the_shares_cover_every_item_once_and_differ_by_at_most_one() {

@@ -453,61 +453,63 @@ impl Comm for Sliced {
 }
 
 impl Sliced {
-    /// [`Comm::add_nodes`], the sums copied onto the nodes of `window`.
+    /// [`Comm::add_nodes`], the sums copied onto the nodes of `window`. Each swap goes in
+    /// pieces ([`crate::comm::pieces`]), a piece all the arrays' values at a run of the nodes.
     fn add_over(&self, arrays: &mut [&mut [f64]], window: &[[Vec<u32>; 2]; 2]) {
         let mut guard = self.buffers.lock().unwrap_or_else(|e| e.into_inner());
         let (out, into) = &mut *guard;
+        let width: usize = arrays.iter().map(|a| a.len() / self.nodes).sum();
         for (upper, peer) in self.rounds() {
             let shared = &self.shared[usize::from(upper)];
-            out.clear();
-            for a in arrays.iter() {
-                let k = a.len() / self.nodes;
-                for &i in shared {
-                    out.extend_from_slice(&a[i as usize * k..(i as usize + 1) * k]);
-                }
-            }
-            into.resize(out.len(), 0.0);
-            self.world.swap(peer, out, into);
-            let mut at = 0;
-            for a in arrays.iter_mut() {
-                let k = a.len() / self.nodes;
-                for &i in shared {
-                    for v in &mut a[i as usize * k..(i as usize + 1) * k] {
-                        let theirs = into[at];
-                        if theirs != 0.0 {
-                            *v += theirs;
+            for (piece, _) in crate::comm::pieces(shared.len(), shared.len(), width) {
+                let nodes = &shared[piece];
+                self.pack(arrays, nodes, out);
+                into.resize(out.len(), 0.0);
+                self.world.swap(peer, out, into);
+                let mut at = 0;
+                for a in arrays.iter_mut() {
+                    let k = a.len() / self.nodes;
+                    for &i in nodes {
+                        for v in &mut a[i as usize * k..(i as usize + 1) * k] {
+                            let theirs = into[at];
+                            if theirs != 0.0 {
+                                *v += theirs;
+                            }
+                            at += 1;
                         }
-                        at += 1;
                     }
                 }
             }
         }
         for (upper, peer) in self.rounds() {
             let [send, receive] = &window[usize::from(upper)];
-            if send.is_empty() && receive.is_empty() {
-                continue;
-            }
-            out.clear();
-            for a in arrays.iter() {
-                let k = a.len() / self.nodes;
-                for &i in send {
-                    out.extend_from_slice(&a[i as usize * k..(i as usize + 1) * k]);
-                }
-            }
-            let wanted: usize = arrays.iter().map(|a| a.len() / self.nodes).sum();
-            into.resize(wanted * receive.len(), 0.0);
-            self.world.swap(peer, out, into);
-            let mut at = 0;
-            for a in arrays.iter_mut() {
-                let k = a.len() / self.nodes;
-                for &i in receive {
-                    for v in &mut a[i as usize * k..(i as usize + 1) * k] {
-                        // (written only where it changes: an empty node's page stays
-                        // uncommitted)
-                        crate::pages::store(v, into[at]);
-                        at += 1;
+            for (sent, received) in crate::comm::pieces(send.len(), receive.len(), width) {
+                self.pack(arrays, &send[sent], out);
+                into.resize(width * received.len(), 0.0);
+                self.world.swap(peer, out, into);
+                let mut at = 0;
+                for a in arrays.iter_mut() {
+                    let k = a.len() / self.nodes;
+                    for &i in &receive[received.clone()] {
+                        for v in &mut a[i as usize * k..(i as usize + 1) * k] {
+                            // (written only where it changes: an empty node's page stays
+                            // uncommitted)
+                            crate::pages::store(v, into[at]);
+                            at += 1;
+                        }
                     }
                 }
+            }
+        }
+    }
+
+    /// The arrays' values at `nodes` into `out`, array by array.
+    fn pack(&self, arrays: &[&mut [f64]], nodes: &[u32], out: &mut Vec<f64>) {
+        out.clear();
+        for a in arrays {
+            let k = a.len() / self.nodes;
+            for &i in nodes {
+                out.extend_from_slice(&a[i as usize * k..(i as usize + 1) * k]);
             }
         }
     }

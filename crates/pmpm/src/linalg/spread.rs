@@ -288,7 +288,9 @@ impl Halo {
 
 /// Sends rank `peer` the rows `send` of `a` (columns and values) and puts the rows `recv` it
 /// sends back in their place (both ranks call it with each other as `peer`, each's `recv`
-/// the other's `send`); `buffers` (out, in) are kept by the caller.
+/// the other's `send`), in pieces ([`crate::comm::pieces`]); `buffers` (out, in) are kept by
+/// the caller. `send` and `recv` do not overlap: a piece's rows received could be rows that a
+/// later piece sends.
 pub fn swap_rows(
     comm: &dyn Comm,
     peer: usize,
@@ -297,17 +299,25 @@ pub fn swap_rows(
     (out, back): (&mut Vec<f64>, &mut Vec<f64>),
 ) {
     let w = a.width;
-    let slots = |rows: &Range<usize>| rows.start * w..rows.end * w;
-    out.clear();
-    out.extend(a.cols[slots(send)].iter().map(|&c| f64::from(c)));
-    out.extend_from_slice(&a.vals[slots(send)]);
-    let n = recv.len() * w;
-    back.resize(2 * n, 0.0);
-    comm.swap(peer, out, back);
-    for (c, t) in a.cols[slots(recv)].iter_mut().zip(&back[..n]) {
-        *c = *t as u32;
+    let slots =
+        |first: usize, rows: &Range<usize>| (first + rows.start) * w..(first + rows.end) * w;
+    for (sent, received) in crate::comm::pieces(send.len(), recv.len(), 2 * w) {
+        out.clear();
+        out.extend(
+            a.cols[slots(send.start, &sent)]
+                .iter()
+                .map(|&c| f64::from(c)),
+        );
+        out.extend_from_slice(&a.vals[slots(send.start, &sent)]);
+        let n = received.len() * w;
+        back.resize(2 * n, 0.0);
+        comm.swap(peer, out, back);
+        let into = slots(recv.start, &received);
+        for (c, t) in a.cols[into.clone()].iter_mut().zip(&back[..n]) {
+            *c = *t as u32;
+        }
+        a.vals[into].copy_from_slice(&back[n..]);
     }
-    a.vals[slots(recv)].copy_from_slice(&back[n..]);
 }
 
 /// A slab level's swaps in the order of their two rounds, as the particles' sums swap
@@ -458,6 +468,47 @@ mod tests {
     use super::*;
     use crate::comm::threads;
     use crate::linalg::{GridLayout, Multigrid};
+
+    /// A swap of more values than one piece carries ([`crate::comm::PIECE`]) goes in several
+    /// and puts every row in its place: two ranks of a matrix 27 slots wide, each sending the
+    /// other a different number of rows (10,000 rows, 3 pieces; 5,000, 2 pieces).
+    #[test]
+    fn rows_longer_than_a_piece_swap_in_pieces() {
+        let (w, n) = (27, 16_000);
+        let value = |rank: usize, k: usize| ((k + rank * 7) as u32, (k * 3 + rank) as f64 * 0.5);
+        // (rows sent, rows received)
+        let plan = |rank: usize| {
+            if rank == 0 {
+                (0..10_000, 11_000..16_000)
+            } else {
+                (0..5_000, 6_000..16_000)
+            }
+        };
+        let out = threads::run(2, |comm| {
+            let rank = comm.rank();
+            let mut a = EllMatrix::default();
+            a.reshape(n, w);
+            for k in 0..n * w {
+                (a.cols[k], a.vals[k]) = value(rank, k);
+            }
+            let (send, recv) = plan(rank);
+            let buffers = (&mut Vec::new(), &mut Vec::new());
+            swap_rows(&*comm, 1 - rank, &mut a, (&send, &recv), buffers);
+            (a.cols.to_vec(), a.vals.to_vec())
+        });
+        for (rank, (cols, vals)) in out.iter().enumerate() {
+            let (recv, (theirs, _)) = (plan(rank).1, plan(1 - rank));
+            for k in 0..n * w {
+                let row = k / w;
+                let want = if recv.contains(&row) {
+                    value(1 - rank, (row - recv.start + theirs.start) * w + k % w)
+                } else {
+                    value(rank, k)
+                };
+                assert_eq!((cols[k], vals[k]), want, "rank {rank}, slot {k}");
+            }
+        }
+    }
 
     /// The multilinear-element Laplacian (h = 1) on n^D cells, unknowns at the interior nodes
     /// (p = 0 on the boundary) numbered in node order, nodes at padded indices 2 ..= n + 2.
