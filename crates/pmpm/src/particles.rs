@@ -110,8 +110,9 @@ impl<const R: usize, const C: usize> FieldValue for SMatrix<f64, R, C> {
 }
 
 /// One particle field as raw bytes ([`Particles::for_each_stored_field`]): an exchange between
-/// ranks packs the values of the particles that leave, and appends those that arrive, a field
-/// at a time, so that its buffers hold one field of the moving particles, not all of them.
+/// ranks packs the values of the particles that leave, and puts those that arrive in their
+/// places, a field at a time, so that its buffers hold one field of the moving particles, not
+/// all of them.
 pub trait ParticleField {
     /// The bytes of one value.
     fn value_size(&self) -> usize;
@@ -119,9 +120,13 @@ pub trait ParticleField {
     fn pack(&self, at: &[u32], out: &mut Vec<u8>);
     /// Keeps the values at the places `kept` (increasing), in that order.
     fn keep(&mut self, kept: &[u32]);
-    /// Appends the values that [`ParticleField::pack`] wrote into `bytes` on a rank of the same
-    /// run, a whole number of them.
-    fn unpack(&mut self, bytes: &[u8]);
+    /// The number of values.
+    fn count(&self) -> usize;
+    /// Appends `n` zero values, for [`ParticleField::unpack_at`] to fill.
+    fn grow(&mut self, n: usize);
+    /// Puts the values that [`ParticleField::pack`] wrote into `bytes` on a rank of the same
+    /// run, a whole number of them, at the places from `at` on.
+    fn unpack_at(&mut self, at: usize, bytes: &[u8]);
 }
 
 impl<T: bytemuck::Pod> ParticleField for Vec<T> {
@@ -136,14 +141,21 @@ impl<T: bytemuck::Pod> ParticleField for Vec<T> {
     fn keep(&mut self, kept: &[u32]) {
         keep(self, kept);
     }
-    fn unpack(&mut self, bytes: &[u8]) {
+    fn count(&self) -> usize {
+        self.len()
+    }
+    fn grow(&mut self, n: usize) {
+        self.resize(self.len() + n, T::zeroed());
+    }
+    fn unpack_at(&mut self, at: usize, bytes: &[u8]) {
         let size = std::mem::size_of::<T>();
         debug_assert_eq!(bytes.len() % size, 0);
-        self.extend(
-            bytes
-                .chunks_exact(size)
-                .map(bytemuck::pod_read_unaligned::<T>),
-        );
+        let values = bytes
+            .chunks_exact(size)
+            .map(bytemuck::pod_read_unaligned::<T>);
+        for (v, value) in self[at..].iter_mut().zip(values) {
+            *v = value;
+        }
     }
 }
 
@@ -557,7 +569,10 @@ mod tests {
             fields.push(bytes);
         });
         let mut next = fields.iter();
-        back.for_each_stored_field(|f| f.unpack(next.next().unwrap()));
+        back.for_each_stored_field(|f| {
+            f.grow(at.len());
+            f.unpack_at(0, next.next().unwrap());
+        });
         assert!(next.next().is_none());
         let want = ps.pick(&at);
         assert_eq!(back.len(), 3);

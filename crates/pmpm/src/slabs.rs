@@ -530,6 +530,8 @@ pub struct Migration {
     counts: Vec<usize>,
     recv: Vec<u8>,
     recv_counts: Vec<usize>,
+    /// Where each sender's particles start among those that arrive.
+    starts: Vec<usize>,
 }
 
 impl Migration {
@@ -602,10 +604,12 @@ impl Migration {
     }
 
     /// Sends the particles of `leaving` to each rank and appends those the others send, in
-    /// the senders' rank order, keeping first only the places `staying` where `keep` holds
-    /// (all to all, one field at a time: [`Particles::for_each_stored_field`]). An error, on
-    /// every rank alike and before anything moves, where one exchange cannot carry them,
-    /// naming the particles sent as those that `what`.
+    /// the senders' rank order, keeping first only the places `staying` where `keep` holds:
+    /// all to all, one field at a time ([`Particles::for_each_stored_field`]), each in pieces
+    /// of at most [`crate::comm::PIECE`] values' bytes a rank, each piece's particles put in
+    /// their place among those appended. An error, on every rank alike and before anything
+    /// moves, where a piece from every rank would be more than one exchange carries, naming
+    /// the particles sent as those that `what`.
     fn swap<const D: usize>(
         &mut self,
         comm: &dyn Comm,
@@ -613,19 +617,44 @@ impl Migration {
         keep: bool,
         what: &str,
     ) -> Result<(), String> {
-        let mut widest = 0;
+        let mut widest = 1;
         ps.for_each_stored_field(|f| widest = widest.max(f.value_size()));
-        // MPI's counts are 32-bit: what a rank sends and receives of one field stays under
-        // 2 GiB (each rank sends at most `largest`, and receives from every other at most that)
-        let leaving: usize = self.leaving.iter().map(Vec::len).sum();
-        let largest = comm.max_scalar((leaving * widest) as f64);
-        if largest * (comm.size() - 1) as f64 > i32::MAX as f64 {
+        let per = (crate::comm::PIECE * 8 / widest).max(1);
+        // MPI's counts are 32-bit: the pieces a rank receives at once, one from each other
+        // rank, stay under 2 GiB
+        if (per * widest * (comm.size() - 1)) as f64 > i32::MAX as f64 {
             return Err(format!(
-                "the particles that {what} in one step are up to {:.1} GB a rank and field, \
-                 more than one exchange carries (2 GiB): run over more ranks, or with a \
-                 smaller step",
-                largest / 1e9
+                "the particles that {what} would arrive from {} ranks at once, more than one \
+                 exchange carries (2 GiB)",
+                comm.size() - 1
             ));
+        }
+        // how many particles each rank sends this one, and where they go among the arrivals
+        self.send.clear();
+        self.counts.clear();
+        for l in &self.leaving {
+            self.send.extend_from_slice(&(l.len() as u64).to_le_bytes());
+            self.counts.push(8);
+        }
+        comm.exchange(
+            &self.send,
+            &self.counts,
+            &mut self.recv,
+            &mut self.recv_counts,
+        );
+        self.starts.clear();
+        let mut arriving = 0;
+        for n in self.recv.chunks_exact(8) {
+            self.starts.push(arriving);
+            arriving += u64::from_le_bytes(n.try_into().unwrap_or_default()) as usize;
+        }
+        let most = self.leaving.iter().map(|l| l.len().div_ceil(per)).max();
+        let rounds = comm.max_scalar(most.unwrap_or(0) as f64) as usize;
+        // the arrivals are put after the particles there were, and kept with those that stay
+        let before = ps.len();
+        if keep {
+            self.staying
+                .extend(before as u32..(before + arriving) as u32);
         }
         let Self {
             staying,
@@ -634,20 +663,32 @@ impl Migration {
             counts,
             recv,
             recv_counts,
+            starts,
         } = self;
         ps.for_each_stored_field(|field| {
-            send.clear();
-            counts.clear();
-            for l in leaving.iter() {
-                let before = send.len();
-                field.pack(l, send);
-                counts.push(send.len() - before);
+            field.grow(arriving);
+            for round in 0..rounds {
+                let piece = |n: usize| (round * per).min(n)..((round + 1) * per).min(n);
+                send.clear();
+                counts.clear();
+                for l in leaving.iter() {
+                    let before = send.len();
+                    field.pack(&l[piece(l.len())], send);
+                    counts.push(send.len() - before);
+                }
+                comm.exchange(send, counts, recv, recv_counts);
+                let mut at = 0;
+                for (&start, &n) in starts.iter().zip(recv_counts.iter()) {
+                    // (a sender whose particles are all sent sends nothing more)
+                    if n > 0 {
+                        field.unpack_at(before + start + round * per, &recv[at..at + n]);
+                    }
+                    at += n;
+                }
             }
-            comm.exchange(send, counts, recv, recv_counts);
             if keep {
                 field.keep(staying);
             }
-            field.unpack(recv);
         });
         Ok(())
     }
@@ -803,5 +844,55 @@ mod tests {
             want(&[2, 1, 3], &[[4.5, 1.5], [4.5, 0.5], [4.5, 1.0]])
         );
         assert_eq!(out[2], want(&[4], &[[8.5, 1.5]]));
+    }
+
+    /// A migration of more particles than a piece of the exchange carries (2 MiB of the widest
+    /// field, 65,536 particles of 2D matrices) goes in several rounds and keeps each sender's
+    /// order: ranks 0 and 2 send rank 1 150,000 and 70,000 particles (3 and 2 pieces), and
+    /// rank 1 sends rank 0 one.
+    #[test]
+    fn a_migration_longer_than_a_piece_keeps_the_senders_order() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::new(-2.0, -2.0), 1.0, [9, 4]);
+        let d = Decomposition {
+            axis: 0,
+            cuts: vec![0, 5, 9, 14],
+            window: 0,
+        };
+        let moving = |ids: std::ops::Range<u32>| ids.map(|i| (i, [4.5, 0.5]));
+        let held = |rank: usize| -> Vec<(u32, [f64; 2])> {
+            match rank {
+                0 => std::iter::once((1_000_000, [0.5, 0.5]))
+                    .chain(moving(0..150_000))
+                    .collect(),
+                1 => vec![(2_000_000, [4.5, 1.5]), (2_000_001, [0.5, 1.0])],
+                _ => moving(3_000_000..3_070_000)
+                    .chain(std::iter::once((4_000_000, [8.5, 1.5])))
+                    .collect(),
+            }
+        };
+        let out = crate::comm::threads::run(3, |comm| {
+            let (ids, x): (Vec<u32>, Vec<[f64; 2]>) = held(comm.rank()).into_iter().unzip();
+            let mut ps = particles(&ids, &x);
+            let mut migration = Migration::default();
+            assert!(migration.run(&*comm, &geo, &d, &mut ps).unwrap());
+            ps
+        });
+        let ids = |ps: &Particles<2>| ps.id.clone();
+        assert_eq!(ids(&out[0]), vec![1_000_000, 2_000_001]);
+        let want: Vec<u32> = std::iter::once(2_000_000)
+            .chain(0..150_000)
+            .chain(3_000_000..3_070_000)
+            .collect();
+        assert_eq!(ids(&out[1]), want);
+        assert_eq!(ids(&out[2]), vec![4_000_000]);
+        // every field came with its particle
+        for ps in &out {
+            let (ids, x): (Vec<u32>, Vec<[f64; 2]>) =
+                ps.x.iter()
+                    .zip(&ps.id)
+                    .map(|(x, &i)| (i, [x[0], x[1]]))
+                    .unzip();
+            assert_eq!(format!("{:?}", particles(&ids, &x)), format!("{ps:?}"));
+        }
     }
 }
