@@ -466,19 +466,11 @@ impl Sliced {
                 self.pack(arrays, nodes, out);
                 into.resize(out.len(), 0.0);
                 self.world.swap(peer, out, into);
-                let mut at = 0;
-                for a in arrays.iter_mut() {
-                    let k = a.len() / self.nodes;
-                    for &i in nodes {
-                        for v in &mut a[i as usize * k..(i as usize + 1) * k] {
-                            let theirs = into[at];
-                            if theirs != 0.0 {
-                                *v += theirs;
-                            }
-                            at += 1;
-                        }
+                self.unpack(arrays, nodes, into, |v, theirs| {
+                    if theirs != 0.0 {
+                        *v += theirs;
                     }
-                }
+                });
             }
         }
         for (upper, peer) in self.rounds() {
@@ -487,17 +479,30 @@ impl Sliced {
                 self.pack(arrays, &send[sent], out);
                 into.resize(width * received.len(), 0.0);
                 self.world.swap(peer, out, into);
-                let mut at = 0;
-                for a in arrays.iter_mut() {
-                    let k = a.len() / self.nodes;
-                    for &i in &receive[received.clone()] {
-                        for v in &mut a[i as usize * k..(i as usize + 1) * k] {
-                            // (written only where it changes: an empty node's page stays
-                            // uncommitted)
-                            crate::pages::store(v, into[at]);
-                            at += 1;
-                        }
-                    }
+                // (written only where it changes: an empty node's page stays uncommitted)
+                self.unpack(arrays, &receive[received], into, crate::pages::store);
+            }
+        }
+    }
+
+    /// `into`, packed as [`Sliced::pack`] packs, put into the arrays' values at `nodes` with
+    /// `put(value, theirs)`.
+    fn unpack(
+        &self,
+        arrays: &mut [&mut [f64]],
+        nodes: &[u32],
+        into: &[f64],
+        put: impl Fn(&mut f64, f64),
+    ) {
+        let mut theirs = into.iter();
+        for a in arrays.iter_mut() {
+            let k = a.len() / self.nodes;
+            for &i in nodes {
+                for (v, &t) in a[i as usize * k..(i as usize + 1) * k]
+                    .iter_mut()
+                    .zip(&mut theirs)
+                {
+                    put(v, t);
                 }
             }
         }
@@ -814,15 +819,20 @@ mod tests {
         ps
     }
 
-    #[test]
-    fn a_rank_takes_in_particles_from_both_neighbours_in_one_step() {
-        // three slabs of x: [0, 5), [5, 9), [9, 14) (padded cell layers, h = 1 from -2)
+    /// Three slabs of x: [0, 5), [5, 9), [9, 14) (padded cell layers, h = 1 from -2).
+    fn three_slabs() -> (GridGeometry<2>, Decomposition) {
         let geo = GridGeometry::<2>::new(Vector::<2>::new(-2.0, -2.0), 1.0, [9, 4]);
         let d = Decomposition {
             axis: 0,
             cuts: vec![0, 5, 9, 14],
             window: 0,
         };
+        (geo, d)
+    }
+
+    #[test]
+    fn a_rank_takes_in_particles_from_both_neighbours_in_one_step() {
+        let (geo, d) = three_slabs();
         // rank 0 and rank 2 each hold a particle that moved into rank 1's slab (x = 4.5)
         let held = [
             (vec![0, 1], vec![[0.5, 0.5], [4.5, 0.5]]),
@@ -852,12 +862,7 @@ mod tests {
     /// rank 1 sends rank 0 one.
     #[test]
     fn a_migration_longer_than_a_piece_keeps_the_senders_order() {
-        let geo = GridGeometry::<2>::new(Vector::<2>::new(-2.0, -2.0), 1.0, [9, 4]);
-        let d = Decomposition {
-            axis: 0,
-            cuts: vec![0, 5, 9, 14],
-            window: 0,
-        };
+        let (geo, d) = three_slabs();
         let moving = |ids: std::ops::Range<u32>| ids.map(|i| (i, [4.5, 0.5]));
         let held = |rank: usize| -> Vec<(u32, [f64; 2])> {
             match rank {
