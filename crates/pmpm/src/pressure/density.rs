@@ -448,7 +448,7 @@ impl<const D: usize> PositionCorrection<D> {
         };
         let stats = solver.solve(&linear, &system.rhs, solution, params)?;
         if let Some(r) = stage.ranks {
-            r.gather(solution);
+            r.gather(geo, &system.unknowns, solution);
         }
         let potential = &mut self.potential;
         super::ranks::scatter_rows(stage.ranks, geo, &system.unknowns, solution, potential);

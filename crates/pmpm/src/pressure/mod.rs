@@ -938,7 +938,8 @@ impl<const D: usize> Projection<D> {
             )?
         };
         if let Some(r) = &self.shared.ranks {
-            r.gather(&mut self.shared.solution);
+            let unknowns = &self.shared.system.unknowns;
+            r.gather(geo, unknowns, &mut self.shared.solution);
         }
         Ok(stats)
     }

@@ -11,12 +11,13 @@
 //! rows; the rows beside its slab that the solver reads come from the neighbours that
 //! assembled them ([`Ranks::swap_beside`]). Every rank's rows in
 //! rank order are the system's (node order, the last axis slowest), the solve is spread over
-//! the ranks ([`crate::linalg::spread`]), and its solution comes back whole to every rank, so
-//! that the stages after it read the pressure on the window's nodes too.
+//! the ranks ([`crate::linalg::spread`]), and the neighbours swap the solution's rows of the
+//! layers next to each cut ([`Ranks::gather`]), so that the stages after it read the pressure
+//! on the window's nodes too.
 //!
-//! This first stage keeps the whole numbering and the whole solution on every rank: an
-//! exchange of every row's node and value each solve (4 and 8 bytes a row). A numbering of
-//! each rank's own rows with the others' offsets would make both fall with the ranks.
+//! This first stage keeps the whole numbering on every rank: an exchange of every row's node
+//! each step (4 bytes a row). A numbering of each rank's own rows with the others' offsets
+//! would make it fall with the ranks.
 
 use super::assemble::MAX_SLOTS;
 use super::Unknowns;
@@ -50,7 +51,8 @@ pub fn keep_layers<const D: usize>(
     });
 }
 
-/// The solution `x` (every rank's rows, after [`Ranks::gather`]) on the nodes of its rows:
+/// The solution `x` (this rank's rows and its neighbours' beside them, after
+/// [`Ranks::gather`]) on the nodes of its rows:
 /// over ranks only those within [`crate::slabs::PROJECTION_REACH`] layers of this rank's own,
 /// as far as the stages read past the slab, and zero farther out ([`keep_layers`]), so that
 /// a rank writes its share of the fluid's nodes, not all of them.
@@ -94,12 +96,13 @@ pub struct Ranks {
     pub own: usize,
     /// The first row of each rank, and the row count (ranks + 1 bounds).
     starts: Vec<usize>,
-    /// Each rank's row count, and every rank's rows gathered ([`Ranks::join`],
-    /// [`Ranks::gather`]): buffers kept from step to step.
+    /// Each rank's row count, and every rank's rows' nodes gathered ([`Ranks::join`]):
+    /// buffers kept from step to step.
     counts: Vec<f64>,
-    gathered: std::sync::Mutex<Vec<u8>>,
-    /// [`Ranks::swap_beside`]'s rows sent and received, kept likewise.
-    swapped: (Vec<f64>, Vec<f64>),
+    gathered: Vec<u8>,
+    /// The rows sent and received by [`Ranks::swap_beside`] and [`Ranks::gather`], kept
+    /// likewise.
+    swapped: std::sync::Mutex<(Vec<f64>, Vec<f64>)>,
 }
 
 impl Ranks {
@@ -112,8 +115,8 @@ impl Ranks {
             own: usize::MAX,
             starts: Vec::new(),
             counts: Vec::new(),
-            gathered: std::sync::Mutex::new(Vec::new()),
-            swapped: (Vec::new(), Vec::new()),
+            gathered: Vec::new(),
+            swapped: std::sync::Mutex::new((Vec::new(), Vec::new())),
         }
     }
 
@@ -139,7 +142,7 @@ impl Ranks {
     ) -> usize {
         let comm = self.partition.comm.clone();
         let mine = unknowns.node_of_row.len();
-        let mut all = self.gathered.lock().unwrap_or_else(|e| e.into_inner());
+        let mut all = std::mem::take(&mut self.gathered);
         comm.all_gather(bytemuck::cast_slice(&unknowns.node_of_row), &mut all);
         self.counts.clear();
         self.counts.resize(comm.size(), 0.0);
@@ -155,7 +158,7 @@ impl Ranks {
         unknowns
             .node_of_row
             .extend(all.chunks_exact(4).map(bytemuck::pod_read_unaligned::<u32>));
-        drop(all);
+        self.gathered = all;
         crate::pages::reset(&mut unknowns.row_of);
         for (r, &i) in unknowns.node_of_row.iter().enumerate() {
             unknowns.row_of[i as usize] = r as u32 + 1;
@@ -191,33 +194,44 @@ impl Ranks {
         a: &mut EllMatrix,
     ) {
         let (rank, size) = (self.comm().rank(), self.comm().size());
-        let (lo, hi) = (self.layers().start, self.layers().end);
         for (upper, peer) in crate::comm::neighbour_rounds(rank, size) {
-            // each side clipped to the slab of the rank that sends it, so that both agree on
-            // its length however thin a slab is (slabs are at least the window wide, wider
-            // than BESIDE, so nothing is clipped in a run)
-            let cuts = &self.partition.cuts;
-            let (send, recv) = if upper {
-                let theirs = cuts[peer + 1];
-                (
-                    hi.saturating_sub(BESIDE).max(lo)..hi,
-                    hi..(hi + BESIDE).min(theirs),
-                )
-            } else {
-                let theirs = cuts[peer];
-                (
-                    lo..(lo + BESIDE).min(hi),
-                    lo.saturating_sub(BESIDE).max(theirs)..lo,
-                )
-            };
-            let (send, recv) = (
-                self.rows_on(geo, unknowns, send),
-                self.rows_on(geo, unknowns, recv),
-            );
-            let (out, back) = &mut self.swapped;
+            let (send, recv) = self.beside(geo, unknowns, (upper, peer), BESIDE);
+            let (out, back) = self.swapped.get_mut().unwrap_or_else(|e| e.into_inner());
             let comm = &*self.partition.comm;
             crate::linalg::spread::swap_rows(comm, peer, a, (&send, &recv), (out, back));
         }
+    }
+
+    /// The rows this rank sends its neighbour `peer` (above it if `upper`) and those it
+    /// receives from it in a swap of the `depth` node layers either side of their cut: its
+    /// own rows on its layers next to the cut, and the neighbour's on the neighbour's. Each
+    /// side is clipped to the slab of the rank that sends it, so that both agree on its length
+    /// however thin a slab is (slabs are at least the window wide, wider than any depth
+    /// swapped, so nothing is clipped in a run).
+    fn beside<const D: usize>(
+        &self,
+        geo: &GridGeometry<D>,
+        unknowns: &Unknowns,
+        (upper, peer): (bool, usize),
+        depth: usize,
+    ) -> (Range<usize>, Range<usize>) {
+        let (lo, hi) = (self.layers().start, self.layers().end);
+        let cuts = &self.partition.cuts;
+        let (send, recv) = if upper {
+            (
+                hi.saturating_sub(depth).max(lo)..hi,
+                hi..(hi + depth).min(cuts[peer + 1]),
+            )
+        } else {
+            (
+                lo..(lo + depth).min(hi),
+                lo.saturating_sub(depth).max(cuts[peer])..lo,
+            )
+        };
+        (
+            self.rows_on(geo, unknowns, send),
+            self.rows_on(geo, unknowns, recv),
+        )
     }
 
     /// Over ranks cut along another axis than the last, the slots of every row of `a` (an
@@ -270,14 +284,31 @@ impl Ranks {
         }
     }
 
-    /// Every rank's rows of `x` on every rank (each rank holds its own on entry).
-    pub fn gather(&self, x: &mut [f64]) {
-        let own = self.own_rows();
-        let mut all = self.gathered.lock().unwrap_or_else(|e| e.into_inner());
-        self.comm()
-            .all_gather(bytemuck::cast_slice(&x[own]), &mut all);
-        for (v, b) in x.iter_mut().zip(all.chunks_exact(8)) {
-            *v = bytemuck::pod_read_unaligned::<f64>(b);
+    /// The rows of `x` on the [`crate::slabs::PROJECTION_REACH`] node layers either side of
+    /// this rank's own, from the neighbours that solved them (each rank holds its own on
+    /// entry): as far as [`scatter_rows`] reads. A swap with each neighbour, in pieces
+    /// ([`crate::comm::pieces`]), where an all-gather would bring every row of the system to
+    /// every rank each solve; the rows farther out keep what they held.
+    pub fn gather<const D: usize>(
+        &self,
+        geo: &GridGeometry<D>,
+        unknowns: &Unknowns,
+        x: &mut [f64],
+    ) {
+        let (rank, size) = (self.comm().rank(), self.comm().size());
+        let mut buffers = self.swapped.lock().unwrap_or_else(|e| e.into_inner());
+        let (out, back) = &mut *buffers;
+        for (upper, peer) in crate::comm::neighbour_rounds(rank, size) {
+            let reach = crate::slabs::PROJECTION_REACH;
+            let (send, recv) = self.beside(geo, unknowns, (upper, peer), reach);
+            for (s, r) in crate::comm::pieces(send.len(), recv.len(), 1) {
+                out.clear();
+                out.extend_from_slice(&x[send.start + s.start..send.start + s.end]);
+                back.clear();
+                back.resize(r.len(), 0.0);
+                self.comm().swap(peer, out, back);
+                x[recv.start + r.start..recv.start + r.end].copy_from_slice(back);
+            }
         }
     }
 
