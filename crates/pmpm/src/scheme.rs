@@ -537,7 +537,7 @@ impl<const D: usize> Simulation<D> {
         if let Some(new) = d.rebalanced(&self.grid.geo, &s.counts) {
             let world = s.world.clone();
             if let Some(p) = self.stepper.projection_mut() {
-                p.share_pressure(&self.grid.geo);
+                p.share_pressure(&self.grid.geo, &new);
             }
             self.cut_into_slabs(world, new);
             self.migrate()?;

@@ -512,16 +512,19 @@ impl<const D: usize> Projection<D> {
         self.fit_particles(ps.len());
     }
 
-    /// Over ranks, before the grid is cut anew: p^n on every node as the rank whose slab
-    /// holds it found it (each rank's is exact only on its slab and window, and a new cut
-    /// gives it another slab): each rank's own layers, summed over the ranks.
-    pub fn share_pressure(&mut self, geo: &crate::grid::GridGeometry<D>) {
-        let Some(r) = &self.shared.ranks else {
+    /// Over ranks, before the grid is cut anew at `new`: p^n on the nodes of this rank's new
+    /// slab and window, from the ranks whose slabs hold them now (each rank's is exact only on
+    /// its slab and window, and a new cut gives it another slab; `Ranks::hand_over`).
+    pub fn share_pressure(
+        &mut self,
+        geo: &crate::grid::GridGeometry<D>,
+        new: &crate::slabs::Decomposition,
+    ) {
+        let Some(r) = &mut self.shared.ranks else {
             return;
         };
         pages::fit(&mut self.previous, geo.node_count());
-        ranks::keep_layers(geo, r.axis, &r.layers(), &mut self.previous);
-        r.partition.comm.sum(&mut self.previous);
+        r.hand_over(geo, new, &mut self.previous);
     }
 
     /// The ghosts of [`Projection::ghosts_from`] dropped: `own` particles again.

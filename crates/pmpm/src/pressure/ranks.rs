@@ -344,6 +344,83 @@ impl Ranks {
         self.comm().add_nodes(arrays);
     }
 
+    /// `values` (one a node) on the nodes of this rank's slab under the cuts `new` and of the
+    /// window around it (`new.window` layers, at least the stages' reach), each from the rank
+    /// whose slab holds the node now, where it is exact; zero elsewhere. An all-to-all of
+    /// each rank's own nodes to the ranks that will need them, where a sum of the whole array
+    /// over the ranks would commit it whole on every rank (and MPI's buffers with it). Run
+    /// only at a new cut: it visits every node, and its buffers are not kept.
+    pub fn hand_over<const D: usize>(
+        &mut self,
+        geo: &GridGeometry<D>,
+        new: &crate::slabs::Decomposition,
+        values: &mut [f64],
+    ) {
+        let (rank, size) = (self.comm().rank(), self.comm().size());
+        let (axis, cuts) = (self.axis, &self.partition.cuts);
+        let now = |i: usize| {
+            cuts.partition_point(|&c| c <= geo.multi(i)[axis])
+                .clamp(1, size)
+                - 1
+        };
+        // the ranks that will need node i: those whose new slab reaches it with its window
+        let reach = new.window.max(crate::slabs::PROJECTION_REACH);
+        let needs = |i: usize| {
+            let l = geo.multi(i)[new.axis];
+            let first = new.cuts.partition_point(|&c| c + reach <= l).clamp(1, size) - 1;
+            let last = new
+                .cuts
+                .partition_point(|&c| c < l + reach + 1)
+                .clamp(1, size)
+                - 1;
+            first..last + 1
+        };
+        let mine = self.layers();
+        let own = |i: usize| mine.contains(&geo.multi(i)[axis]);
+        // each rank's values in node order, rank after rank
+        let mut counts = vec![0usize; size];
+        for i in (0..values.len()).filter(|&i| own(i)) {
+            for q in needs(i) {
+                counts[q] += 8;
+            }
+        }
+        let mut at: Vec<usize> = counts
+            .iter()
+            .scan(0, |s, &c| {
+                *s += c;
+                Some(*s - c)
+            })
+            .collect();
+        let mut send = vec![0u8; counts.iter().sum()];
+        for i in (0..values.len()).filter(|&i| own(i)) {
+            for q in needs(i) {
+                send[at[q]..at[q] + 8].copy_from_slice(&values[i].to_ne_bytes());
+                at[q] += 8;
+            }
+        }
+        let (mut recv, mut recv_counts) = (Vec::new(), Vec::new());
+        self.comm()
+            .exchange(&send, &counts, &mut recv, &mut recv_counts);
+        let mut from: Vec<usize> = recv_counts
+            .iter()
+            .scan(0, |s, &c| {
+                *s += c;
+                Some(*s - c)
+            })
+            .collect();
+        for (i, v) in values.iter_mut().enumerate() {
+            let value = if needs(i).contains(&rank) {
+                let s = now(i);
+                let bytes = &recv[from[s]..from[s] + 8];
+                from[s] += 8;
+                f64::from_ne_bytes(bytes.try_into().expect("8 bytes"))
+            } else {
+                0.0
+            };
+            crate::pages::store(v, value);
+        }
+    }
+
     /// The sum over every rank of `value`.
     pub fn sum(&self, value: f64) -> f64 {
         self.comm().sum_scalar(value)
@@ -366,6 +443,59 @@ pub fn mean_density(mass: &[f64], volume: &[f64], ranks: Option<&Ranks>) -> f64 
             let own = own_of(Some(r), mass.len());
             let m = r.sum(mass[..own].iter().sum());
             m / r.sum(volume[..own].iter().sum())
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Vector;
+    use crate::slabs::{Decomposition, PROJECTION_REACH};
+
+    /// Cut anew, along the same axis or another, each rank holds on the nodes of its new slab
+    /// and window the values that the ranks whose old slabs hold them held there (what one
+    /// process holds), and zero elsewhere, whatever it held outside its old slab.
+    #[test]
+    fn a_new_cut_hands_each_rank_its_new_slabs_values() {
+        let geo = GridGeometry::<2>::new(Vector::<2>::new(0.0, 0.0), 1.0, [26, 30]);
+        let n = geo.node_count();
+        let exact = |i: usize| 1.0 + i as f64;
+        let old_cuts = vec![0, 12, 24, geo.nodes[1]];
+        for new in [
+            Decomposition {
+                axis: 1,
+                cuts: vec![0, 8, 20, geo.nodes[1]],
+                window: 3,
+            },
+            Decomposition {
+                axis: 0,
+                cuts: vec![0, 9, 18, geo.nodes[0]],
+                window: 8,
+            },
+        ] {
+            let out = crate::comm::threads::run(3, |comm| {
+                let mut r = Ranks::new(comm, 1, old_cuts.clone());
+                let mine = r.layers();
+                let mut values: Vec<f64> = (0..n)
+                    .map(|i| match mine.contains(&geo.multi(i)[1]) {
+                        true => exact(i),
+                        false => -7.0,
+                    })
+                    .collect();
+                r.hand_over(&geo, &new, &mut values);
+                values
+            });
+            let reach = new.window.max(PROJECTION_REACH);
+            for (rank, values) in out.iter().enumerate() {
+                let lo = new.cuts[rank].saturating_sub(reach);
+                let hi = new.cuts[rank + 1] + reach;
+                for (i, &v) in values.iter().enumerate() {
+                    let l = geo.multi(i)[new.axis];
+                    let want = if (lo..hi).contains(&l) { exact(i) } else { 0.0 };
+                    assert_eq!(v, want, "axis {}, rank {rank}, node {i}", new.axis);
+                }
+            }
         }
     }
 }
