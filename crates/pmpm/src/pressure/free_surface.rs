@@ -227,11 +227,17 @@ impl Surface {
             // a rigid body is neither water nor air: the level set weighs only the part of
             // each cell it leaves open
             let solid = (!self.solid.is_empty()).then_some(&self.solid[..]);
+            // over ranks the rank's own layers and its window, with a layer to spare: the
+            // stages read the level set no further than PROJECTION_REACH past the slab
+            let view = self.owners.as_ref().map(|o| {
+                let w = crate::slabs::window_of(self.bubble_cells) + 1;
+                (o.axis, o.layers.start.saturating_sub(w)..o.layers.end + w)
+            });
             level_set(
                 geo,
-                &self.fraction,
-                solid,
+                (&self.fraction, solid),
                 &self.open,
+                view.as_ref(),
                 &mut self.phi,
                 &mut self.covered,
             );
@@ -420,18 +426,27 @@ const ON_SURFACE: f64 = 1e-9;
 /// its neighbours that it covers less than half of: its own open part can be a sliver, whose
 /// particles (a few, or none) would read the water against the face as air or not, step by
 /// step. `scratch` is a work buffer.
+///
+/// Over ranks only the nodes on the node layers `view` (an axis and its layers: the rank's
+/// own and its window's) are set, and the others are zero, on pages left uncommitted: a rank
+/// reads the level set no further, and the air's h would commit the whole box on every rank.
 pub fn level_set<const D: usize>(
     geo: &GridGeometry<D>,
-    fraction: &[f64],
-    solid: Option<&[f64]>,
+    (fraction, solid): (&[f64], Option<&[f64]>),
     open: &[bool],
+    view: Option<&(usize, std::ops::Range<usize>)>,
     phi: &mut Vec<f64>,
     scratch: &mut Vec<f64>,
 ) {
     let corners = 1usize << D;
-    phi.resize(geo.node_count(), 0.0);
+    let seen = |node: &[usize; D]| view.is_none_or(|(axis, layers)| layers.contains(&node[*axis]));
+    pages::fit(phi, geo.node_count());
     phi.par_iter_mut().enumerate().for_each(|(i, phi)| {
         let node = geo.multi(i);
+        if !seen(&node) {
+            pages::store(phi, 0.0);
+            return;
+        }
         let (mut f, mut room) = (0.0, 0.0);
         for corner in 0..corners {
             match mirrored_cell(geo, &node, corner, open) {
@@ -450,7 +465,7 @@ pub fn level_set<const D: usize>(
         let p = 1.0 - 2.0 * f;
         // a node on the surface to round-off is on it, so that a column at rest whose top
         // lies on a node row holds p = 0 there exactly
-        *phi = geo.h * if p.abs() < ON_SURFACE { 0.0 } else { p };
+        pages::store(phi, geo.h * if p.abs() < ON_SURFACE { 0.0 } else { p });
     });
     let Some(solid) = solid else {
         return;
@@ -464,11 +479,11 @@ pub fn level_set<const D: usize>(
             })
             .sum()
     };
-    scratch.clone_from(phi);
+    pages::copy(scratch, phi);
     let own = &scratch[..];
     phi.par_iter_mut().enumerate().for_each(|(i, phi)| {
         let node = geo.multi(i);
-        if room(&node) >= half {
+        if !seen(&node) || room(&node) >= half {
             return;
         }
         // the nodes across a face first: the level set goes on into the body along the
@@ -496,7 +511,7 @@ pub fn level_set<const D: usize>(
             least = least_of(false);
         }
         if least.is_finite() {
-            *phi = least;
+            pages::store(phi, least);
         }
     });
 }
@@ -1129,7 +1144,14 @@ mod tests {
         volume_fractions(&geo, &bins, &vec![0.25; x.len()], &mut vf);
         let at = |phi: &[f64], i: usize, j: usize| phi[geo.flat(&[i + PAD, j + PAD])];
         let mut phi = Vec::new();
-        level_set(&geo, &vf, None, &[false; 4], &mut phi, &mut Vec::new());
+        level_set(
+            &geo,
+            (&vf, None),
+            &[false; 4],
+            None,
+            &mut phi,
+            &mut Vec::new(),
+        );
         // the top (y = 4) and the side (x = 3): on the surface; a cell inside and outside
         for i in 0..3 {
             assert_eq!(at(&phi, i, 4), 0.0, "top, node {i}");
@@ -1153,9 +1175,9 @@ mod tests {
         }
         level_set(
             &geo,
-            &vf,
-            Some(&solid),
+            (&vf, Some(&solid)),
             &[false; 4],
+            None,
             &mut phi,
             &mut Vec::new(),
         );
@@ -1185,9 +1207,9 @@ mod tests {
         let mut phi = Vec::new();
         level_set(
             &geo,
-            &vf,
-            Some(&solid),
+            (&vf, Some(&solid)),
             &[false; 4],
+            None,
             &mut phi,
             &mut Vec::new(),
         );
