@@ -126,7 +126,7 @@ struct Level {
     layout: GridLayout,
     a: EllMatrix,
     inverse_diagonal: Slots<f64>,
-    /// Row of each node (u32::MAX: not an unknown).
+    /// Row + 1 of each node (0: not an unknown), on zeroed pages ([`crate::pages`]).
     row_of: Vec<u32>,
     /// Per row of the finer level, its 2^D parents here and their weights (weight 0: unused).
     parents: Slots<u32>,
@@ -151,6 +151,7 @@ pub struct Multigrid {
     fine_n: usize,
     fine_inverse_diagonal: Slots<f64>,
     fine_r: Slots<f64>,
+    /// The finest level's [`Level::row_of`].
     fine_row_of: Vec<u32>,
     levels: Vec<Level>,
     used: usize,
@@ -298,12 +299,13 @@ fn parent_node(lay: &GridLayout, n: &[u32; 3], k: usize) -> Option<([usize; 3], 
 /// the layout's index. Returns the number of coarse rows.
 fn number_rows(fine_layout: &GridLayout, lay: &mut GridLayout, coarse: &mut Level) -> usize {
     let corners = 1usize << lay.dim;
-    coarse.row_of.clear();
-    coarse.row_of.resize(lay.node_count(), u32::MAX);
+    // (on zeroed pages, row + 1 a node: the nodes without a row stay uncommitted)
+    crate::pages::fit(&mut coarse.row_of, lay.node_count());
+    crate::pages::reset(&mut coarse.row_of);
     for n in &fine_layout.index {
         for k in 0..corners {
             if let Some((c, _)) = parent_node(lay, n, k) {
-                coarse.row_of[lay.flat(&c)] = 0;
+                coarse.row_of[lay.flat(&c)] = u32::MAX;
             }
         }
     }
@@ -311,9 +313,9 @@ fn number_rows(fine_layout: &GridLayout, lay: &mut GridLayout, coarse: &mut Leve
     index.clear();
     let mut rows = 0u32;
     for (f, r) in coarse.row_of.iter_mut().enumerate() {
-        if *r == 0 {
-            *r = rows;
+        if *r == u32::MAX {
             rows += 1;
+            *r = rows;
             let mut rem = f;
             let mut idx = [0u32; 3];
             // axis 0 varies fastest
@@ -349,7 +351,7 @@ fn link_parents(
             for k in 0..corners {
                 match parent_node(lay, n, k) {
                     Some((c, w)) => {
-                        ps[k] = row_of[lay.flat(&c)];
+                        ps[k] = row_of[lay.flat(&c)].wrapping_sub(1);
                         ws[k] = w;
                     }
                     None => {
@@ -393,9 +395,9 @@ fn link_children(
                         w *= 0.5;
                     }
                 }
-                let row = fine_layout
-                    .canonical(n)
-                    .map_or(u32::MAX, |c| fine_row_of[fine_layout.flat(&c)]);
+                let row = fine_layout.canonical(n).map_or(u32::MAX, |c| {
+                    fine_row_of[fine_layout.flat(&c)].wrapping_sub(1)
+                });
                 if row == u32::MAX {
                     cs[k] = 0;
                     ws[k] = 0.0;
@@ -651,12 +653,13 @@ impl Multigrid {
         if layout.index.len() != a.n || a.n <= COARSEST {
             return used;
         }
-        // the finest level's node -> row map, from the layout
+        // the finest level's node -> row map, from the layout (row + 1 a node, on zeroed
+        // pages: the nodes without a row stay uncommitted)
         let row_of = &mut self.fine_row_of;
-        row_of.clear();
-        row_of.resize(layout.node_count(), u32::MAX);
+        crate::pages::fit(row_of, layout.node_count());
+        crate::pages::reset(row_of);
         for (r, n) in layout.index.iter().enumerate() {
-            row_of[layout.flat(&[n[0] as usize, n[1] as usize, n[2] as usize])] = r as u32;
+            row_of[layout.flat(&[n[0] as usize, n[1] as usize, n[2] as usize])] = r as u32 + 1;
         }
         loop {
             if used == self.levels.len() {
