@@ -65,7 +65,7 @@ impl<T: bytemuck::Zeroable> Slots<T> {
     /// zeroed pages for a quarter more (the rows' count moves a little from step to step), the
     /// values it held dropped (what reads a row writes it first: the assembly, the levels'
     /// links, the solves).
-    fn fit(&mut self, len: usize) {
+    pub(crate) fn fit(&mut self, len: usize) {
         if len > self.buf.len() {
             self.buf = crate::pages::zeroed(len + len / 4);
         }

@@ -442,7 +442,8 @@ pub(super) fn solve(
     };
     let b_own = &b[own.clone()];
     let b_norm = op.dot(b_own, b_own, &mut work.partials).sqrt();
-    if let Some(done) = super::nothing_to_solve(b_norm, x) {
+    // (the own rows: the others are the neighbours', and a rank writes only its own)
+    if let Some(done) = super::nothing_to_solve(b_norm, &mut x[own.clone()]) {
         return done;
     }
     // r = b - A x on the own rows (x holds the initial guess)

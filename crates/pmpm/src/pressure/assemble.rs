@@ -11,7 +11,7 @@
 
 use super::free_surface::NodeKind;
 use crate::grid::{CellBins, GridGeometry, Vector};
-use crate::linalg::EllMatrix;
+use crate::linalg::{EllMatrix, Slots};
 use crate::shape::{ShapeFunction, Stencil, PAD};
 use rayon::prelude::*;
 
@@ -318,7 +318,7 @@ pub fn assemble<const D: usize>(
     rows: &Rows,
     dt: f64,
     a: &mut EllMatrix,
-    rhs: &mut Vec<f64>,
+    rhs: &mut Slots<f64>,
 ) {
     let (bins, kinds, phi, dirichlet) = (q.bins, rows.kinds, rows.phi, rows.dirichlet);
     let (unknowns, node_of_row) = (rows.unknowns, &rows.unknowns.node_of_row);
@@ -326,7 +326,7 @@ pub fn assemble<const D: usize>(
     let span = 2 * w - 1;
     let slots = row_width::<D>(shape);
     a.reshape(node_of_row.len(), slots);
-    rhs.resize(node_of_row.len(), 0.0);
+    rhs.fit(node_of_row.len());
     a.cols
         .par_chunks_mut(slots)
         .zip(a.vals.par_chunks_mut(slots))
@@ -335,8 +335,9 @@ pub fn assemble<const D: usize>(
         .for_each(|(((cols, vals), b), &i)| {
             let row = unknowns.row(i as usize);
             if !assembles(unknowns, row) {
-                // another rank's row: not written, so that its pages stay uncommitted
-                *b = 0.0;
+                // another rank's row: zero, written only where it is not already, so that
+                // its pages stay uncommitted
+                crate::pages::store(b, 0.0);
                 return;
             }
             let node = geo.multi(i as usize);
@@ -410,17 +411,17 @@ pub fn right_hand_side<const D: usize>(
     q: &ParticleQuadrature<D>,
     unknowns: &super::Unknowns,
     dt: f64,
-    rhs: &mut Vec<f64>,
+    rhs: &mut Slots<f64>,
 ) {
     let bins = q.bins;
     let node_of_row = &unknowns.node_of_row;
-    rhs.resize(node_of_row.len(), 0.0);
+    rhs.fit(node_of_row.len());
     rhs.par_iter_mut()
         .zip(node_of_row.par_iter())
         .enumerate()
         .for_each(|(r, (b, &i))| {
             if !assembles(unknowns, r as u32) {
-                *b = 0.0;
+                crate::pages::store(b, 0.0);
                 return;
             }
             let node = geo.multi(i as usize);

@@ -34,7 +34,7 @@ use super::{DensityCorrection, PressureSettings};
 use crate::boundary::Boundary;
 use crate::comm::Comm;
 use crate::grid::{CellBins, GridGeometry, Vector};
-use crate::linalg::{LinearSolver, SolveError, SolveParams, SolveStats, System};
+use crate::linalg::{LinearSolver, Slots, SolveError, SolveParams, SolveStats, System};
 use crate::particles::{Matrix, Particles};
 use crate::shape::{ShapeFunction, Stencil};
 use crate::transfer::{scatter_to_nodes, Band, Points};
@@ -391,8 +391,9 @@ impl<const D: usize> PositionCorrection<D> {
             r.swap_beside(geo, unknowns, matrix);
         }
         if self.volumes {
-            for (b, &i) in rhs.iter_mut().zip(&system.unknowns.node_of_row) {
-                *b += self.excess[i as usize];
+            let (u, excess) = (&system.unknowns, &self.excess);
+            for r in u.assembled_rows() {
+                rhs[r] += excess[u.node_of_row[r] as usize];
             }
         }
         matrix.pin_empty_rows(rhs);
@@ -430,12 +431,13 @@ impl<const D: usize> PositionCorrection<D> {
     fn solve(
         &mut self,
         stage: &Stage<'_, D>,
-        (solver, system, solution): (&mut LinearSolver, &super::Assembled, &mut Vec<f64>),
+        (solver, system, solution): (&mut LinearSolver, &super::Assembled, &mut Slots<f64>),
         [scratch, first_layer]: [&mut Vec<f64>; 2],
     ) -> Result<SolveStats, SolveError> {
         let geo = stage.geo;
-        solution.clear();
-        solution.resize(system.unknowns.node_of_row.len(), 0.0);
+        // (over ranks on this rank's rows: the solve reads no other)
+        solution.fit(system.unknowns.node_of_row.len());
+        solution[system.unknowns.assembled_rows()].fill(0.0);
         let linear = System {
             matrix: &system.matrix,
             layout: &system.unknowns.layout,
@@ -480,14 +482,15 @@ impl<const D: usize> PositionCorrection<D> {
         (boundary, bins): (&Boundary<D>, &mut CellBins),
         points: (&[Vector<D>], &[f64], &[f64]),
         pace: Pace,
-        (solver, system, solution): (&mut LinearSolver, &mut super::Assembled, &mut Vec<f64>),
+        (solver, system, solution): (&mut LinearSolver, &mut super::Assembled, &mut Slots<f64>),
         ghost: [&mut Vec<f64>; 2],
     ) -> Result<SolveStats, SolveError> {
         let (geo, shape) = (stage.geo, self.shape);
         self.gather_rest_volumes(ps, geo, stage.ranks);
         self.fill_excess(geo, points, stage.kinds, pace.packing);
-        for (b, &i) in system.rhs.iter_mut().zip(&system.unknowns.node_of_row) {
-            *b = self.excess[i as usize];
+        let u = &system.unknowns;
+        for r in u.assembled_rows() {
+            system.rhs[r] = self.excess[u.node_of_row[r] as usize];
         }
         system.matrix.pin_empty_rows(&mut system.rhs);
         let stats = self.solve(stage, (solver, system, solution), ghost)?;

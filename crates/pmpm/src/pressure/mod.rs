@@ -25,7 +25,7 @@ use crate::boundary::Boundary;
 use crate::comm::Comm;
 use crate::grid::{CellBins, Grid, Vector};
 use crate::linalg::{
-    Direct, EllMatrix, GridLayout, IncompleteCholesky, Jacobi, LinearSolver, Multigrid, Pcg,
+    Direct, EllMatrix, GridLayout, IncompleteCholesky, Jacobi, LinearSolver, Multigrid, Pcg, Slots,
     SolveError, SolveParams, SolveStats, System,
 };
 use crate::pages;
@@ -154,7 +154,9 @@ pub struct Shared<const D: usize> {
     /// The last solve's linear system (the density correction's after a step that ran it).
     pub system: Assembled,
     gauss: GaussPoints<D>,
-    solution: Vec<f64>,
+    /// The solution of the last solve ([`Slots`]: over ranks a rank writes only its own rows
+    /// and those beside them).
+    solution: Slots<f64>,
     /// Scratch for the ghost values (the second and the first layer).
     ghost: [Vec<f64>; 2],
     /// A scatter's per-thread sums and their total per node: the corrector's
@@ -186,7 +188,7 @@ impl<const D: usize> Shared<D> {
             surface: free_surface::Surface::new(pd, boundary),
             system: Assembled::default(),
             gauss: GaussPoints::default(),
-            solution: Vec::new(),
+            solution: Slots::default(),
             ghost: Default::default(),
             vector_bands: Vec::new(),
             nodal: Vec::new(),
@@ -203,8 +205,8 @@ pub struct Assembled {
     unknowns: Unknowns,
     /// The assembled matrix L (interior rows and columns).
     pub matrix: EllMatrix,
-    /// The right-hand side.
-    pub rhs: Vec<f64>,
+    /// The right-hand side ([`Slots`]: over ranks a rank writes only the rows it assembles).
+    pub rhs: Slots<f64>,
 }
 
 /// What the last step's solves did.
@@ -520,7 +522,7 @@ impl<const D: usize> Projection<D> {
         geo: &crate::grid::GridGeometry<D>,
         new: &crate::slabs::Decomposition,
     ) {
-        let Some(r) = &mut self.shared.ranks else {
+        let Some(r) = &self.shared.ranks else {
             return;
         };
         pages::fit(&mut self.previous, geo.node_count());
@@ -883,16 +885,15 @@ impl<const D: usize> Projection<D> {
     ) -> Result<SolveStats, SolveError> {
         // solve; Chorin's form starts from the last step's pressure at the same nodes, a
         // further pass from zero
-        self.shared
-            .solution
-            .resize(self.shared.system.unknowns.node_of_row.len(), 0.0);
+        // (over ranks on this rank's rows: the solve reads no other)
+        let unknowns = &self.shared.system.unknowns;
+        self.shared.solution.fit(unknowns.node_of_row.len());
         {
-            let prev = &self.previous;
+            let (prev, own) = (&self.previous, unknowns.assembled_rows());
             let warm = first && self.settings.beta == 0.0;
-            self.shared
-                .solution
+            self.shared.solution[own.clone()]
                 .par_iter_mut()
-                .zip(self.shared.system.unknowns.node_of_row.par_iter())
+                .zip(unknowns.node_of_row[own].par_iter())
                 .for_each(|(x, &i)| *x = if warm { prev[i as usize] } else { 0.0 });
         }
         if !first {

@@ -351,7 +351,7 @@ impl Ranks {
     /// over the ranks would commit it whole on every rank (and MPI's buffers with it). Run
     /// only at a new cut: it visits every node, and its buffers are not kept.
     pub fn hand_over<const D: usize>(
-        &mut self,
+        &self,
         geo: &GridGeometry<D>,
         new: &crate::slabs::Decomposition,
         values: &mut [f64],
@@ -475,7 +475,7 @@ mod tests {
             },
         ] {
             let out = crate::comm::threads::run(3, |comm| {
-                let mut r = Ranks::new(comm, 1, old_cuts.clone());
+                let r = Ranks::new(comm, 1, old_cuts.clone());
                 let mine = r.layers();
                 let mut values: Vec<f64> = (0..n)
                     .map(|i| match mine.contains(&geo.multi(i)[1]) {
