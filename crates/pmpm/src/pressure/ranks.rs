@@ -375,8 +375,7 @@ impl Ranks {
                 - 1;
             first..last + 1
         };
-        let mine = self.layers();
-        let own = |i: usize| mine.contains(&geo.multi(i)[axis]);
+        let own = |i: usize| now(i) == rank;
         // each rank's values in node order, rank after rank
         let mut counts = vec![0usize; size];
         for i in (0..values.len()).filter(|&i| own(i)) {
@@ -384,13 +383,7 @@ impl Ranks {
                 counts[q] += 8;
             }
         }
-        let mut at: Vec<usize> = counts
-            .iter()
-            .scan(0, |s, &c| {
-                *s += c;
-                Some(*s - c)
-            })
-            .collect();
+        let mut at = starts(&counts);
         let mut send = vec![0u8; counts.iter().sum()];
         for i in (0..values.len()).filter(|&i| own(i)) {
             for q in needs(i) {
@@ -401,13 +394,7 @@ impl Ranks {
         let (mut recv, mut recv_counts) = (Vec::new(), Vec::new());
         self.comm()
             .exchange(&send, &counts, &mut recv, &mut recv_counts);
-        let mut from: Vec<usize> = recv_counts
-            .iter()
-            .scan(0, |s, &c| {
-                *s += c;
-                Some(*s - c)
-            })
-            .collect();
+        let mut from = starts(&recv_counts);
         for (i, v) in values.iter_mut().enumerate() {
             let value = if needs(i).contains(&rank) {
                 let s = now(i);
@@ -432,6 +419,17 @@ impl Ranks {
         self.comm().min(&mut v);
         v[0]
     }
+}
+
+/// Where each of the pieces of `counts` starts when they lie one after the other.
+fn starts(counts: &[usize]) -> Vec<usize> {
+    counts
+        .iter()
+        .scan(0, |at, &c| {
+            *at += c;
+            Some(*at - c)
+        })
+        .collect()
 }
 
 /// The mean density sum m / sum V of the particles: on one process of every particle, over
