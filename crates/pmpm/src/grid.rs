@@ -185,6 +185,13 @@ impl<const D: usize> GridGeometry<D> {
         })
     }
 
+    /// The layer along `axis` of node (or cell) `flat`: `multi(flat)[axis]` with one
+    /// division and one remainder, not D of each.
+    #[inline]
+    pub fn layer(&self, flat: usize, axis: usize) -> usize {
+        (flat / self.strides[axis]) % self.nodes[axis]
+    }
+
     /// Padded multi-index of a flat index.
     #[inline]
     pub fn multi(&self, mut flat: usize) -> [usize; D] {

@@ -200,7 +200,7 @@ impl Decomposition {
         let layers = |cut: usize| cut - BELOW..cut + ABOVE;
         let nodes_in = |range: std::ops::Range<usize>| -> Vec<u32> {
             (0..geo.node_count())
-                .filter(|&f| range.contains(&geo.multi(f)[self.axis]))
+                .filter(|&f| range.contains(&geo.layer(f, self.axis)))
                 .map(|f| f as u32)
                 .collect()
         };
@@ -228,7 +228,7 @@ impl Decomposition {
     ) -> [[Vec<u32>; 2]; 2] {
         let nodes_in = |range: std::ops::Range<usize>| -> Vec<u32> {
             (0..geo.node_count())
-                .filter(|&f| range.contains(&geo.multi(f)[self.axis]))
+                .filter(|&f| range.contains(&geo.layer(f, self.axis)))
                 .map(|f| f as u32)
                 .collect()
         };

@@ -202,7 +202,7 @@ impl Slab {
     /// Whether node (or cell) `i` lies on this rank's layers.
     #[inline]
     fn owns<const D: usize>(&self, geo: &GridGeometry<D>, i: usize) -> bool {
-        self.layers.contains(&geo.multi(i)[self.axis])
+        self.layers.contains(&geo.layer(i, self.axis))
     }
 
     /// Sums of the ranks' points onto the nodes of `v` ([`Comm::add_nodes`]).

@@ -44,10 +44,16 @@ pub fn keep_layers<const D: usize>(
     layers: &Range<usize>,
     values: &mut [f64],
 ) {
-    values.par_iter_mut().enumerate().for_each(|(i, v)| {
-        if !layers.contains(&geo.multi(i)[axis]) {
-            crate::pages::store(v, 0.0);
-        }
+    // the nodes come in blocks of `nodes[axis]` runs of `strides[axis]` nodes, one run a
+    // layer: the runs outside `layers` are zeroed whole (a test a run, not a division a node)
+    let (run, count) = (geo.strides[axis], geo.nodes[axis]);
+    let (lo, hi) = (layers.start.min(count) * run, layers.end.min(count) * run);
+    values.par_chunks_mut(run * count).for_each(|block| {
+        let (below, rest) = block.split_at_mut(lo);
+        let above = &mut rest[hi.max(lo) - lo..];
+        (below.par_iter_mut().chain(above.par_iter_mut()))
+            .with_min_len(4096)
+            .for_each(|v| crate::pages::store(v, 0.0));
     });
 }
 
@@ -177,7 +183,7 @@ impl Ranks {
         layers: Range<usize>,
     ) -> Range<usize> {
         let below = |l: usize| {
-            let layer = |&i: &u32| geo.multi(i as usize)[self.axis];
+            let layer = |&i: &u32| geo.layer(i as usize, self.axis);
             unknowns.node_of_row.partition_point(|i| layer(i) < l)
         };
         below(layers.start)..below(layers.end.max(layers.start))
@@ -359,14 +365,14 @@ impl Ranks {
         let (rank, size) = (self.comm().rank(), self.comm().size());
         let (axis, cuts) = (self.axis, &self.partition.cuts);
         let now = |i: usize| {
-            cuts.partition_point(|&c| c <= geo.multi(i)[axis])
+            cuts.partition_point(|&c| c <= geo.layer(i, axis))
                 .clamp(1, size)
                 - 1
         };
         // the ranks that will need node i: those whose new slab reaches it with its window
         let reach = new.window.max(crate::slabs::PROJECTION_REACH);
         let needs = |i: usize| {
-            let l = geo.multi(i)[new.axis];
+            let l = geo.layer(i, new.axis);
             let first = new.cuts.partition_point(|&c| c + reach <= l).clamp(1, size) - 1;
             let last = new
                 .cuts
@@ -489,7 +495,7 @@ mod tests {
                 let lo = new.cuts[rank].saturating_sub(reach);
                 let hi = new.cuts[rank + 1] + reach;
                 for (i, &v) in values.iter().enumerate() {
-                    let l = geo.multi(i)[new.axis];
+                    let l = geo.layer(i, new.axis);
                     let want = if (lo..hi).contains(&l) { exact(i) } else { 0.0 };
                     assert_eq!(v, want, "axis {}, rank {rank}, node {i}", new.axis);
                 }

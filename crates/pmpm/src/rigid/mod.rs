@@ -1248,7 +1248,7 @@ impl<const D: usize> RigidBodies<D> {
     fn owns(&self, i: usize, geo: &GridGeometry<D>) -> bool {
         match &self.owned_layers {
             Some((axis, layers)) if self.comm.is_distributed() => {
-                layers.contains(&geo.multi(i)[*axis])
+                layers.contains(&geo.layer(i, *axis))
             }
             _ => true,
         }
