@@ -192,6 +192,19 @@ impl<const D: usize> GridGeometry<D> {
         (flat / self.strides[axis]) % self.nodes[axis]
     }
 
+    /// `idx` moved on to the next node in flat order (the multi-index of flat + 1): a loop
+    /// over every node in order keeps its multi-index without a division a node.
+    #[inline]
+    pub fn advance(&self, idx: &mut [usize; D]) {
+        for d in 0..D {
+            idx[d] += 1;
+            if idx[d] < self.nodes[d] || d == D - 1 {
+                return;
+            }
+            idx[d] = 0;
+        }
+    }
+
     /// Padded multi-index of a flat index.
     #[inline]
     pub fn multi(&self, mut flat: usize) -> [usize; D] {
@@ -451,5 +464,18 @@ mod tests {
         }
         let x = g.node_position(&[PAD, PAD, PAD]);
         assert!(x.norm() < 1e-15);
+    }
+
+    #[test]
+    fn advance_and_layer_follow_multi() {
+        let g = GridGeometry::<3>::new(Vector::<3>::zeros(), 0.1, [3, 4, 5]);
+        let mut idx = [0; 3];
+        for f in 0..g.node_count() {
+            assert_eq!(idx, g.multi(f), "node {f}");
+            for d in 0..3 {
+                assert_eq!(g.layer(f, d), idx[d], "node {f}, axis {d}");
+            }
+            g.advance(&mut idx);
+        }
     }
 }

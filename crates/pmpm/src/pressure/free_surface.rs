@@ -441,31 +441,21 @@ pub fn level_set<const D: usize>(
     let corners = 1usize << D;
     let seen = |node: &[usize; D]| view.is_none_or(|(axis, layers)| layers.contains(&node[*axis]));
     pages::fit(phi, geo.node_count());
-    phi.par_iter_mut().enumerate().for_each(|(i, phi)| {
-        let node = geo.multi(i);
-        if !seen(&node) {
-            pages::store(phi, 0.0);
-            return;
+    // a line of nodes along axis 0 at a time: a line whose cells hold no fluid (the air, most
+    // of a tank) is h throughout, found from its cells' lines without a node's corners
+    let line = geo.nodes[0];
+    phi.par_chunks_mut(line).enumerate().for_each(|(l, row)| {
+        let mut node = geo.multi(l * line);
+        let dry = solid.is_none() && dry_line(geo, fraction, &node, open);
+        for (k, phi) in row.iter_mut().enumerate() {
+            node[0] = k;
+            let value = match (seen(&node), dry) {
+                (false, _) => 0.0,
+                (true, true) => geo.h,
+                (true, false) => level_at(geo, (fraction, solid), open, &node),
+            };
+            pages::store(phi, value);
         }
-        let (mut f, mut room) = (0.0, 0.0);
-        for corner in 0..corners {
-            match mirrored_cell(geo, &node, corner, open) {
-                Some(c) => {
-                    // the part of the cell a rigid body leaves open, and the fluid in it
-                    let open_part = 1.0 - solid.map_or(0.0, |s| s[c].clamp(0.0, 1.0));
-                    f += fraction[c].clamp(0.0, open_part);
-                    room += open_part;
-                }
-                None => room += 1.0,
-            }
-        }
-        // inside a body the node is no part of the fluid's domain (classify_level_set
-        // buries it); read it as inside so that it puts no surface at the body's face
-        let f = if room > 1e-9 { f / room } else { 1.0 };
-        let p = 1.0 - 2.0 * f;
-        // a node on the surface to round-off is on it, so that a column at rest whose top
-        // lies on a node row holds p = 0 there exactly
-        pages::store(phi, geo.h * if p.abs() < ON_SURFACE { 0.0 } else { p });
     });
     let Some(solid) = solid else {
         return;
@@ -516,6 +506,92 @@ pub fn level_set<const D: usize>(
     });
 }
 
+/// The level set at `node` from the fluid's share of the open part of its `2^D` cells
+/// ([`level_set`]).
+#[inline]
+fn level_at<const D: usize>(
+    geo: &GridGeometry<D>,
+    (fraction, solid): (&[f64], Option<&[f64]>),
+    open: &[bool],
+    node: &[usize; D],
+) -> f64 {
+    let (mut f, mut room) = (0.0, 0.0);
+    for corner in 0..1usize << D {
+        match mirrored_cell(geo, node, corner, open) {
+            Some(c) => {
+                // the part of the cell a rigid body leaves open, and the fluid in it
+                let open_part = 1.0 - solid.map_or(0.0, |s| s[c].clamp(0.0, 1.0));
+                f += fraction[c].clamp(0.0, open_part);
+                room += open_part;
+            }
+            None => room += 1.0,
+        }
+    }
+    // inside a body the node is no part of the fluid's domain (classify_level_set
+    // buries it); read it as inside so that it puts no surface at the body's face
+    let f = if room > 1e-9 { f / room } else { 1.0 };
+    let p = 1.0 - 2.0 * f;
+    // a node on the surface to round-off is on it, so that a column at rest whose top
+    // lies on a node row holds p = 0 there exactly
+    geo.h * if p.abs() < ON_SURFACE { 0.0 } else { p }
+}
+
+/// Whether no cell that a node of the line along axis 0 through `node` reads
+/// ([`mirrored_cell`]) holds fluid: those cells lie on at most `2^(D-1)` lines of cells along
+/// axis 0 (the reflections and wraps along axis 0 stay on a line), each read whole. Then
+/// [`level_at`] is h at every node of the line (without rigid bodies, whose open part it
+/// weighs).
+fn dry_line<const D: usize>(
+    geo: &GridGeometry<D>,
+    fraction: &[f64],
+    node: &[usize; D],
+    open: &[bool],
+) -> bool {
+    let line = geo.nodes[0];
+    (0..1usize << (D - 1)).all(|bits| {
+        let mut start = 0;
+        for d in 1..D {
+            let c = node[d] as isize + ((bits >> (d - 1)) & 1) as isize - 1 - PAD as isize;
+            match mirrored_index(geo, d, c, open) {
+                Some(c) => start += (c as usize + PAD) * geo.strides[d],
+                // past an open face: no cell, no fluid
+                None => return true,
+            }
+        }
+        fraction[start..start + line].iter().all(|&f| f <= 0.0)
+    })
+}
+
+/// Cell `c` along axis `d` (counted from the grid's first cell, not the padding), wrapped
+/// across a periodic axis and reflected back across a closed wall as often as it takes; None
+/// beyond an open face ([`mirrored_cell`]).
+#[inline]
+fn mirrored_index<const D: usize>(
+    geo: &GridGeometry<D>,
+    d: usize,
+    mut c: isize,
+    open: &[bool],
+) -> Option<isize> {
+    let n = geo.cells[d] as isize;
+    if geo.periodic[d] {
+        c = c.rem_euclid(n);
+    }
+    while c < 0 || c >= n {
+        if c < 0 {
+            if open[2 * d] {
+                return None;
+            }
+            c = -1 - c;
+        } else {
+            if open[2 * d + 1] {
+                return None;
+            }
+            c = 2 * n - 1 - c;
+        }
+    }
+    Some(c)
+}
+
 /// The cell `node - 1 + e` around `node` (e the bits of `corner`), reflected back into the
 /// grid across a closed wall (a wall is a plane of symmetry of the fluid's shape: a surface
 /// meeting it at a node reads as meeting it there), wrapped across a periodic one; None beyond
@@ -529,25 +605,9 @@ fn mirrored_cell<const D: usize>(
 ) -> Option<usize> {
     let mut cell = [0usize; D];
     for d in 0..D {
-        let (lo, n) = (PAD as isize, geo.cells[d] as isize);
-        let mut c = (node[d] + ((corner >> d) & 1)) as isize - 1 - lo;
-        if geo.periodic[d] {
-            c = c.rem_euclid(n);
-        }
-        while c < 0 || c >= n {
-            if c < 0 {
-                if open[2 * d] {
-                    return None;
-                }
-                c = -1 - c;
-            } else {
-                if open[2 * d + 1] {
-                    return None;
-                }
-                c = 2 * n - 1 - c;
-            }
-        }
-        cell[d] = (c + lo) as usize;
+        let lo = PAD as isize;
+        let c = (node[d] + ((corner >> d) & 1)) as isize - 1 - lo;
+        cell[d] = (mirrored_index(geo, d, c, open)? + lo) as usize;
     }
     Some(geo.flat(&cell))
 }
@@ -952,10 +1012,9 @@ pub fn close_bubbles<const D: usize>(
     } = scratch;
     pages::fit(seen, fraction.len());
     pages::reset(seen);
-    // the face neighbour of cell `c` along axis `d` (side 0 below, 1 above): Ok(cell), or
-    // Err(whether that face is open) past the grid's edge
-    let neighbour = |c: usize, d: usize, side: usize| -> Result<usize, bool> {
-        let mut idx = geo.multi(c);
+    // the face neighbour of cell `c` (multi-index `idx`) along axis `d` (side 0 below, 1
+    // above): Ok(cell), or Err(whether that face is open) past the grid's edge
+    let neighbour_at = |mut idx: [usize; D], d: usize, side: usize| -> Result<usize, bool> {
         let mut n = idx[d] as isize + if side == 0 { -1 } else { 1 };
         if geo.periodic[d] {
             n = PAD as isize + (n - PAD as isize).rem_euclid(geo.cells[d] as isize);
@@ -966,15 +1025,21 @@ pub fn close_bubbles<const D: usize>(
         idx[d] = n as usize;
         Ok(geo.flat(&idx))
     };
+    let neighbour = |c: usize, d: usize, side: usize| neighbour_at(geo.multi(c), d, side);
     let low = |c: usize| fraction[c] <= tolerance;
     let inside = |idx: &[usize; D]| (0..D).all(|d| idx[d] >= PAD && idx[d] < PAD + geo.cells[d]);
-    let beside_fluid =
-        |c: usize| (0..D).any(|d| (0..2).any(|side| neighbour(c, d, side).is_ok_and(|f| !low(f))));
+    let beside_fluid = |idx: [usize; D]| {
+        (0..D).any(|d| (0..2).any(|side| neighbour_at(idx, d, side).is_ok_and(|f| !low(f))))
+    };
+    // (the cells in flat order, their multi-indices kept without a division a cell)
+    let mut next = [0; D];
     for start in 0..fraction.len() {
-        if seen[start] != UNSEEN || !low(start) || !inside(&geo.multi(start)) {
+        let idx = next;
+        geo.advance(&mut next);
+        if seen[start] != UNSEEN || !low(start) || !inside(&idx) {
             continue;
         }
-        if !beside_fluid(start) {
+        if !beside_fluid(idx) {
             continue;
         }
         // flood fill the low cells connected to `start` through faces
@@ -1050,8 +1115,10 @@ pub fn close_cracks<const D: usize>(
         fraction[geo.flat(&m)] > tolerance
     };
     cracks.clear();
+    let mut next = [0; D];
     for (c, &f) in fraction.iter().enumerate() {
-        let idx = geo.multi(c);
+        let idx = next;
+        geo.advance(&mut next);
         if f > tolerance || !inside(&idx) {
             continue;
         }
@@ -1121,6 +1188,46 @@ mod tests {
         }
         assert_eq!(kind_at(&k, 4, 0), NodeKind::Empty);
         assert_eq!(kind_at(&k, 0, 5), NodeKind::Empty);
+    }
+
+    /// The air's lines of nodes, set to h whole ([`dry_line`]), hold what each node's own
+    /// corners give ([`level_at`]), next to open faces, closed walls and across a periodic
+    /// axis alike: a few cells of fluid scattered in a 3D box, the whole box compared.
+    #[test]
+    fn the_level_set_of_dry_lines_is_each_nodes() {
+        let geo = GridGeometry::<3>::new(Vector::<3>::zeros(), 0.5, [7, 5, 6])
+            .with_periodic([false, true, false]);
+        let mut fraction = vec![0.0; geo.node_count()];
+        let cells = [
+            [0, 0, 0],
+            [6, 4, 5],
+            [3, 2, 2],
+            [2, 0, 5],
+            [0, 4, 3],
+            [5, 2, 0],
+        ];
+        for (k, c) in cells.iter().enumerate() {
+            let idx = [c[0] + PAD, c[1] + PAD, c[2] + PAD];
+            fraction[geo.flat(&idx)] = 0.3 + 0.1 * k as f64;
+        }
+        for open in [[false; 6], [true, false, false, false, false, true]] {
+            let mut phi = Vec::new();
+            level_set(
+                &geo,
+                (&fraction, None),
+                &open,
+                None,
+                &mut phi,
+                &mut Vec::new(),
+            );
+            for i in 0..geo.node_count() {
+                let node = geo.multi(i);
+                let own = level_at(&geo, (&fraction, None), &open, &node);
+                assert_eq!(phi[i], own, "node {node:?}, open faces {open:?}");
+            }
+            let h_nodes = phi.iter().filter(|&&p| p == geo.h).count();
+            assert!(h_nodes > 0 && h_nodes < geo.node_count());
+        }
     }
 
     /// The level set of a column 3 cells wide and 4 high in the lower-left corner of a closed

@@ -1459,9 +1459,12 @@ impl<const D: usize> GaussPoints<D> {
             let last = assemble::cell_range(shape, layers.end.saturating_sub(1), n).1;
             (r.axis, first..=last)
         });
+        // (the cells in flat order, their multi-indices kept without a division a cell)
+        let mut next = [0; D];
         for (c, &phi) in fraction.iter().enumerate() {
             let w = phi.min(1.0);
-            let idx = geo.multi(c);
+            let idx = next;
+            geo.advance(&mut next);
             if (0..D).any(|d| idx[d] < PAD || idx[d] >= PAD + geo.cells[d]) {
                 continue;
             }
