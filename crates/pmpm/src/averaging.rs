@@ -292,12 +292,17 @@ impl<const D: usize> NodalAveraging<D> {
         let bands = &self.bands;
         let periodic = geo.has_periodic();
         let later = periodic || self.comm.is_distributed();
-        (self.weight.par_iter_mut(), self.average.par_iter_mut())
+        // (outside the bands' reach both are zero: `divide` gives 0 where no weight)
+        let reach = crate::transfer::reach(bands);
+        let first = reach.start;
+        let weights = crate::transfer::outside_zeroed(&mut self.weight, reach.clone());
+        let averages = crate::transfer::outside_zeroed(&mut self.average, reach);
+        (weights.par_iter_mut(), averages.par_iter_mut())
             .into_par_iter()
             .enumerate()
-            .for_each(|(i, (w, a))| {
+            .for_each(|(k, (w, a))| {
                 let (mut weight, mut sum) = (0.0, 0.0);
-                for b in bands.iter().filter_map(|b| b.at(i)) {
+                for b in bands.iter().filter_map(|b| b.at(first + k)) {
                     weight += b[0];
                     sum += b[1];
                 }

@@ -55,10 +55,27 @@ pub fn copy<T: NoUninit + Zeroable + Send + Sync>(dst: &mut Vec<T>, src: &[T]) {
         .for_each(|(d, &s)| store(d, s));
 }
 
-/// Sets every value of `v` to zero, writing only the values that are not zero already.
+/// Sets every value of `v` to zero, writing only the values that are not zero already. A
+/// run of values is first read as bytes, which the compiler vectorises: a run of zeros (the
+/// air, read from the kernel's zero page) costs a fraction of a per-value test.
 pub fn reset<T: NoUninit + Zeroable + Send + Sync>(v: &mut [T]) {
     use rayon::prelude::*;
-    v.par_iter_mut().for_each(|x| store(x, T::zeroed()));
+    v.par_chunks_mut(RUN).for_each(|run| {
+        if !zero_bytes(bytemuck::cast_slice::<T, u8>(run)) {
+            run.iter_mut().for_each(|x| store(x, T::zeroed()));
+        }
+    });
+}
+
+/// The values [`reset`] reads at a time: a page's worth of `f64`.
+const RUN: usize = 512;
+
+/// Whether every byte is zero: the words or-ed together without an early exit, a loop the
+/// compiler turns into vector instructions.
+fn zero_bytes(bytes: &[u8]) -> bool {
+    let (head, words, tail) = bytemuck::pod_align_to::<u8, u64>(bytes);
+    let loose = head.iter().chain(tail).fold(0u8, |a, &b| a | b);
+    loose == 0 && words.iter().fold(0u64, |a, &w| a | w) == 0
 }
 
 /// Fixes glibc's mmap threshold at its default (128 KiB), once: large blocks then always come

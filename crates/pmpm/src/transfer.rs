@@ -183,11 +183,40 @@ impl<T> Band<T> {
         (k < self.len).then(|| &self.sums[k])
     }
 
+    /// The nodes the band holds.
+    #[inline]
+    fn nodes(&self) -> std::ops::Range<usize> {
+        self.start..self.start + self.len
+    }
+
     /// The first node and the sums of the nodes the band holds (node i at `i - start`).
     #[inline]
     pub(crate) fn sums_mut(&mut self) -> (usize, &mut [T]) {
         (self.start, &mut self.sums[..self.len])
     }
+}
+
+/// The smallest run of nodes that holds every band's nodes (empty where no band holds any):
+/// outside it every sum of the bands is zero.
+pub(crate) fn reach<T>(bands: &[Band<T>]) -> std::ops::Range<usize> {
+    let held = bands.iter().filter(|b| b.len > 0).map(Band::nodes);
+    let start = held.clone().map(|r| r.start).min().unwrap_or(0);
+    let end = held.map(|r| r.end).max().unwrap_or(0);
+    start..end.max(start)
+}
+
+/// `out` zeroed outside the run `reach` ([`crate::pages::reset`], which reads a run of zeros
+/// a page at a time), and the run itself, to be written node by node: a sum of the bands
+/// visits the nodes the particles reach, not the box.
+pub(crate) fn outside_zeroed<T>(out: &mut [T], reach: std::ops::Range<usize>) -> &mut [T]
+where
+    T: bytemuck::NoUninit + bytemuck::Zeroable + Send + Sync,
+{
+    let (below, rest) = out.split_at_mut(reach.start);
+    let (within, above) = rest.split_at_mut(reach.len());
+    crate::pages::reset(below);
+    crate::pages::reset(above);
+    within
 }
 
 /// sum_i N_i(x) node_i: a node field at a particle at `x` (half-width `lp`). Where a caller
@@ -316,9 +345,12 @@ pub(crate) fn scatter_weighted<const D: usize, T, V>(
     });
     debug_assert_eq!(out.len(), geo.node_count());
     let bands = &*bands;
-    out.par_iter_mut().enumerate().for_each(|(i, o)| {
+    let reach = reach(bands);
+    let first = reach.start;
+    let within = outside_zeroed(out, reach);
+    within.par_iter_mut().enumerate().for_each(|(k, o)| {
         let mut sum = zero;
-        for b in bands.iter().filter_map(|b| b.at(i)) {
+        for b in bands.iter().filter_map(|b| b.at(first + k)) {
             sum += *b;
         }
         store(o, sum);
