@@ -56,7 +56,7 @@ pub fn copy<T: NoUninit + Zeroable + Send + Sync>(dst: &mut Vec<T>, src: &[T]) {
 }
 
 /// Sets every value of `v` to zero, writing only the values that are not zero already. A
-/// run of values is first tested whole ([`zero_bytes`], a vectorised loop): a run of zeros
+/// run of values is first tested whole (its words or-ed, a vectorised loop): a run of zeros
 /// (the air, read from the kernel's zero page) costs a fraction of a per-value test.
 pub fn reset<T: NoUninit + Zeroable + Send + Sync>(v: &mut [T]) {
     use rayon::prelude::*;
