@@ -510,7 +510,8 @@ pub fn read<const D: usize>(
         Some(p) if ranks > 1 => {
             let geo = &sim.grid.geo;
             let s = whole_pressure(path, p, s, geo, decomposition.as_ref())?;
-            let (s, cut) = share_of_pieces(path, p, s, geo, (rank, ranks, sim.window()))?;
+            let (s, cut) =
+                share_of_pieces(path, p, s, geo, (rank, ranks, (sim.window(), sim.reach())))?;
             let n = Some(s.particles.id.len());
             (s, true, n, cut)
         }
@@ -633,7 +634,7 @@ fn share_of_pieces<const D: usize>(
     pieces: &Pieces,
     first: State<D>,
     geo: &crate::grid::GridGeometry<D>,
-    (rank, ranks, window): (usize, usize, usize),
+    (rank, ranks, sight): (usize, usize, (usize, usize)),
 ) -> Result<(State<D>, Option<crate::slabs::Decomposition>), Error> {
     let each = |r: usize, f: &mut dyn FnMut(&FlatParticles<D>)| -> Result<(), Error> {
         if r == 0 {
@@ -653,7 +654,7 @@ fn share_of_pieces<const D: usize>(
             }
         })?;
     }
-    let plan = crate::slabs::Decomposition::plan(geo, &counts, ranks, window);
+    let plan = crate::slabs::Decomposition::plan(geo, &counts, ranks, sight);
     let total: u64 = pieces.counts.iter().sum();
     let share = crate::comm::share(total as usize, rank, ranks);
     let mut mine = Particles::<D>::default();

@@ -80,6 +80,15 @@ impl<const D: usize> Stepper<D> {
         }
     }
 
+    /// The layers of the window whose stages a rank runs ([`crate::slabs::projection_reach`]):
+    /// the projection's and the explicit packing's, 0 for the explicit scheme without packing.
+    pub fn reach(&self) -> usize {
+        match self {
+            Stepper::Explicit(packing) => packing.as_ref().map_or(0, |p| p.reach()),
+            Stepper::Projection(p) => p.reach(),
+        }
+    }
+
     /// The cell layers past its slab whose particles a rank is lent as ghosts
     /// ([`crate::slabs::GHOST_LAYERS`]): the projection's, the explicit packing's (its points
     /// are the cells' Gauss points), 0 for the explicit scheme without packing.
@@ -103,7 +112,7 @@ impl<const D: usize> Stepper<D> {
 
     /// Makes the projection's or the packing's stages a rank's, the grid cut at `cuts` along
     /// `axis` ([`Projection::spread_over`]); `None`: one process's.
-    fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
+    fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, crate::slabs::Decomposition)>) {
         match self {
             Stepper::Projection(p) => p.spread_over(ranks),
             Stepper::Explicit(Some(p)) => p.spread_over(ranks),
@@ -447,7 +456,7 @@ impl<const D: usize> Simulation<D> {
         let rank = world.rank();
         self.boundary.rigid.owned_layers = Some((d.axis, d.cuts[rank]..d.cuts[rank + 1]));
         // (the stages' comm is the slabs': its sums onto the nodes copy the window's layers)
-        let ranks = (d.window > 0).then(|| (sliced.clone(), d.axis, d.cuts.clone()));
+        let ranks = (d.window > 0).then(|| (sliced.clone(), d.clone()));
         self.stepper.spread_over(ranks);
         self.decomposition = Some(d);
         match &mut self.slabs {
@@ -550,6 +559,12 @@ impl<const D: usize> Simulation<D> {
     /// 0 for the explicit scheme without packing.
     pub fn window(&self) -> usize {
         self.stepper.window()
+    }
+
+    /// The layers of its window whose stages a rank of this run runs
+    /// ([`crate::slabs::projection_reach`]).
+    pub fn reach(&self) -> usize {
+        self.stepper.reach()
     }
 
     /// The first setting that a run over several ranks does not

@@ -26,7 +26,7 @@
 use crate::comm::Comm;
 use crate::grid::GridGeometry;
 use crate::particles::Particles;
-use crate::shape::PAD;
+use crate::shape::{ShapeFunction, PAD};
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex};
 
@@ -55,20 +55,25 @@ pub struct Decomposition {
     /// it ([`Migration::lend_ghosts`], [`Sliced`]), and every slab is at least this wide.
     #[serde(default)]
     pub window: usize,
+    /// The layers of the window the stages after the bubble closing read
+    /// ([`projection_reach`]); a checkpoint written before the reach followed the shape
+    /// function reads back the widest ([`WIDEST_REACH`]).
+    #[serde(default = "widest_reach")]
+    pub reach: usize,
 }
 
 /// The cell layers past its slab that a rank of the projection sees ([`Decomposition::window`]):
-/// the farther of the bubble closing's reach and [`PROJECTION_REACH`], the stages' that read
+/// the farther of the bubble closing's reach and [`projection_reach`], the stages' that read
 /// the free surface (the level set, the Gauss points of the cells next to an unknown, the
 /// assembly, the corrector). A gap of up to `bubble_cells` cells that holds one of the rank's
 /// own cells spans at most as many layers, so it lies in the window; one that runs out of the
 /// window is larger, and stays open, as it does on one process. The window's own cells take
 /// their closing from their owners (`free_surface::Surface::spread_over`), so the window need
-/// not also hold a gap past each of them (it was `bubble_cells + PROJECTION_REACH` before).
+/// not also hold a gap past each of them.
 /// Only the cells' raw volume fractions come onto the whole window; every other sum stops at
 /// the stages' reach ([`Decomposition::sums_window`]).
-pub fn window_of(bubble_cells: usize) -> usize {
-    bubble_cells.max(PROJECTION_REACH)
+pub fn window_of(bubble_cells: usize, shape: ShapeFunction) -> usize {
+    bubble_cells.max(projection_reach(shape))
 }
 
 /// The cell layers past its slab whose particles a rank is lent as ghosts where the stages
@@ -84,12 +89,25 @@ pub const GHOST_LAYERS: usize = 2;
 
 /// The cell layers the projection's stages after the bubble closing read past a rank's slab
 /// to assemble its own rows (the neighbours' rows the solver reads come from them:
-/// `pressure::ranks::Ranks::swap_beside`): the columns' level set and kinds (three layers
-/// with the cubic B-spline), the cells whose Gauss points reach an own node (two), the
-/// velocities and level set those points read, and a layer to spare. With the cubic
-/// B-spline, 5 is the least at which a dam break over three ranks agrees with one process to
-/// round-off, 4 is not (`distributed::tests`).
-pub const PROJECTION_REACH: usize = 6;
+/// `pressure::ranks::Ranks::swap_beside`), for `shape`: the columns' level set and kinds, the
+/// cells whose Gauss points reach an own node, the velocities and level set those points
+/// read, each as far as a stencil reaches, and a layer to spare. A stencil of w nodes a
+/// direction needs w + 1 layers: with linear shapes (w = 2) 3 is the least at which a dam
+/// break over three ranks agrees with one process to round-off and 2 is not, with the cubic
+/// B-spline (w = 4) 5 is and 4 is not (`distributed::tests`); the spare layer makes w + 2.
+/// Every layer of the window past this reach costs each rank a layer of every stage's node
+/// work and memory, twice on a slab with two neighbours.
+pub fn projection_reach(shape: ShapeFunction) -> usize {
+    shape.width() + 2
+}
+
+/// The widest [`projection_reach`], the cubic B-spline's: the reach of a checkpoint's cut
+/// written before the reach followed the shape function.
+pub const WIDEST_REACH: usize = 6;
+
+fn widest_reach() -> usize {
+    WIDEST_REACH
+}
 
 impl Decomposition {
     /// How many ranks it is cut for.
@@ -135,13 +153,18 @@ impl Decomposition {
         geo: &GridGeometry<D>,
         counts: &Counts,
         ranks: usize,
-        window: usize,
+        (window, reach): (usize, usize),
     ) -> Option<Self> {
         let cuts: Vec<(f64, Self)> = (0..D)
             .filter(|&a| !geo.periodic[a])
             .filter_map(|axis| {
                 let cuts = cut(counts.axis(axis), ranks, least_width(window))?;
-                let d = Self { axis, cuts, window };
+                let d = Self {
+                    axis,
+                    cuts,
+                    window,
+                    reach,
+                };
                 Some((d.largest_share(counts), d))
             })
             .collect();
@@ -175,10 +198,12 @@ impl Decomposition {
             axis: self.axis,
             cuts,
             window: self.window,
+            reach: self.reach,
         });
+        let sight = (self.window, self.reach);
         along
             .filter(better)
-            .or_else(|| Self::plan(geo, counts, self.ranks(), self.window).filter(better))
+            .or_else(|| Self::plan(geo, counts, self.ranks(), sight).filter(better))
     }
 
     /// The most particles one slab holds.
@@ -210,11 +235,11 @@ impl Decomposition {
     }
 
     /// The layers of the window onto which every sum onto the nodes is copied
-    /// ([`Sliced`]): the stages' reach, [`PROJECTION_REACH`], where the window is wider for
+    /// ([`Sliced`]): the stages' reach ([`Decomposition::reach`]), where the window is wider for
     /// the bubble closing, which alone reads that far (the cells' raw volume fractions,
     /// [`Comm::add_nodes_wide`]).
     pub fn sums_window(&self) -> usize {
-        self.window.min(PROJECTION_REACH)
+        self.window.min(self.reach)
     }
 
     /// The nodes (flat) of a window `w` layers deep that rank `rank` sends its lower and its
@@ -731,6 +756,7 @@ mod tests {
             axis: 0,
             cuts: vec![0, 5, 9, 14],
             window: 0,
+            reach: 0,
         };
         let owners: Vec<usize> = (0..14).map(|l| d.owner(l)).collect();
         assert_eq!(owners, [0, 0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 2]);
@@ -744,7 +770,7 @@ mod tests {
             .collect();
         let mut counts = Counts::default();
         counts.of(&*crate::comm::serial(), &geo, &x);
-        let d = Decomposition::plan(&geo, &counts, 4, 0).unwrap();
+        let d = Decomposition::plan(&geo, &counts, 4, (0, 0)).unwrap();
         assert_eq!(d.axis, 0);
         assert_eq!(d.largest_share(&counts), 100.0);
         assert!(d.rebalanced(&geo, &counts).is_none());
@@ -762,7 +788,12 @@ mod tests {
             .map(|k| Vector::<2>::new(0.05 + 0.1 * (k % 20) as f64, 0.05 + 0.1 * (k / 20) as f64))
             .collect();
         counts.of(&*crate::comm::serial(), &square, &x);
-        assert_eq!(Decomposition::plan(&square, &counts, 4, 0).unwrap().axis, 1);
+        assert_eq!(
+            Decomposition::plan(&square, &counts, 4, (0, 0))
+                .unwrap()
+                .axis,
+            1
+        );
     }
 
     #[test]
@@ -826,6 +857,7 @@ mod tests {
             axis: 0,
             cuts: vec![0, 5, 9, 14],
             window: 0,
+            reach: 0,
         };
         (geo, d)
     }

@@ -120,7 +120,7 @@ impl<const D: usize> Packing<D> {
             correction: PositionCorrection::new(pd, shape).packing_only(),
             solver: super::linear_solver(pd, cells),
             shared,
-            window: crate::slabs::window_of(pd.bubble_cells),
+            window: crate::slabs::window_of(pd.bubble_cells, shape),
         }
     }
 
@@ -128,6 +128,12 @@ impl<const D: usize> Packing<D> {
     /// ([`crate::slabs::Decomposition::window`]).
     pub fn window(&self) -> usize {
         self.window
+    }
+
+    /// The layers of its window whose stages a rank of this packing runs
+    /// ([`crate::slabs::projection_reach`]).
+    pub fn reach(&self) -> usize {
+        crate::slabs::projection_reach(self.correction.shape)
     }
 
     /// The deck's key that keeps this packing from running over ranks, as
@@ -138,7 +144,7 @@ impl<const D: usize> Packing<D> {
 
     /// Makes this the packing of a rank of `comm`'s, the grid cut at `cuts` along `axis`, as
     /// [`super::Projection::spread_over`].
-    pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
+    pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, crate::slabs::Decomposition)>) {
         self.shared.spread_over(ranks);
     }
 

@@ -78,6 +78,8 @@ pub struct Owners {
     pub axis: usize,
     /// This rank's own cell layers along `axis`.
     pub layers: std::ops::Range<usize>,
+    /// The layers past them the stages read ([`crate::slabs::Decomposition::reach`]).
+    pub reach: usize,
 }
 
 impl std::fmt::Debug for Owners {
@@ -227,10 +229,10 @@ impl Surface {
             // a rigid body is neither water nor air: the level set weighs only the part of
             // each cell it leaves open
             let solid = (!self.solid.is_empty()).then_some(&self.solid[..]);
-            // over ranks the rank's own layers and its window, with a layer to spare: the
-            // stages read the level set no further than PROJECTION_REACH past the slab
+            // over ranks the rank's own layers and as far as the stages read the level set
+            // past them, with a layer to spare
             let view = self.owners.as_ref().map(|o| {
-                let w = crate::slabs::window_of(self.bubble_cells) + 1;
+                let w = o.reach + 1;
                 (o.axis, o.layers.start.saturating_sub(w)..o.layers.end + w)
             });
             level_set(
@@ -1467,6 +1469,7 @@ mod tests {
             axis: 1,
             cuts: vec![0, 20 + PAD, geo.nodes[1]],
             window: w,
+            reach: crate::slabs::WIDEST_REACH,
         };
         let out = threads::run(2, |world| {
             let r = world.rank();
@@ -1498,6 +1501,7 @@ mod tests {
                 comm,
                 axis: 1,
                 layers: lo..hi,
+                reach: d.reach,
             };
             take_owners(&geo, &owners, &mut closed, false);
             // the closed fractions come from their owners as deep as the stages read

@@ -169,13 +169,14 @@ pub struct Shared<const D: usize> {
 
 impl<const D: usize> Shared<D> {
     /// Makes these the stages of a rank of `comm`'s (the slabs' comm,
-    /// [`crate::slabs::Sliced`]), the grid cut at `cuts` along `axis`; `None`: one process's.
-    pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
-        let ranks = ranks.map(|(comm, axis, cuts)| ranks::Ranks::new(comm, axis, cuts));
+    /// [`crate::slabs::Sliced`]), the grid cut as `d` cuts it; `None`: one process's.
+    pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, crate::slabs::Decomposition)>) {
+        let ranks = ranks.map(|(comm, d)| ranks::Ranks::new(comm, d.axis, d.cuts, d.reach));
         let owners = ranks.as_ref().map(|r| free_surface::Owners {
             comm: r.partition.comm.clone(),
             axis: r.axis,
             layers: r.layers(),
+            reach: r.reach(),
         });
         self.surface.spread_over(owners);
         self.ranks = ranks;
@@ -281,7 +282,7 @@ impl<const D: usize> Projection<D> {
                 volume_correction: pd.volume_correction,
                 traction_free,
                 mass_epsilon,
-                window: crate::slabs::window_of(pd.bubble_cells),
+                window: crate::slabs::window_of(pd.bubble_cells, shape),
             },
             solver,
             shared: Shared::new(pd, boundary),
@@ -474,6 +475,12 @@ impl<const D: usize> Projection<D> {
         self.settings.window
     }
 
+    /// The layers of its window whose nodes' sums a rank of this projection takes and whose
+    /// stages it runs ([`crate::slabs::projection_reach`]).
+    pub fn reach(&self) -> usize {
+        crate::slabs::projection_reach(self.settings.shape)
+    }
+
     /// The cell layers past its slab whose particles a rank is lent as ghosts: a layer or two
     /// ([`crate::slabs::GHOST_LAYERS`]) where the stages read the window's cells only through
     /// the owners' sums; the whole window where the particles are the quadrature's points or a
@@ -486,9 +493,9 @@ impl<const D: usize> Projection<D> {
         }
     }
 
-    /// Makes this the projection of a rank of `comm`'s, the grid cut at `cuts` along `axis`
-    /// ([`crate::slabs::Decomposition`]); `None` makes it one process's again.
-    pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, usize, Vec<usize>)>) {
+    /// Makes this the projection of a rank of `comm`'s, the grid cut as the
+    /// [`crate::slabs::Decomposition`] cuts it; `None` makes it one process's again.
+    pub fn spread_over(&mut self, ranks: Option<(Arc<dyn Comm>, crate::slabs::Decomposition)>) {
         self.shared.spread_over(ranks);
     }
 

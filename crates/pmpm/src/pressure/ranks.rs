@@ -59,7 +59,7 @@ pub fn keep_layers<const D: usize>(
 
 /// The solution `x` (this rank's rows and its neighbours' beside them, after
 /// [`Ranks::gather`]) on the nodes of its rows:
-/// over ranks only those within [`crate::slabs::PROJECTION_REACH`] layers of this rank's own,
+/// over ranks only those within [`Ranks::reach`] layers of this rank's own,
 /// as far as the stages read past the slab, and zero farther out ([`keep_layers`]), so that
 /// a rank writes its share of the fluid's nodes, not all of them.
 pub fn scatter_rows<const D: usize>(
@@ -72,7 +72,7 @@ pub fn scatter_rows<const D: usize>(
     let rows = match ranks {
         None => 0..unknowns.node_of_row.len(),
         Some(r) => {
-            let (own, reach) = (r.layers(), crate::slabs::PROJECTION_REACH);
+            let (own, reach) = (r.layers(), r.reach);
             let layers = own.start.saturating_sub(reach)..own.end + reach;
             keep_layers(geo, r.axis, &layers, nodes);
             r.rows_on(geo, unknowns, layers)
@@ -95,6 +95,8 @@ pub struct Ranks {
     pub partition: Partition,
     /// The axis the grid is cut along.
     pub axis: usize,
+    /// The layers past the slab the stages read ([`crate::slabs::projection_reach`]).
+    reach: usize,
     /// While ghosts are lent, how many of the particles are this rank's own: those after
     /// them are ghosts, which count in no sum that is added up over the ranks. `usize::MAX`
     /// while none are lent ([`Ranks::ghosts_gone`]): every particle is the rank's own, also
@@ -113,11 +115,13 @@ pub struct Ranks {
 
 impl Ranks {
     /// The projection of rank `comm.rank()` with the grid cut at `cuts` (padded layers along
-    /// `axis`, ranks + 1 bounds, as [`crate::slabs::Decomposition::cuts`]).
-    pub fn new(comm: Arc<dyn Comm>, axis: usize, cuts: Vec<usize>) -> Self {
+    /// `axis`, ranks + 1 bounds, as [`crate::slabs::Decomposition::cuts`]), its stages
+    /// reading `reach` layers past the slab ([`crate::slabs::Decomposition::reach`]).
+    pub fn new(comm: Arc<dyn Comm>, axis: usize, cuts: Vec<usize>, reach: usize) -> Self {
         Self {
             partition: Partition { comm, cuts },
             axis,
+            reach,
             own: usize::MAX,
             starts: Vec::new(),
             counts: Vec::new(),
@@ -128,6 +132,11 @@ impl Ranks {
 
     fn comm(&self) -> &dyn Comm {
         &*self.partition.comm
+    }
+
+    /// The layers past the slab the stages read ([`crate::slabs::Decomposition::reach`]).
+    pub fn reach(&self) -> usize {
+        self.reach
     }
 
     /// The node layers along the cut axis this rank owns.
@@ -290,7 +299,7 @@ impl Ranks {
         }
     }
 
-    /// The rows of `x` on the [`crate::slabs::PROJECTION_REACH`] node layers either side of
+    /// The rows of `x` on the [`Ranks::reach`] node layers either side of
     /// this rank's own, from the neighbours that solved them (each rank holds its own on
     /// entry): as far as [`scatter_rows`] reads. A swap with each neighbour, in pieces
     /// ([`crate::comm::pieces`]), where an all-gather would bring every row of the system to
@@ -305,8 +314,7 @@ impl Ranks {
         let mut buffers = self.swapped.lock().unwrap_or_else(|e| e.into_inner());
         let (out, back) = &mut *buffers;
         for (upper, peer) in crate::comm::neighbour_rounds(rank, size) {
-            let reach = crate::slabs::PROJECTION_REACH;
-            let (send, recv) = self.beside(geo, unknowns, (upper, peer), reach);
+            let (send, recv) = self.beside(geo, unknowns, (upper, peer), self.reach);
             for (s, r) in crate::comm::pieces(send.len(), recv.len(), 1) {
                 out.clear();
                 out.extend_from_slice(&x[send.start + s.start..send.start + s.end]);
@@ -370,7 +378,7 @@ impl Ranks {
                 - 1
         };
         // the ranks that will need node i: those whose new slab reaches it with its window
-        let reach = new.window.max(crate::slabs::PROJECTION_REACH);
+        let reach = new.window.max(new.reach);
         let needs = |i: usize| {
             let l = geo.layer(i, new.axis);
             let first = new.cuts.partition_point(|&c| c + reach <= l).clamp(1, size) - 1;
@@ -455,7 +463,7 @@ pub fn mean_density(mass: &[f64], volume: &[f64], ranks: Option<&Ranks>) -> f64 
 mod tests {
     use super::*;
     use crate::grid::Vector;
-    use crate::slabs::{Decomposition, PROJECTION_REACH};
+    use crate::slabs::Decomposition;
 
     /// Cut anew, along the same axis or another, each rank holds on the nodes of its new slab
     /// and window the values that the ranks whose old slabs hold them held there (what one
@@ -471,15 +479,17 @@ mod tests {
                 axis: 1,
                 cuts: vec![0, 8, 20, geo.nodes[1]],
                 window: 3,
+                reach: 6,
             },
             Decomposition {
                 axis: 0,
                 cuts: vec![0, 9, 18, geo.nodes[0]],
                 window: 8,
+                reach: 4,
             },
         ] {
             let out = crate::comm::threads::run(3, |comm| {
-                let r = Ranks::new(comm, 1, old_cuts.clone());
+                let r = Ranks::new(comm, 1, old_cuts.clone(), 6);
                 let mine = r.layers();
                 let mut values: Vec<f64> = (0..n)
                     .map(|i| match mine.contains(&geo.multi(i)[1]) {
@@ -490,7 +500,7 @@ mod tests {
                 r.hand_over(&geo, &new, &mut values);
                 values
             });
-            let reach = new.window.max(PROJECTION_REACH);
+            let reach = new.window.max(new.reach);
             for (rank, values) in out.iter().enumerate() {
                 let lo = new.cuts[rank].saturating_sub(reach);
                 let hi = new.cuts[rank + 1] + reach;
