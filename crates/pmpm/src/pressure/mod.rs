@@ -1042,11 +1042,14 @@ impl<const D: usize> Projection<D> {
             &self.previous
         };
         let write_pressure = after_solve;
+        // over ranks the rank's own particles: the corrector scatters only theirs, and the
+        // ghosts go back before any other stage reads a particle's pressure
+        let own = ranks::own_of(self.shared.ranks.as_ref(), ps.len());
         (
-            ps.x.par_iter(),
-            ps.half_width.par_iter(),
-            ps.pressure.par_iter_mut(),
-            self.work.pressure_gradient.par_iter_mut(),
+            ps.x[..own].par_iter(),
+            ps.half_width[..own].par_iter(),
+            ps.pressure[..own].par_iter_mut(),
+            self.work.pressure_gradient[..own].par_iter_mut(),
         )
             .into_par_iter()
             .for_each(|(x, &lp, pp, gp)| {
