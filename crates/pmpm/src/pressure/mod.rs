@@ -1104,6 +1104,13 @@ impl<const D: usize> Projection<D> {
     }
 }
 
+/// The mass and volume of the particles in cell `c` (flat, padded) of `bins`.
+fn cell_sums(bins: &CellBins, (mass, volume): (&[f64], &[f64]), c: usize) -> (f64, f64) {
+    bins.particles(c).iter().fold((0.0, 0.0), |(m, v), &p| {
+        (m + mass[p as usize], v + volume[p as usize])
+    })
+}
+
 /// The volume correction's source: the divergence at the quadrature points `div` aims at
 /// alpha (1 - J) / dt (`rate` = alpha / dt) instead of 0, with J the particle's, or, at cell
 /// points (`cells`), the volume-weighted J of the cell's particles.
@@ -1392,7 +1399,8 @@ impl<const D: usize> FluidDomain<'_, D> {
     }
 
     /// Whether no node line that a point in cell `idx` reaches holds an unknown (`wet` from
-    /// [`Self::wet_lines`]): then [`Self::touches_unknown`] is false.
+    /// [`Self::wet_lines`]): then [`Self::touches_unknown`] is false. It reads `idx` past
+    /// axis 0 only, so it holds for the cell's whole line along axis 0.
     fn lines_dry(
         &self,
         geo: &crate::grid::GridGeometry<D>,
@@ -1499,24 +1507,9 @@ impl<const D: usize> GaussPoints<D> {
         (domain, ranks): (Option<FluidDomain<'_, D>>, Option<&ranks::Ranks>),
     ) {
         use crate::shape::PAD;
-        let sums = |c: usize| {
-            bins.particles(c).iter().fold((0.0, 0.0), |(m, v), &p| {
-                (m + mass[p as usize], v + volume[p as usize])
-            })
-        };
+        let sums = |c: usize| cell_sums(bins, (mass, volume), c);
         if let Some(r) = ranks {
-            let [m, v] = &mut self.cell_sums;
-            pages::fit(m, geo.node_count());
-            pages::fit(v, geo.node_count());
-            (m.par_iter_mut(), v.par_iter_mut())
-                .into_par_iter()
-                .enumerate()
-                .for_each(|(c, (m, v))| {
-                    let (cm, cv) = sums(c);
-                    pages::store(m, cm);
-                    pages::store(v, cv);
-                });
-            r.take_owners(geo, &mut [m, v]);
+            self.sum_cells_over(geo, (bins, mass, volume), r);
         }
         self.sub_cells = false;
         self.x.clear();
@@ -1532,11 +1525,18 @@ impl<const D: usize> GaussPoints<D> {
             .as_ref()
             .is_some_and(|fd| fd.wet_lines(geo, &mut wet));
         // (the cells in flat order, their multi-indices kept without a division a cell)
-        let mut next = [0; D];
+        let (mut next, mut line_dry) = ([0; D], false);
         for (c, &phi) in fraction.iter().enumerate() {
             let w = phi.min(1.0);
             let idx = next;
             geo.advance(&mut next);
+            if idx[0] == 0 {
+                // a line of cells along axis 0 reaches the same lines of nodes
+                line_dry = lines
+                    && domain
+                        .as_ref()
+                        .is_some_and(|fd| fd.lines_dry(geo, &idx, &wet));
+            }
             if (0..D).any(|d| idx[d] < PAD || idx[d] >= PAD + geo.cells[d]) {
                 continue;
             }
@@ -1550,7 +1550,7 @@ impl<const D: usize> GaussPoints<D> {
             // couplings across the surface, and a solid's face is where the flux is imposed)
             let matrix_share = match &domain {
                 Some(fd) => {
-                    if (lines && fd.lines_dry(geo, &idx, &wet)) || !fd.touches_unknown(geo, &idx) {
+                    if line_dry || !fd.touches_unknown(geo, &idx) {
                         continue;
                     }
                     1.0 - fd.solid.map_or(0.0, |s| s[c].clamp(0.0, 1.0))
@@ -1613,6 +1613,28 @@ impl<const D: usize> GaussPoints<D> {
     /// box in still water whose face left 0.6 h of its cell open, short of a third midpoint,
     /// stirred the water). The fluid fills the open part in the share `fill`
     /// ([`FluidDomain::cut_cell_fill`]); `rho` is the cell's density.
+    /// Over ranks, each cell's particles' mass and volume into `cell_sums`, every cell's
+    /// taken from the rank that owns it ([`ranks::Ranks::take_owners`]).
+    fn sum_cells_over(
+        &mut self,
+        geo: &crate::grid::GridGeometry<D>,
+        (bins, mass, volume): (&CellBins, &[f64], &[f64]),
+        r: &ranks::Ranks,
+    ) {
+        let [m, v] = &mut self.cell_sums;
+        pages::fit(m, geo.node_count());
+        pages::fit(v, geo.node_count());
+        (m.par_iter_mut(), v.par_iter_mut())
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(c, (m, v))| {
+                let (cm, cv) = cell_sums(bins, (mass, volume), c);
+                pages::store(m, cm);
+                pages::store(v, cv);
+            });
+        r.take_owners(geo, &mut [m, v]);
+    }
+
     fn push_cut_cell(
         &mut self,
         geo: &crate::grid::GridGeometry<D>,
