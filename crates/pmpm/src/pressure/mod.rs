@@ -1607,12 +1607,6 @@ impl<const D: usize> GaussPoints<D> {
         self.bins.sort(geo, &self.x);
     }
 
-    /// The points of a cell (padded multi-index `idx`) a rigid body cuts: SUB^D sub-cells, each
-    /// cut to its open part, a point at the part's centroid weighing its volume (the open
-    /// part's volume is exact; the midpoints of the sub-cells in it had it to a sub-cell, and a
-    /// box in still water whose face left 0.6 h of its cell open, short of a third midpoint,
-    /// stirred the water). The fluid fills the open part in the share `fill`
-    /// ([`FluidDomain::cut_cell_fill`]); `rho` is the cell's density.
     /// Over ranks, each cell's particles' mass and volume into `cell_sums`, every cell's
     /// taken from the rank that owns it ([`ranks::Ranks::take_owners`]).
     fn sum_cells_over(
@@ -1635,6 +1629,12 @@ impl<const D: usize> GaussPoints<D> {
         r.take_owners(geo, &mut [m, v]);
     }
 
+    /// The points of a cell (padded multi-index `idx`) a rigid body cuts: SUB^D sub-cells, each
+    /// cut to its open part, a point at the part's centroid weighing its volume (the open
+    /// part's volume is exact; the midpoints of the sub-cells in it had it to a sub-cell, and a
+    /// box in still water whose face left 0.6 h of its cell open, short of a third midpoint,
+    /// stirred the water). The fluid fills the open part in the share `fill`
+    /// ([`FluidDomain::cut_cell_fill`]); `rho` is the cell's density.
     fn push_cut_cell(
         &mut self,
         geo: &crate::grid::GridGeometry<D>,
